@@ -1,0 +1,44 @@
+# The README's commands. `make run` and `make test` install what is missing first
+# (Debian packages, then a virtual environment with the project) and are quick when
+# everything is already there.
+
+VENV        := .venv
+PY          := $(VENV)/bin/python
+CASE        ?= cases/impacting_bar.yaml
+PYTEST_ARGS ?=
+APT_PACKAGES := python3-dolfinx-real python3-petsc4py-real python3-slepc4py-real python3-gmsh \
+                python3-meshio python3-scipy python3-matplotlib python3-yaml python3-pytest \
+                python3-venv python3-pip openmpi-bin
+
+.PHONY: setup system-packages run test test-all benchmark clean
+
+setup: system-packages $(VENV)/.installed
+
+system-packages:
+	@missing=$$(for p in $(APT_PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  echo "installing Debian packages:" $$missing; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -q && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -q $$missing; \
+	fi
+
+# The venv sees Debian's dolfinx/PETSc/SLEPc (--system-site-packages); pip adds only the project.
+$(VENV)/.installed: pyproject.toml
+	/usr/bin/python3 -m venv --system-site-packages $(VENV)
+	$(PY) -m pip install -q --no-build-isolation -e .
+	touch $@
+
+run: setup
+	$(VENV)/bin/fem-impact run $(CASE)
+
+test: setup
+	$(PY) -m pytest -m "not slow" $(PYTEST_ARGS)
+
+test-all: setup
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+benchmark: setup
+	$(PY) benchmarks/full_model.py
+
+clean:
+	rm -rf $(VENV) results .pytest_cache

@@ -1,0 +1,697 @@
+"""Case files: YAML loading, validation into dataclasses, --set overrides and the resolved dump."""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import operator
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from .expressions import Expression, ExpressionError, parse_expression
+
+SHAPES = ("bar",)
+METHODS = ("newmark", "modal")
+MASS_MATRICES = ("consistent", "lumped")
+CONTACT_TYPES = ("obstacle", "pair")
+COMPONENTS = ("x", "y", "z")
+SPACE = ("x", "y", "z")  # variables of initial fields
+TIME = ("t",)  # variables of loads
+_CSV_NAME = re.compile(r"[A-Za-z0-9_-]+")
+
+
+class CaseError(Exception):
+    """Bad input: names the file, the key (dotted path), the line where known, and what is wrong.
+
+    Parameters
+    ----------
+    file : str
+        The case file as shown to the user (or ``"--set"``).
+    key : str or None
+        Dotted key path, e.g. ``"contacts[0].normal"``.
+    line : int or None
+        1-based line in `file`.
+    message : str
+        What is wrong.
+    """
+
+    def __init__(self, file, key, line, message):
+        super().__init__(file, key, line, message)
+        self.file, self.key, self.line, self.message = str(file), key, line, message
+
+    def __str__(self):
+        where = f"{self.file}:{self.line}" if self.line else self.file
+        return f"{where}: {self.key}: {self.message}" if self.key else f"{where}: {self.message}"
+
+
+@dataclass
+class MeshSpec:
+    shape: str | None = None
+    file: Path | None = None
+    dim: int | None = None
+    length: float = 1.0
+    cells: int = 100
+    height: float | None = None
+    width: float | None = None
+
+
+@dataclass
+class Material:
+    E: float
+    rho: float
+    nu: float = 0.0
+    area: float = 1.0
+
+
+@dataclass
+class Damping:
+    alpha: float = 0.0
+    beta: float = 0.0
+
+
+@dataclass
+class BodyValue:
+    body: str | None
+    value: list[Expression]
+
+
+@dataclass
+class Initial:
+    displacement: list[BodyValue] = field(default_factory=list)
+    velocity: list[BodyValue] = field(default_factory=list)
+
+
+@dataclass
+class Support:
+    nodes: str
+    fix: list[int]
+
+
+@dataclass
+class Load:
+    nodes: str | None = None
+    body: str | None = None
+    force: list[Expression] | None = None
+    acceleration: list[Expression] | None = None
+
+
+@dataclass
+class Contact:
+    name: str
+    type: str
+    nodes: list[str]
+    normal: list[float]
+    gap: float | None = None
+    restitution: float = 0.0
+
+
+@dataclass(kw_only=True)  # keyword-only, so the required dt and t_end can follow method
+class Solver:
+    method: str = "newmark"
+    beta: float = 0.25
+    gamma: float = 0.5
+    dt: float
+    t_end: float
+    mass: str = "consistent"
+    modes: int | str | None = None
+    static_correction: bool = True
+    tolerance: float = 0.01
+
+
+@dataclass
+class Output:
+    every: int = 10
+    probes: dict[str, list[float]] = field(default_factory=dict)
+    vtk: bool = True
+
+
+@dataclass
+class Case:
+    """A validated case; `lines` maps key paths to 1-based lines of the case file.
+
+    `overrides` maps the key paths set with ``--set`` to the option text, so that
+    errors about them point to the command line instead of the file.
+    """
+
+    name: str
+    path: Path
+    mesh: MeshSpec
+    material: Material | None
+    materials: dict[str, Material] | None
+    damping: Damping
+    initial: Initial
+    supports: list[Support]
+    loads: list[Load]
+    contacts: list[Contact]
+    solver: Solver
+    output: Output
+    lines: dict[tuple, int] = field(default_factory=dict)
+    overrides: dict[tuple, str] = field(default_factory=dict)
+
+    def error(self, key_path, message) -> CaseError:
+        """Build a CaseError for `key_path` (e.g. ``("contacts", 0, "nodes")``) with its line."""
+        return _error(_display(self.path), self.lines, self.overrides, tuple(key_path), message)
+
+    def resolved(self) -> dict:
+        """Return the whole case as plain data with every default filled in.
+
+        Expressions appear as written; the mesh file path is absolute, so the dump reads
+        back the same from any folder.
+        """
+        mesh = dataclasses.asdict(self.mesh)
+        mesh["file"] = None if self.mesh.file is None else str(self.mesh.file)
+        data = {"name": self.name, "mesh": mesh}
+        if self.material is not None:
+            data["material"] = dataclasses.asdict(self.material)
+        else:
+            data["materials"] = {body: dataclasses.asdict(m) for body, m in self.materials.items()}
+        data["damping"] = dataclasses.asdict(self.damping)
+        data["initial"] = {"displacement": _body_values_data(self.initial.displacement),
+                           "velocity": _body_values_data(self.initial.velocity)}
+        data["supports"] = [{"nodes": s.nodes, "fix": [COMPONENTS[i] for i in s.fix]}
+                            for s in self.supports]
+        data["loads"] = [{key: _sources(value) if key in ("force", "acceleration") else value
+                          for key, value in vars(load).items() if value is not None}
+                         for load in self.loads]
+        data["contacts"] = [dict(dataclasses.asdict(c), nodes=c.nodes[0] if c.type == "obstacle"
+                                 else list(c.nodes)) for c in self.contacts]
+        data["solver"] = dataclasses.asdict(self.solver)
+        data["output"] = dataclasses.asdict(self.output)
+        return data
+
+    def write_resolved(self, path) -> Path:
+        """Write the resolved case as YAML to `path` (a folder gets ``case.resolved.yaml``)."""
+        path = Path(path)
+        if path.is_dir():
+            path = path / "case.resolved.yaml"
+        text = yaml.safe_dump(self.resolved(), sort_keys=False)
+        path.write_text(text, encoding="utf-8")
+        return path
+
+
+def _sources(expressions):
+    return [e.source for e in expressions]
+
+
+def _body_values_data(items):
+    """Initial field as plain data: the all-nodes list, or the per-body list of mappings."""
+    if len(items) == 1 and items[0].body is None:
+        return _sources(items[0].value)
+    return [{"body": item.body, "value": _sources(item.value)} for item in items]
+
+
+# --- YAML -------------------------------------------------------------------------------
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader with YAML 1.2 core-schema booleans, integers and floats (``70e9`` is a number)."""
+
+
+_TAG = "tag:yaml.org,2002:"
+# Copy the resolver table without the YAML 1.1 bool/int/float/timestamp rules so the global
+# SafeLoader is untouched and `010` is ten, `on` a string and `1e-3` a float.
+_Loader.yaml_implicit_resolvers = {
+    first: [(tag, regexp) for tag, regexp in resolvers
+            if tag not in (_TAG + "bool", _TAG + "int", _TAG + "float", _TAG + "timestamp")]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_Loader.add_implicit_resolver(_TAG + "bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
+                              list("tTfF"))
+_Loader.add_implicit_resolver(_TAG + "int", re.compile(r"^[-+]?[0-9]+$"), list("-+0123456789"))
+_Loader.add_implicit_resolver(
+    _TAG + "float",
+    re.compile(r"""^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?
+                   |[-+]?\.?(?:inf|Inf|INF)|\.?(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789.iInN"))
+_Loader.add_constructor(_TAG + "int", lambda loader, node: int(loader.construct_scalar(node)))
+
+
+def _parse_yaml(text, file):
+    """Return (node tree, data) of a YAML document; syntax errors become CaseError with the line."""
+    loader = _Loader(text)
+    try:
+        node = loader.get_single_node()
+        lines = {}
+        if node is not None:
+            _record_lines(node, (), lines, set(), file)  # before construction flattens merge keys
+        return loader.construct_document(node) if node is not None else None, lines
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        problem = " ".join(str(exc.problem or exc.context).split())
+        raise CaseError(file, None, mark.line + 1 if mark else None,
+                        f"invalid YAML: {problem}") from None
+    except yaml.YAMLError as exc:
+        raise CaseError(file, None, None, f"invalid YAML: {' '.join(str(exc).split())}") from None
+    finally:
+        loader.dispose()
+
+
+def _record_lines(node, path, lines, seen, file):
+    """Record the line of every mapping key and sequence item under `path`; reject duplicate keys."""
+    if id(node) in seen:  # an alias: its lines were recorded where the anchor is
+        return
+    seen.add(id(node))
+    if isinstance(node, yaml.MappingNode):
+        keys = set()
+        for key_node, value_node in node.value:
+            key = key_node.value if isinstance(key_node, yaml.ScalarNode) else id(key_node)
+            line = key_node.start_mark.line + 1
+            if key in keys:
+                raise CaseError(file, _dotted(path + (key,)), line, "duplicate key")
+            keys.add(key)
+            lines[path + (key,)] = line
+            _record_lines(value_node, path + (key,), lines, seen, file)
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            lines[path + (index,)] = item.start_mark.line + 1
+            _record_lines(item, path + (index,), lines, seen, file)
+
+
+# --- errors -----------------------------------------------------------------------------
+
+
+class _Invalid(Exception):
+    """A validation failure at a key path, turned into a CaseError once file and lines are known."""
+
+    def __init__(self, path, message):
+        super().__init__(path, message)
+        self.path, self.message = path, message
+
+
+def _dotted(path):
+    """Key path as text: ``("contacts", 0, "normal")`` -> ``"contacts[0].normal"``."""
+    text = ""
+    for part in path:
+        text += f"[{part}]" if isinstance(part, int) else f".{part}" if text else str(part)
+    return text
+
+
+def _display(path):
+    """The case file as shown in messages: relative to the current folder when inside it."""
+    relative = os.path.relpath(path)
+    return str(path) if relative.startswith("..") else relative
+
+
+def _error(file, lines, overrides, path, message):
+    """CaseError for `path`: its line (or the nearest ancestor's), or the --set option that gave it."""
+    for prefix, option in overrides.items():
+        if path[:len(prefix)] == prefix:
+            return CaseError(file, _dotted(path) or None, None, f"{message} (from --set {option})")
+    line = next((lines[path[:n]] for n in range(len(path), 0, -1) if path[:n] in lines), None)
+    return CaseError(file, _dotted(path) or None, line, message)
+
+
+# --- overrides --------------------------------------------------------------------------
+
+
+def _apply_override(data, option):
+    """Apply one ``KEY.PATH=VALUE`` option to `data` in place and return the key path."""
+    key, equals, text = option.partition("=")
+    segments = key.strip().split(".")
+    if not equals or not all(segments):
+        raise CaseError("--set", None, None, f"expected KEY.PATH=VALUE, got {option!r}")
+    try:
+        value = yaml.load(text, Loader=_Loader)
+    except yaml.YAMLError as exc:
+        raise CaseError("--set", key, None, f"cannot read the value {text!r}: "
+                        f"{' '.join(str(getattr(exc, 'problem', exc)).split())}") from None
+    target, path = data, ()
+    for depth, segment in enumerate(segments, 1):
+        if isinstance(target, list):
+            if not segment.isdigit() or int(segment) >= len(target):
+                raise CaseError("--set", _dotted(path + (segment,)), None,
+                                f"no item {segment}: {_dotted(path)} has {len(target)} items")
+            segment = int(segment)
+        elif not isinstance(target, dict):
+            raise CaseError("--set", _dotted(path), None, f"is not a mapping or a list; cannot set {key}")
+        path += (segment,)
+        if depth == len(segments):
+            target[segment] = value
+        else:
+            if isinstance(target, dict) and target.get(segment) is None:
+                target[segment] = {}
+            target = target[segment]
+    return path
+
+
+# --- generic validation -----------------------------------------------------------------
+
+_REQUIRED = object()
+
+
+def _show(value):
+    """A value as quoted in a message."""
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    return "null" if value is None else repr(value)
+
+
+def _mapping(value, path):
+    """A mapping with string keys (null counts as empty)."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise _Invalid(path, f"expected a mapping, got {_show(value)}")
+    for key in value:
+        if not isinstance(key, str):
+            raise _Invalid(path, f"keys must be names (strings), got {key!r}")
+    return value
+
+
+def _fields(value, path, spec):
+    """Validate a mapping against `spec` and return the converted values.
+
+    Parameters
+    ----------
+    value : object
+        The mapping from the case file.
+    path : tuple
+        Its key path.
+    spec : dict
+        ``key -> (converter, default)``; a converter is ``(value, path) -> result``
+        raising _Invalid; default ``_REQUIRED`` makes the key mandatory. An explicit
+        null on an optional key means its default (so a resolved dump reads back).
+    """
+    data = _mapping(value, path)
+    for key in data:
+        if key not in spec:
+            close = difflib.get_close_matches(key, list(spec), n=1)
+            hint = f"did you mean '{close[0]}'?" if close else f"valid keys: {', '.join(spec)}"
+            raise _Invalid(path + (key,), f"unknown key '{key}'; {hint}")
+    result = {}
+    for key, (convert, default) in spec.items():
+        if key in data and (data[key] is not None or default is _REQUIRED):
+            result[key] = convert(data[key], path + (key,))
+        elif default is _REQUIRED:
+            raise _Invalid(path + (key,), "missing required key")
+        else:
+            result[key] = default
+    return result
+
+
+def _number(value, path):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _Invalid(path, f"expected a number, got {_show(value)}")
+    if not math.isfinite(value):
+        raise _Invalid(path, f"expected a finite number, got {value}")
+    return float(value)
+
+
+_BOUNDS = {"gt": (operator.gt, ">", "("), "ge": (operator.ge, ">=", "["),
+           "lt": (operator.lt, "<", ")"), "le": (operator.le, "<=", "]")}
+
+
+def _real(**bounds):
+    """Converter for a finite number within `bounds` (keywords gt, ge, lt, le)."""
+    if len(bounds) == 2:
+        (low, a), (high, b) = bounds.items()
+        text = f"in {_BOUNDS[low][2]}{a:g}, {b:g}{_BOUNDS[high][2]}"
+    else:
+        text = " ".join(f"{_BOUNDS[name][1]} {bound:g}" for name, bound in bounds.items())
+
+    def convert(value, path):
+        number = _number(value, path)
+        if not all(_BOUNDS[name][0](number, bound) for name, bound in bounds.items()):
+            raise _Invalid(path, f"must be {text}, got {value!r}")
+        return number
+    return convert
+
+
+def _integer(low, high=None):
+    """Converter for an integer in [low, high]; integral floats such as ``1e3`` are accepted."""
+    def convert(value, path):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _Invalid(path, f"expected an integer, got {_show(value)}")
+        if value < low or (high is not None and value > high):
+            wanted = f">= {low}" if high is None else f"in [{low}, {high}]"
+            raise _Invalid(path, f"must be {wanted}, got {value}")
+        return value
+    return convert
+
+
+def _string(value, path):
+    if not isinstance(value, str) or not value:
+        raise _Invalid(path, f"expected a non-empty string, got {_show(value)}")
+    return value
+
+
+def _csv_name(value, path):
+    """A name used as a column prefix in history.csv."""
+    if not isinstance(value, str) or not _CSV_NAME.fullmatch(value):
+        raise _Invalid(path, f"expected a name of letters, digits, '_' and '-', got {_show(value)}")
+    return value
+
+
+def _boolean(value, path):
+    if not isinstance(value, bool):
+        raise _Invalid(path, f"expected true or false, got {_show(value)}")
+    return value
+
+
+def _choice(*options):
+    def convert(value, path):
+        if not isinstance(value, str) or value not in options:
+            raise _Invalid(path, f"must be one of {', '.join(options)}; got {_show(value)}")
+        return value
+    return convert
+
+
+def _list(item):
+    """Converter for a list of items converted with `item`."""
+    def convert(value, path):
+        if not isinstance(value, list):
+            raise _Invalid(path, f"expected a list, got {_show(value)}")
+        return [item(entry, path + (index,)) for index, entry in enumerate(value)]
+    return convert
+
+
+def _vector(item):
+    """Converter for a list of 1 to 3 components."""
+    def convert(value, path):
+        if not isinstance(value, list):
+            raise _Invalid(path, f"expected a list of 1 to 3 components, got {_show(value)}")
+        if not 1 <= len(value) <= 3:
+            raise _Invalid(path, f"must have 1 to 3 components, got {len(value)}")
+        return [item(entry, path + (index,)) for index, entry in enumerate(value)]
+    return convert
+
+
+def _mapping_of(item, key=_string):
+    """Converter for a mapping of names (checked with `key`) to items."""
+    def convert(value, path):
+        return {key(name, path + (name,)): item(entry, path + (name,))
+                for name, entry in _mapping(value, path).items()}
+    return convert
+
+
+def _expression(*allowed):
+    def convert(value, path):
+        try:
+            return parse_expression(value, allowed)
+        except ExpressionError as exc:
+            raise _Invalid(path, str(exc)) from None
+    return convert
+
+
+# --- sections ---------------------------------------------------------------------------
+
+
+def _case_name(value, path):
+    name = _string(value, path)
+    if name in (".", "..") or any(c in name for c in "/\\\0"):
+        raise _Invalid(path, f"must be usable as a folder name, got {name!r}")
+    return name
+
+
+def _mesh(value, path, folder):
+    f = _fields(value, path, {
+        "shape": (_choice(*SHAPES), None), "file": (_string, None), "dim": (_integer(1, 3), None),
+        "length": (_real(gt=0), 1.0), "cells": (_integer(1), 100),
+        "height": (_real(gt=0), None), "width": (_real(gt=0), None)})
+    if (f["shape"] is None) == (f["file"] is None):
+        raise _Invalid(path, f"give either 'shape' ({', '.join(SHAPES)}) or 'file', not both")
+    if f["file"] is not None:
+        f["file"] = Path(os.path.abspath(folder / f["file"]))
+        if not f["file"].is_file():
+            raise _Invalid(path + ("file",), f"mesh file not found: {f['file']}")
+    elif f["dim"] is None:
+        f["dim"] = 1
+    return MeshSpec(**f)
+
+
+def _material(value, path):
+    return Material(**_fields(value, path, {
+        "E": (_real(gt=0), _REQUIRED), "rho": (_real(gt=0), _REQUIRED),
+        "nu": (_real(ge=0, lt=0.5), 0.0), "area": (_real(gt=0), 1.0)}))
+
+
+def _damping(value, path):
+    return Damping(**_fields(value, path, {"alpha": (_real(ge=0), 0.0), "beta": (_real(ge=0), 0.0)}))
+
+
+def _body_values(value, path):
+    """An initial field: a list of component expressions, or a list of {body, value} mappings."""
+    if isinstance(value, list) and all(isinstance(entry, dict) for entry in value):
+        spec = {"body": (_string, _REQUIRED), "value": (_vector(_expression(*SPACE)), _REQUIRED)}
+        return [BodyValue(**_fields(entry, path + (index,), spec)) for index, entry in enumerate(value)]
+    return [BodyValue(None, _vector(_expression(*SPACE))(value, path))]
+
+
+def _initial(value, path):
+    return Initial(**_fields(value, path, {"displacement": (_body_values, []),
+                                           "velocity": (_body_values, [])}))
+
+
+def _fix(value, path):
+    """Fixed components: 'all' or a list of x, y, z -> sorted component indices."""
+    if value == "all":
+        return [0, 1, 2]
+    names = [value] if isinstance(value, str) else value
+    if not isinstance(names, list) or not names or not all(n in COMPONENTS for n in names):
+        raise _Invalid(path, f"expected 'all' or a list of x, y, z; got {_show(value)}")
+    return sorted({COMPONENTS.index(n) for n in names})
+
+
+def _support(value, path):
+    return Support(**_fields(value, path, {"nodes": (_string, _REQUIRED), "fix": (_fix, "all")}))
+
+
+def _load(value, path):
+    f = _fields(value, path, {
+        "nodes": (_string, None), "body": (_string, None),
+        "force": (_vector(_expression(*TIME)), None),
+        "acceleration": (_vector(_expression(*TIME)), None)})
+    if (f["nodes"] is None) == (f["body"] is None):
+        raise _Invalid(path, "give either 'nodes' (with 'force') or 'body' (with 'acceleration')")
+    on, wanted, other = (("nodes", "force", "acceleration") if f["nodes"] is not None
+                         else ("body", "acceleration", "force"))
+    if f[other] is not None:
+        raise _Invalid(path + (other,), f"not allowed with '{on}' (use '{wanted}')")
+    if f[wanted] is None:
+        raise _Invalid(path + (wanted,), f"missing required key (a load on '{on}' needs '{wanted}')")
+    return Load(**f)
+
+
+def _contact(value, path):
+    f = _fields(value, path, {
+        "name": (_csv_name, _REQUIRED), "type": (_choice(*CONTACT_TYPES), _REQUIRED),
+        "nodes": (lambda nodes, _: nodes, _REQUIRED), "normal": (_vector(_number), _REQUIRED),
+        "gap": (_real(), None), "restitution": (_real(ge=0, le=1), 0.0)})
+    nodes = [f["nodes"]] if isinstance(f["nodes"], str) else f["nodes"]
+    if f["type"] == "obstacle":
+        if not (isinstance(nodes, list) and len(nodes) == 1):
+            raise _Invalid(path + ("nodes",), f"an obstacle contact takes one node group, "
+                                              f"got {_show(f['nodes'])}")
+        f["gap"] = 0.0 if f["gap"] is None else f["gap"]
+    elif not (isinstance(nodes, list) and len(nodes) == 2):
+        raise _Invalid(path + ("nodes",), f"a pair contact takes a list of two node groups, "
+                                          f"got {_show(f['nodes'])}")
+    f["nodes"] = [_string(group, path + ("nodes", i)) for i, group in enumerate(nodes)]
+    if len(set(f["nodes"])) != len(f["nodes"]):
+        raise _Invalid(path + ("nodes",), "the two node groups must differ")
+    length = math.hypot(*f["normal"])
+    if length == 0.0:
+        raise _Invalid(path + ("normal",), "must have a nonzero length")
+    f["normal"] = [component / length for component in f["normal"]]
+    return Contact(**f)
+
+
+def _contacts(value, path):
+    contacts = _list(_contact)(value, path)
+    names = [contact.name for contact in contacts]
+    for index, name in enumerate(names):
+        if name in names[:index]:
+            raise _Invalid(path + (index, "name"), f"duplicate contact name '{name}'")
+    return contacts
+
+
+def _modes(value, path):
+    if value == "auto":
+        return value
+    try:
+        return _integer(1)(value, path)
+    except _Invalid:
+        raise _Invalid(path, f"expected 'auto' or an integer >= 1, got {_show(value)}") from None
+
+
+def _solver(value, path):
+    f = _fields(value, path, {
+        "dt": (_real(gt=0), _REQUIRED), "t_end": (_real(gt=0), _REQUIRED),
+        "method": (_choice(*METHODS), "newmark"), "beta": (_real(gt=0), 0.25),
+        "gamma": (_real(ge=0), 0.5), "mass": (_choice(*MASS_MATRICES), "consistent"),
+        "modes": (_modes, None), "static_correction": (_boolean, True),
+        "tolerance": (_real(gt=0, lt=1), 0.01)})
+    if f["dt"] > f["t_end"]:
+        raise _Invalid(path + ("dt",), f"must be <= t_end ({f['t_end']:g}), got {f['dt']:g}")
+    return Solver(**f)
+
+
+def _output(value, path):
+    return Output(**_fields(value, path, {
+        "every": (_integer(1), 10), "probes": (_mapping_of(_vector(_number), _csv_name), {}),
+        "vtk": (_boolean, True)}))
+
+
+def _case(data, case_path):
+    """Validate the whole case mapping (lines and overrides are added by the caller)."""
+    f = _fields(data, (), {
+        "name": (_case_name, case_path.stem),
+        "mesh": (lambda value, path: _mesh(value, path, case_path.parent), _REQUIRED),
+        "material": (_material, None), "materials": (_mapping_of(_material), None),
+        "damping": (_damping, Damping()), "initial": (_initial, Initial()),
+        "supports": (_list(_support), []), "loads": (_list(_load), []),
+        "contacts": (_contacts, []), "solver": (_solver, _REQUIRED), "output": (_output, Output())})
+    if (f["material"] is None) == (f["materials"] is None):
+        raise _Invalid(("material",) if "material" in data else (),
+                       "give either 'material' (for every body) or 'materials' (per body), not both")
+    if f["materials"] == {}:
+        raise _Invalid(("materials",), "must give at least one body")
+    return Case(path=case_path, **f)
+
+
+def load_case(path, overrides=()) -> Case:
+    """Load, override and validate a case file.
+
+    Parameters
+    ----------
+    path : path-like
+        The case file (YAML).
+    overrides : iterable of str
+        ``KEY.PATH=VALUE`` options from ``--set``; VALUE is read as YAML.
+
+    Returns
+    -------
+    Case
+
+    Raises
+    ------
+    CaseError
+        On any bad input, naming the file, key and line.
+    """
+    case_path = Path(os.path.abspath(path))
+    file = _display(case_path)
+    try:
+        text = case_path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise CaseError(file, None, None, "case file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CaseError(file, None, None, f"cannot read the case file: {exc}") from None
+    data, lines = _parse_yaml(text, file)
+    if not isinstance(data, dict):
+        raise CaseError(file, None, None, "the file is empty" if data is None
+                        else "expected a mapping of keys at the top level")
+    options = {_apply_override(data, option): option for option in overrides}
+    try:
+        case = _case(data, case_path)
+    except _Invalid as exc:
+        raise _error(file, lines, options, exc.path, exc.message) from None
+    case.lines, case.overrides = lines, options
+    return case

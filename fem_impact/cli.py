@@ -1,0 +1,94 @@
+"""The ``fem-impact`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+DESCRIPTION = """\
+fem-impact: dynamics of elastic structures with unilateral constraints.
+
+A case file (YAML) describes the mesh, material, supports, loads, contacts, solver and
+output; `fem-impact run` integrates it in time and writes into OUTDIR:
+  results.pvd         ParaView time series (point data u, v, a, contact_force)
+  history.csv         per step: gaps, forces, impulses per contact, probes, energies
+  summary.json        run figures (times, unknowns, steps, max penetration, energy error)
+  case.resolved.yaml  the case with every default filled in
+"""
+
+EXAMPLES = """\
+examples:
+  fem-impact run cases/impacting_bar.yaml
+  fem-impact run cases/impacting_bar.yaml -o results/fine --set mesh.cells=400 --set solver.dt=1.25e-3
+  mpirun -n 2 fem-impact run cases/impacting_bar.yaml --set mesh.dim=2
+"""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fem-impact", description=DESCRIPTION, epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    from . import __version__
+
+    parser.add_argument("--version", action="version", version=f"fem-impact {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    run = sub.add_parser(
+        "run", help="run a case file", description="Integrate a case file in time and write its results.",
+        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    run.add_argument("case", metavar="CASE.yaml", help="the case file")
+    run.add_argument("-o", "--output", metavar="OUTDIR",
+                     help="output folder (default: results/<case name>/ under the current folder); "
+                          "replaced only when the run completes")
+    run.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
+                     help="override a case-file key, value typed as in YAML (repeatable), "
+                          "e.g. --set solver.dt=1e-3 --set contacts.0.restitution=0.5")
+    run.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary paragraph")
+    run.add_argument("-v", "--verbose", action="store_true", help="log the stages of the run")
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    _configure_logging(args.verbose)
+
+    # Heavy imports (dolfinx, PETSc) only once the arguments are known to be sound.
+    from mpi4py import MPI
+
+    from .case import CaseError
+    from .contact import ContactSolverError
+    from .integrators import SimulationError
+    from .run import describe, run_case
+
+    comm = MPI.COMM_WORLD
+    try:
+        summary = run_case(args.case, args.output, args.overrides, comm=comm, progress=not args.quiet)
+    except CaseError as err:
+        return _fail(comm, f"error: {err}", 2)
+    except (SimulationError, ContactSolverError) as err:
+        return _fail(comm, f"the run failed: {err} (the output folder was left as it was)", 3)
+    except KeyboardInterrupt:
+        return _fail(comm, "interrupted (the output folder was left as it was)", 130)
+    if comm.rank == 0 and not args.quiet:
+        print(describe(summary))
+    return 0
+
+
+def _configure_logging(verbose: bool) -> None:
+    """Our stages at INFO with -v; other libraries (the JIT compiler's build logs) only warnings."""
+    handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+    handler.addFilter(lambda r: r.levelno >= logging.WARNING or (verbose and r.name.startswith("fem_impact")))
+    logging.basicConfig(level=logging.INFO, handlers=[handler], force=True)
+
+
+def _fail(comm, message: str, status: int) -> int:
+    if comm.rank == 0:
+        print(f"fem-impact: {message}", file=sys.stderr)
+    return status

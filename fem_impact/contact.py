@@ -1,0 +1,97 @@
+"""The contact law on the small p x p level: an exact LCP solver and the Carnot impact correction."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class ContactSolverError(RuntimeError):
+    """The small contact problem could not be solved (singular or ill-posed constraints)."""
+
+
+def solve_lcp(A: np.ndarray, q: np.ndarray, guess: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Solve ``w = A x + q >= 0, x >= 0, x . w = 0`` exactly.
+
+    Murty's least-index principal pivoting: finite for any start when ``A`` is a P-matrix (here
+    a Delassus matrix ``P S^-1 P^T``, symmetric positive definite when the rows of P are
+    independent). ``guess`` is the active set (x > 0) to start from, usually the previous
+    step's, so a persisting contact state costs one small solve.
+
+    Returns ``(x, w, active)``.
+    """
+    n = q.size
+    active = np.zeros(n, dtype=bool) if guess is None else guess.copy()
+    if n == 0 or (not active.any() and np.all(q >= 0.0)):
+        return np.zeros(n), q.copy(), np.zeros(n, dtype=bool)
+    scale = max(np.abs(q).max(), np.finfo(float).tiny)
+    tol = 1e-13 * scale
+    for _ in range(max(50, 20 * n)):
+        x = np.zeros(n)
+        if active.any():
+            block = A[np.ix_(active, active)]
+            try:
+                x[active] = np.linalg.solve(block, -q[active])
+            except np.linalg.LinAlgError:
+                x[active] = np.linalg.lstsq(block, -q[active], rcond=None)[0]
+        w = A @ x + q
+        xtol = 1e-13 * max(np.abs(x).max(), np.finfo(float).tiny)
+        wrong = (active & (x < -xtol)) | (~active & (w < -tol))
+        if not wrong.any():
+            x[~active] = 0.0
+            w[active] = 0.0
+            return np.maximum(x, 0.0), np.maximum(w, 0.0), active
+        j = int(np.argmax(wrong))
+        active[j] = not active[j]
+    raise ContactSolverError(f"contact LCP of size {n} did not converge (constraints dependent or ill-posed)")
+
+
+@dataclass
+class ImpactResult:
+    """Outcome of the velocity and acceleration projections on the closed contacts."""
+
+    lam1: np.ndarray     # velocity-correction impulses, dV = -M^-1 P^T lam1 (may be negative:
+                         # they remove the spurious rebound of the trapezoidal rule)
+    lam2: np.ndarray     # acceleration-correction forces, dA = -M^-1 P^T lam2
+    force: np.ndarray    # F_N = lam0 + lam2 at the end of the step
+
+
+def impact_correction(
+    D: np.ndarray,
+    closed: np.ndarray,
+    s0: np.ndarray,
+    v_star: np.ndarray,
+    v_minus: np.ndarray,
+    a_normal: np.ndarray,
+    lam0: np.ndarray,
+    restitution: np.ndarray,
+) -> ImpactResult:
+    """Carnot's velocity correction and the acceleration projection on the closed rows.
+
+    The sign condition is put on the whole impulse of the step ``S = s0 + lam1 >= 0``
+    (``s0`` = the impulse of the position-level forces), complementary to the separating
+    velocity ``w = -(P V+) - e max(P V-, 0) >= 0``: an LCP in ``D = P M^-1 P^T``. Contacts
+    that stay closed (w = 0) then get the force ``F >= 0`` that keeps their normal
+    acceleration non-positive; separating contacts carry no force.
+
+    All arguments are per-row p-vectors (``D`` is p x p); only rows in ``closed`` change.
+    """
+    p = s0.size
+    lam1, force, lam2 = np.zeros(p), lam0.copy(), np.zeros(p)
+    a = np.flatnonzero(closed)
+    if a.size:
+        Daa = D[np.ix_(a, a)]
+        q1 = -(Daa @ s0[a] + v_star[a] + restitution[a] * np.maximum(v_minus[a], 0.0))
+        S, w, active = solve_lcp(Daa, q1, guess=lam0[a] > 0.0)
+        lam1[a] = S - s0[a]
+        staying = a[active | (w <= 0.0)]
+        leaving = a[~(active | (w <= 0.0))]
+        force[leaving] = 0.0
+        if staying.size:
+            Dbb = D[np.ix_(staying, staying)]
+            # Normal accelerations after the velocity change are unchanged by it: project them.
+            q2 = -(Dbb @ lam0[staying] + a_normal[staying] + D[np.ix_(staying, leaving)] @ lam0[leaving])
+            force[staying], _, _ = solve_lcp(Dbb, q2, guess=lam0[staying] > 0.0)
+        lam2[a] = force[a] - lam0[a]
+    return ImpactResult(lam1, lam2, force)

@@ -1,0 +1,128 @@
+"""The only module that calls version-bound dolfinx 0.5 API (meshes, spaces, assembly, VTK)."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import ufl
+from dolfinx import fem, io, mesh
+from dolfinx.fem import petsc as fem_petsc
+from dolfinx.io import gmshio
+from mpi4py import MPI
+from petsc4py import PETSc
+
+# FFCx logs every JIT compilation at INFO level on the root logger: keep it quiet.
+for _name in ("ffcx", "UFL", "FFC", "dijitso"):
+    logging.getLogger(_name).setLevel(logging.WARNING)
+
+Mesh = mesh.Mesh
+
+
+def interval(comm: MPI.Comm, cells: int, length: float) -> Mesh:
+    """A 1D mesh of ``cells`` equal cells on [0, length]."""
+    return mesh.create_interval(comm, cells, [0.0, length])
+
+
+def rectangle(comm: MPI.Comm, nx: int, ny: int, length: float, height: float) -> Mesh:
+    """A triangle mesh of [0, length] x [0, height]."""
+    return mesh.create_rectangle(comm, [np.array([0.0, 0.0]), np.array([length, height])], [nx, ny])
+
+
+def box(comm: MPI.Comm, n: tuple[int, int, int], size: tuple[float, float, float]) -> Mesh:
+    """A tetrahedron mesh of [0, Lx] x [0, Ly] x [0, Lz]."""
+    return mesh.create_box(comm, [np.zeros(3), np.array(size, dtype=float)], list(n))
+
+
+def gmsh_model_to_mesh(model, comm: MPI.Comm, gdim: int):
+    """Mesh and cell tags from a gmsh model held on rank 0 (``read_from_msh`` is broken in 0.5.2)."""
+    msh, cell_tags, _facet_tags = gmshio.model_to_mesh(model, comm, 0, gdim=gdim)
+    return msh, cell_tags
+
+
+def locate_vertices(msh: Mesh, marker) -> np.ndarray:
+    """Local indices of the vertices whose coordinates (3 x n array) satisfy ``marker``."""
+    return mesh.locate_entities(msh, 0, marker)
+
+
+def vector_space(msh: Mesh):
+    """Continuous P1 displacement space with one component per geometric dimension."""
+    return fem.VectorFunctionSpace(msh, ("CG", 1))
+
+
+def scalar_space(msh: Mesh):
+    return fem.FunctionSpace(msh, ("CG", 1))
+
+
+def node_coordinates(V) -> np.ndarray:
+    """Coordinates (n_blocks x 3) of the nodes of P1 space ``V``, local numbering (owned, then ghosts)."""
+    Q = scalar_space(V.mesh)
+    if not np.array_equal(Q.dofmap.list.array, V.dofmap.list.array):
+        raise RuntimeError("scalar and vector P1 dof maps differ; cannot tabulate node coordinates")
+    return Q.tabulate_dof_coordinates()
+
+
+def vertex_dofs(V, vertices: np.ndarray) -> np.ndarray:
+    """Local node (block) indices of the given local vertices."""
+    return fem.locate_dofs_topological(V, 0, vertices)
+
+
+def owned_nodes(V) -> tuple[int, int]:
+    """(number of owned nodes on this rank, global index of the first one)."""
+    index_map = V.dofmap.index_map
+    return index_map.size_local, index_map.local_range[0]
+
+
+def cell_nodes(V) -> np.ndarray:
+    """Node (block) indices of every local cell (owned and ghost), one row per cell."""
+    return V.dofmap.list.array.reshape(-1, V.dofmap.cell_dofs(0).size)
+
+
+def assemble_matrix(form) -> PETSc.Mat:
+    A = fem_petsc.assemble_matrix(fem.form(form))
+    A.assemble()
+    return A
+
+
+def assemble_vector(form) -> PETSc.Vec:
+    b = fem_petsc.assemble_vector(fem.form(form))
+    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    return b
+
+
+def body_measure(msh: Mesh, cell_tags):
+    """Cell measure that can be restricted to a body with ``dx(tag)``."""
+    return ufl.Measure("dx", domain=msh, subdomain_data=cell_tags)
+
+
+def function(V, name: str):
+    f = fem.Function(V)
+    f.name = name
+    return f
+
+
+class VTKSeries:
+    """A ParaView time series (.pvd, one .vtu/.pvtu piece per frame) of nodal vector fields.
+
+    dolfinx 0.5 cannot write a one-component vector space, so 1D fields are written as 3D
+    vectors (x component filled) on the same nodes: ParaView's Warp By Vector works the same.
+    """
+
+    def __init__(self, comm: MPI.Comm, path, V, names):
+        self.bs = V.dofmap.index_map_bs
+        W = V if self.bs > 1 else fem.VectorFunctionSpace(V.mesh, ("CG", 1), dim=3)
+        self.out_bs = W.dofmap.index_map_bs
+        self.functions = {name: function(W, name) for name in names}
+        self._file = io.VTKFile(comm, str(path), "w")
+
+    def write(self, t: float, owned_values: dict) -> None:
+        """Write one frame; ``owned_values`` maps a field name to its owned dof values."""
+        for name, values in owned_values.items():
+            f = self.functions[name]
+            blocks = values.reshape(-1, self.bs)
+            f.x.array.reshape(-1, self.out_bs)[: blocks.shape[0], : self.bs] = blocks
+            f.x.scatter_forward()
+        self._file.write_function(list(self.functions.values()), t)
+
+    def close(self) -> None:
+        self._file.close()

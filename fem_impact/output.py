@@ -1,0 +1,172 @@
+"""Observers of the time loop: history CSV, ParaView time series, run statistics, progress bar."""
+
+from __future__ import annotations
+
+import csv
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+from . import dolfinx_api as dx
+from .constraints import Constraints
+from .integrators import StepState
+from .model import AXES, Model, pad_vector
+
+ENERGY_COLUMNS = ("kinetic", "strain", "external_work", "damping_loss", "impact_loss", "contact_loss", "energy_error")
+
+
+@dataclass
+class Probes:
+    """Named points, each read at the mesh node nearest to it (one owner rank per probe)."""
+
+    names: list[str]
+    owned_dofs: np.ndarray     # (n_probes x dim) local dof of each component, -1 off-owner
+    distance: np.ndarray       # distance from the asked point to the node used
+    dim: int
+
+    def values(self, state: StepState, comm: MPI.Comm) -> np.ndarray:
+        """(u, v) at every probe as one flat array [p0.ux, p0.uy, ..., p0.vx, ...]."""
+        out = np.zeros((len(self.names), 2, self.dim))
+        mine = self.owned_dofs[:, 0] >= 0
+        if mine.any():
+            dofs = self.owned_dofs[mine]
+            out[mine, 0] = state.U.array_r[dofs]
+            out[mine, 1] = state.V.array_r[dofs]
+        if comm.size > 1:
+            comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)
+        return out.reshape(-1)
+
+    def columns(self) -> list[str]:
+        return [f"{name}.{q}{AXES[c]}" for name in self.names for q in "uv" for c in range(self.dim)]
+
+
+def find_probes(case, model: Model) -> Probes:
+    dim, bs, comm = model.meshdata.dim, model.bs, model.comm
+    coords = model.node_coords[: model.n_owned_nodes, :dim]
+    names, dofs, distances = [], [], []
+    for name, point in case.output.probes.items():
+        key = ("output", "probes", name)
+        point = np.asarray(pad_vector(point, dim, case, key, "probe"), dtype=float)
+        if coords.size:
+            d = np.linalg.norm(coords - point, axis=1)
+            k = int(np.argmin(d))
+            mine = (float(d[k]), model.first_node + k)
+        else:
+            mine = (np.inf, -1)
+        best = min(comm.allgather(mine))  # nearest node; ties go to the lowest global index
+        local = best[1] - model.first_node
+        owned = 0 <= local < model.n_owned_nodes and best[1] >= 0
+        names.append(name)
+        dofs.append([local * bs + c if owned else -1 for c in range(dim)])
+        distances.append(best[0])
+    return Probes(names, np.array(dofs, dtype=np.int64).reshape(-1, dim), np.array(distances), dim)
+
+
+class HistoryWriter:
+    """``history.csv``: one row for t = 0 and one per step (INTERFACE.md)."""
+
+    def __init__(self, path: Path, cons: Constraints, probes: Probes, comm: MPI.Comm, flush_every: int = 2000):
+        self.cons, self.probes, self.comm = cons, probes, comm
+        self.rows: list[list[float]] = []
+        self.flush_every = flush_every
+        self.columns = ["t"]
+        for c in cons.contacts:
+            self.columns += [f"{c.name}.gap", f"{c.name}.force", f"{c.name}.impulse"]
+        self.columns += probes.columns() + list(ENERGY_COLUMNS)
+        self._file = open(path, "w", newline="") if comm.rank == 0 else None
+        if self._file:
+            self._csv = csv.writer(self._file)
+            self._csv.writerow(self.columns)
+
+    def write(self, state: StepState) -> None:
+        row = [state.t]
+        for c in self.cons.contacts:
+            r = c.rows
+            row += [state.gap[r].min(), state.force[r].sum(), state.impulse[r].sum()]
+        row += self.probes.values(state, self.comm).tolist() if self.probes.names else []
+        e = state.energy
+        row += [e.kinetic, e.strain, e.external_work, e.damping_loss, e.impact_loss, e.contact_loss, e.error]
+        if self._file:
+            self.rows.append(row)
+            if len(self.rows) >= self.flush_every:
+                self.flush()
+
+    def flush(self) -> None:
+        if self._file:
+            self._csv.writerows([[f"{v:.12g}" for v in row] for row in self.rows])
+            self.rows.clear()
+
+    def close(self) -> None:
+        self.flush()
+        if self._file:
+            self._file.close()
+
+
+class VTKWriter:
+    """``results.pvd``: u, v, a and the contact force on the structure (-P^T F_N) every N steps."""
+
+    def __init__(self, path: Path, model: Model, cons: Constraints, every: int, last_step: int):
+        self.model, self.cons, self.every, self.last_step = model, cons, every, last_step
+        self.series = dx.VTKSeries(model.comm, path, model.V, ("u", "v", "a", "contact_force"))
+        self.frames = 0
+
+    def write(self, state: StepState) -> None:
+        if state.step % self.every and state.step != self.last_step:
+            return
+        self.series.write(state.t, {
+            "u": state.U.array_r, "v": state.V.array_r, "a": state.A.array_r,
+            "contact_force": -(self.cons.P_local @ state.force),
+        })
+        self.frames += 1
+
+    def close(self) -> None:
+        self.series.close()
+
+
+class RunStatistics:
+    """Extremes and totals over the run for the summary: penetration, energy residual, impulses."""
+
+    def __init__(self, cons: Constraints):
+        self.cons = cons
+        self.max_penetration = 0.0
+        self.max_energy_error = 0.0
+        self.energy_scale = 0.0
+        self.max_energy = 0.0
+        self.total_impulse = {c.name: 0.0 for c in cons.contacts}
+
+    def write(self, state: StepState) -> None:
+        e = state.energy
+        if state.gap.size:
+            self.max_penetration = max(self.max_penetration, float(-state.gap.min()))
+        self.max_energy_error = max(self.max_energy_error, abs(e.error))
+        self.energy_scale = max(self.energy_scale, e.initial, abs(e.external_work))
+        self.max_energy = max(self.max_energy, e.total)
+        for c in self.cons.contacts:
+            self.total_impulse[c.name] += float(state.impulse[c.rows].sum())
+
+
+class Progress:
+    """A one-line progress bar on stderr, only on an interactive terminal and on rank 0."""
+
+    def __init__(self, comm: MPI.Comm, label: str = "time loop", stream=None):
+        self.stream = stream or sys.stderr
+        self.enabled = comm.rank == 0 and self.stream.isatty()
+        self.label, self.t_start, self.last = label, time.perf_counter(), 0.0
+
+    def __call__(self, step: int, total: int) -> None:
+        now = time.perf_counter()
+        if not self.enabled or (now - self.last < 0.2 and step < total):
+            return
+        self.last = now
+        frac = step / total
+        elapsed = now - self.t_start
+        eta = elapsed * (1 - frac) / frac if frac > 0 else 0.0
+        bar = "#" * int(30 * frac)
+        self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% step {step}/{total} eta {eta:5.1f} s")
+        if step >= total:
+            self.stream.write("\n")
+        self.stream.flush()

@@ -1,0 +1,140 @@
+"""The pipeline of one run: case -> mesh -> model -> constraints -> integrator -> outputs, written atomically."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import shutil
+import time
+from pathlib import Path
+
+from mpi4py import MPI
+
+from . import __version__
+from .case import Case, load_case
+from .constraints import build_constraints, check_initial_state
+from .integrators import METHODS, Operators, integrate, steps_for
+from .mesh import build_mesh
+from .model import build_model
+from .output import HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
+
+log = logging.getLogger(__name__)
+
+
+def default_outdir(case: Case) -> Path:
+    return Path.cwd() / "results" / case.name
+
+
+@contextlib.contextmanager
+def staged_directory(outdir: Path, comm: MPI.Comm):
+    """Write into a hidden sibling folder; move it over ``outdir`` only when the run completes.
+
+    A failed or interrupted run removes its staging folder and leaves ``outdir`` as it was.
+    """
+    outdir = outdir.resolve()
+    stage = outdir.parent / f".{outdir.name}.partial-{os.getpid() if comm.rank == 0 else 0}"
+    stage = Path(comm.bcast(str(stage), root=0))
+    if comm.rank == 0:
+        stage.mkdir(parents=True, exist_ok=False)
+    comm.barrier()
+    try:
+        yield stage
+    except BaseException:
+        if comm.rank == 0:
+            shutil.rmtree(stage, ignore_errors=True)
+        raise
+    comm.barrier()
+    if comm.rank == 0:
+        old = outdir.parent / f".{outdir.name}.old-{os.getpid()}"
+        if outdir.exists():
+            outdir.rename(old)
+        stage.rename(outdir)
+        shutil.rmtree(old, ignore_errors=True)
+    comm.barrier()
+
+
+def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, progress: bool = True) -> dict:
+    """Run a case file end to end; returns the summary (also written to ``summary.json``)."""
+    t_start = time.perf_counter()
+    case = load_case(path, overrides)
+    outdir = Path(outdir) if outdir is not None else default_outdir(case)
+    solver = case.solver
+    if solver.method not in METHODS:
+        raise case.error(("solver", "method"), f"method '{solver.method}' is not available in this version "
+                         f"(available: {', '.join(METHODS)})")
+
+    meshdata = build_mesh(case, comm)
+    model = build_model(case, meshdata)
+    cons = build_constraints(case, model)
+    check_initial_state(case, cons, model)
+    probes = find_probes(case, model)
+    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
+    integrator = METHODS[solver.method](ops, solver.dt, beta=solver.beta, gamma=solver.gamma)
+    n_steps = steps_for(solver.t_end, solver.dt)
+    setup_time = time.perf_counter() - t_start
+    log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
+
+    with staged_directory(outdir, comm) as stage:
+        history = HistoryWriter(stage / "history.csv", cons, probes, comm)
+        stats = RunStatistics(cons)
+        observers = [history, stats]
+        vtk = None
+        if case.output.vtk:
+            vtk = VTKWriter(stage / "results.pvd", model, cons, case.output.every, n_steps)
+            observers.append(vtk)
+        t_loop = time.perf_counter()
+        try:
+            final = integrate(integrator, model.U0, model.V0, solver.t_end, observers,
+                              progress=Progress(comm) if progress else None)
+        finally:
+            history.close()
+            if vtk is not None:
+                vtk.close()
+        loop_time = time.perf_counter() - t_loop
+        summary = {
+            "case": case.name,
+            "method": solver.method,
+            "wall_time_s": time.perf_counter() - t_start,
+            "setup_time_s": setup_time,
+            "loop_time_s": loop_time,
+            "steps": final.step,
+            "dt": solver.dt,
+            "t_end": final.t,
+            "dofs": model.dofs,
+            "constraints": cons.p,
+            "modes": None,
+            "mpi_ranks": comm.size,
+            "mesh": meshdata.description,
+            "max_penetration": stats.max_penetration,
+            "max_energy_error": stats.max_energy_error,
+            "max_energy_error_relative": stats.max_energy_error / stats.energy_scale if stats.energy_scale else 0.0,
+            "initial_energy": final.energy.initial,
+            "final_energy": final.energy.total,
+            "impact_loss": final.energy.impact_loss,
+            "contact_loss": final.energy.contact_loss,
+            "total_impulse": stats.total_impulse,
+            "vtk_frames": vtk.frames if vtk else 0,
+            "fem_impact_version": __version__,
+        }
+        if comm.rank == 0:
+            (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+            case.write_resolved(stage / "case.resolved.yaml")
+    summary["outdir"] = str(outdir.resolve())
+    return summary
+
+
+def describe(summary: dict) -> str:
+    """The one-paragraph report printed at the end of a run."""
+    return (
+        f"{summary['case']}: {summary['steps']} steps of {summary['dt']:.4g} s to t = {summary['t_end']:.4g} s, "
+        f"{summary['dofs']} unknowns, {summary['constraints']} contact rows, {summary['method']} "
+        f"on {summary['mpi_ranks']} rank(s). Wall time {summary['wall_time_s']:.2f} s "
+        f"(setup {summary['setup_time_s']:.2f} s, loop {summary['loop_time_s']:.2f} s, "
+        f"{1e3 * summary['loop_time_s'] / max(summary['steps'], 1):.3f} ms/step). "
+        f"Max penetration {summary['max_penetration']:.3g}; energy-balance residual "
+        f"{summary['max_energy_error']:.3g} ({summary['max_energy_error_relative']:.2g} of the energy scale); "
+        f"impact loss {summary['impact_loss']:.4g}, contact loss {summary['contact_loss']:.4g}. "
+        f"Results in {summary['outdir']} (results.pvd, history.csv, summary.json, case.resolved.yaml)."
+    )

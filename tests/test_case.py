@@ -1,0 +1,329 @@
+"""Unit tests for fem_impact.case: loading, validation, --set overrides and the resolved dump."""
+
+import textwrap
+
+import numpy as np
+import pytest
+import yaml
+
+from fem_impact.case import CaseError, load_case
+
+BASE = """\
+mesh:
+  shape: bar
+material:
+  E: 1.0
+  rho: 1.0
+solver:
+  dt: 0.01
+  t_end: 1.0
+"""
+
+FULL = """\
+name: impacting-bar
+mesh:
+  shape: bar
+  dim: 1
+  length: 1.0
+  cells: 100
+material:
+  E: 70e9
+  rho: 2.7e3
+  nu: 0.0
+  area: 1.0
+damping: {alpha: 0.0, beta: 1e-6}
+initial:
+  velocity: [-1.0]
+  displacement: ["(1 - x)/2"]
+supports: [{nodes: clamp, fix: [x, y]}]
+loads:
+  - {nodes: drive, force: ["50*sin(2*pi*400*t)", 0]}
+  - {body: all, acceleration: [0, -9.81]}
+contacts:
+  - name: wall
+    type: obstacle
+    nodes: left
+    normal: [-2.0]
+    gap: 0.1
+    restitution: 0.0
+  - name: joint
+    type: pair
+    nodes: [a_right, b_left]
+    normal: [1.0]
+    restitution: 0.5
+solver:
+  method: newmark
+  beta: 0.25
+  gamma: 0.5
+  dt: 0.005
+  t_end: 4.0
+output:
+  every: 10
+  probes:
+    left: [0.0]
+    right: [1.0]
+"""
+
+
+def write(tmp_path, text, name="case.yaml"):
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def error_of(tmp_path, text, overrides=()):
+    with pytest.raises(CaseError) as info:
+        load_case(write(tmp_path, text), overrides)
+    return info.value
+
+
+def test_full_case(tmp_path):
+    case = load_case(write(tmp_path, FULL))
+    assert case.name == "impacting-bar" and case.path == tmp_path / "case.yaml"
+    assert (case.mesh.shape, case.mesh.file, case.mesh.dim, case.mesh.cells) == ("bar", None, 1, 100)
+    assert case.material.E == 70e9 and case.material.rho == 2700.0 and case.materials is None
+    assert case.damping.beta == 1e-6
+    (velocity,) = case.initial.velocity
+    assert velocity.body is None and velocity.value[0].evaluate() == -1.0
+    x = np.array([0.0, 1.0])
+    np.testing.assert_allclose(case.initial.displacement[0].value[0].evaluate(x=x), [0.5, 0.0])
+    assert case.supports[0].nodes == "clamp" and case.supports[0].fix == [0, 1]
+    drive, gravity = case.loads
+    assert drive.nodes == "drive" and drive.body is None and drive.acceleration is None
+    assert drive.force[0].variables == {"t"} and drive.force[1].evaluate() == 0.0
+    assert gravity.body == "all" and gravity.acceleration[1].evaluate() == -9.81
+    wall, joint = case.contacts
+    assert (wall.type, wall.nodes, wall.normal, wall.gap) == ("obstacle", ["left"], [-1.0], 0.1)
+    assert (joint.nodes, joint.gap, joint.restitution) == (["a_right", "b_left"], None, 0.5)
+    assert (case.solver.dt, case.solver.t_end, case.solver.mass) == (0.005, 4.0, "consistent")
+    assert case.output.probes == {"left": [0.0], "right": [1.0]} and case.output.vtk
+    assert case.lines[("contacts", 0, "normal")] == 24
+
+
+def test_defaults(tmp_path):
+    case = load_case(write(tmp_path, BASE, "my-case.yaml"))
+    assert case.name == "my-case"
+    assert (case.mesh.dim, case.mesh.length, case.mesh.cells, case.mesh.height) == (1, 1.0, 100, None)
+    assert (case.material.nu, case.material.area) == (0.0, 1.0)
+    assert (case.damping.alpha, case.damping.beta) == (0.0, 0.0)
+    assert case.initial.velocity == [] and case.initial.displacement == []
+    assert case.supports == [] and case.loads == [] and case.contacts == []
+    solver = case.solver
+    assert (solver.method, solver.beta, solver.gamma, solver.modes) == ("newmark", 0.25, 0.5, None)
+    assert (solver.static_correction, solver.tolerance) == (True, 0.01)
+    assert (case.output.every, case.output.probes, case.output.vtk) == (10, {}, True)
+
+
+def test_yaml_1_2_numbers(tmp_path):
+    case = load_case(write(tmp_path, BASE.replace("E: 1.0", "E: 2.1e+11").replace("dt: 0.01", "dt: 1e-3")
+                           .replace("rho: 1.0", "rho: 70.0e9") + "output: {every: 010}\n"))
+    assert (case.material.E, case.material.rho, case.solver.dt) == (2.1e11, 70e9, 1e-3)
+    assert case.output.every == 10  # decimal, not YAML 1.1 octal
+    assert yaml.safe_load("a: 1e-3")["a"] == "1e-3"  # the global SafeLoader is left alone
+
+
+def test_per_body_materials_and_initial_values(tmp_path):
+    mesh = tmp_path / "meshes" / "two_bars.msh"
+    mesh.parent.mkdir()
+    mesh.write_text("")
+    case = load_case(write(tmp_path, """\
+        mesh: {file: meshes/two_bars.msh}
+        materials: {bar_a: {E: 1, rho: 1}, bar_b: {E: 2, rho: 3, nu: 0.3}}
+        initial:
+          velocity: [{body: bar_a, value: [1.0, "y"]}, {body: bar_b, value: [0]}]
+        solver: {dt: 0.1, t_end: 1, method: modal, modes: auto}
+        """))
+    assert case.mesh.file == mesh and case.mesh.shape is None and case.mesh.dim is None
+    assert case.material is None and case.materials["bar_b"].nu == 0.3
+    assert [v.body for v in case.initial.velocity] == ["bar_a", "bar_b"]
+    assert case.solver.modes == "auto"
+
+
+def test_resolved_round_trip(tmp_path):
+    (tmp_path / "m.msh").write_text("")
+    text = FULL.replace("shape: bar", "file: m.msh").replace("""\
+  velocity: [-1.0]""", """\
+  velocity: [{body: bar, value: ["x", 0]}]""")
+    case = load_case(write(tmp_path, text))
+    resolved = case.resolved()
+    assert resolved["mesh"]["file"] == str(tmp_path / "m.msh") and resolved["solver"]["mass"] == "consistent"
+    out = tmp_path / "out"
+    out.mkdir()
+    written = case.write_resolved(out)
+    assert written == out / "case.resolved.yaml"
+    again = load_case(written)
+    assert again.mesh.file == case.mesh.file
+    assert again.resolved() == resolved
+    assert yaml.safe_load(yaml.safe_dump(resolved)) == resolved
+
+
+def test_error_format(tmp_path):
+    err = error_of(tmp_path, BASE.replace("E: 1.0", "E: -1"))
+    assert (err.key, err.line) == ("material.E", 4)
+    assert err.file.endswith("case.yaml")
+    assert str(err) == f"{err.file}:4: material.E: must be > 0, got -1"
+    assert str(CaseError("x.yaml", None, 3, "bad")) == "x.yaml:3: bad"
+    assert str(CaseError("x.yaml", "a.b", None, "bad")) == "x.yaml: a.b: bad"
+
+
+def test_case_error_method_for_later_stages(tmp_path):
+    case = load_case(write(tmp_path, FULL))
+    err = case.error(("contacts", 1, "nodes"), "unknown node group 'a_right'")
+    assert (err.key, err.line) == ("contacts[1].nodes", 29)
+    assert case.error(("contacts", 1, "nodes", 5), "x").line == 29  # nearest known ancestor
+
+
+def test_yaml_syntax_error(tmp_path):
+    err = error_of(tmp_path, BASE + "output: {every: [1}\n")
+    assert err.line == 9 and "invalid YAML" in str(err) and "\n" not in str(err)
+
+
+@pytest.mark.parametrize("text, message", [("", "empty"), ("- 1\n", "mapping")])
+def test_top_level_must_be_a_mapping(tmp_path, text, message):
+    assert message in str(error_of(tmp_path, text))
+
+
+def test_unknown_keys(tmp_path):
+    err = error_of(tmp_path, BASE.replace("shape: bar", "shape: bar\n  cels: 4"))
+    assert ":3: mesh.cels: unknown key 'cels'; did you mean 'cells'?" in str(err)
+    err = error_of(tmp_path, BASE + "zzz: 1\n")
+    assert err.line == 9 and "valid keys: name, mesh" in str(err)
+
+
+def test_duplicate_key(tmp_path):
+    err = error_of(tmp_path, BASE + "  dt: 0.02\n")
+    assert (err.key, err.line, err.message) == ("solver.dt", 9, "duplicate key")
+
+
+@pytest.mark.parametrize("old, new, key, message", [
+    ("dt: 0.01", "dt: abc", "solver.dt", "expected a number, got 'abc'"),
+    ("dt: 0.01", "dt: true", "solver.dt", "expected a number, got True"),
+    ("dt: 0.01", "dt: .inf", "solver.dt", "finite"),
+    ("shape: bar", "shape: bar\n  cells: 2.5", "mesh.cells", "expected an integer, got 2.5"),
+    ("shape: bar", "shape: bar\n  dim: 4", "mesh.dim", "must be in [1, 3], got 4"),
+    ("shape: bar", "shape: ball", "mesh.shape", "must be one of bar"),
+    ("material:\n  E: 1.0\n  rho: 1.0\n", "material: 3\n", "material", "expected a mapping"),
+])
+def test_wrong_types(tmp_path, old, new, key, message):
+    err = error_of(tmp_path, BASE.replace(old, new))
+    assert err.key == key and message in err.message
+
+
+def test_integral_float_accepted_for_int(tmp_path):
+    assert load_case(write(tmp_path, BASE.replace("shape: bar", "shape: bar\n  cells: 1e3"))).mesh.cells == 1000
+
+
+@pytest.mark.parametrize("old, new, key, message", [
+    ("E: 1.0", "E: 0", "material.E", "must be > 0, got 0"),
+    ("rho: 1.0", "rho: -2", "material.rho", "must be > 0"),
+    ("rho: 1.0", "rho: 1\n  area: 0", "material.area", "must be > 0"),
+    ("rho: 1.0", "rho: 1\n  nu: 0.5", "material.nu", "must be in [0, 0.5), got 0.5"),
+    ("rho: 1.0", "rho: 1\n  nu: -0.1", "material.nu", "must be in [0, 0.5)"),
+    ("dt: 0.01", "dt: 0", "solver.dt", "must be > 0"),
+    ("t_end: 1.0", "t_end: -1", "solver.t_end", "must be > 0"),
+    ("dt: 0.01", "dt: 2", "solver.dt", "must be <= t_end"),
+    ("shape: bar", "shape: bar\n  length: 0", "mesh.length", "must be > 0"),
+    ("dt: 0.01", "dt: 0.01\n  tolerance: 1", "solver.tolerance", "must be in (0, 1)"),
+    ("dt: 0.01", "dt: 0.01\n  modes: 0", "solver.modes", "'auto' or an integer >= 1"),
+    ("dt: 0.01", "dt: 0.01\n  method: explicit", "solver.method", "one of newmark, modal"),
+])
+def test_out_of_range(tmp_path, old, new, key, message):
+    err = error_of(tmp_path, BASE.replace(old, new))
+    assert err.key == key and message in err.message and err.line
+
+
+def test_missing_required_keys(tmp_path):
+    assert error_of(tmp_path, BASE.replace("  t_end: 1.0\n", "")).key == "solver.t_end"
+    assert "either 'material'" in str(error_of(tmp_path, BASE.replace("material:\n  E: 1.0\n  rho: 1.0\n", "")))
+    both = BASE + "materials: {a: {E: 1, rho: 1}}\n"
+    assert "not both" in str(error_of(tmp_path, both))
+    assert "either 'shape'" in str(error_of(tmp_path, BASE.replace("  shape: bar\n", "  dim: 1\n")))
+
+
+def test_missing_mesh_file(tmp_path):
+    err = error_of(tmp_path, BASE.replace("shape: bar", "file: nowhere.msh"))
+    assert err.key == "mesh.file" and err.line == 2
+    assert f"mesh file not found: {tmp_path / 'nowhere.msh'}" in str(err)
+
+
+CONTACT = BASE + """\
+contacts:
+  - name: c
+    type: obstacle
+    nodes: left
+    normal: [1.0]
+"""
+
+
+@pytest.mark.parametrize("old, new, key, message", [
+    ("normal: [1.0]", "normal: [0, 0.0]", "contacts[0].normal", "nonzero length"),
+    ("normal: [1.0]", "normal: [1, 0, 0, 0]", "contacts[0].normal", "1 to 3 components"),
+    ("nodes: left", "nodes: [left, right]", "contacts[0].nodes", "one node group"),
+    ("type: obstacle\n    nodes: left", "type: pair\n    nodes: [a, b, c]", "contacts[0].nodes", "two node groups"),
+    ("type: obstacle\n    nodes: left", "type: pair\n    nodes: left", "contacts[0].nodes", "two node groups"),
+    ("type: obstacle\n    nodes: left", "type: pair\n    nodes: [a, a]", "contacts[0].nodes", "must differ"),
+    ("normal: [1.0]", "normal: [1.0]\n    restitution: 1.5", "contacts[0].restitution", "in [0, 1]"),
+    ("normal: [1.0]", "normal: [1.0]\n    restitution: -0.1", "contacts[0].restitution", "in [0, 1]"),
+    ("name: c", "name: 'a,b'", "contacts[0].name", "letters, digits"),
+    ("type: obstacle", "type: glue", "contacts[0].type", "one of obstacle, pair"),
+])
+def test_bad_contacts(tmp_path, old, new, key, message):
+    err = error_of(tmp_path, CONTACT.replace(old, new))
+    assert err.key == key and message in err.message and err.line
+
+
+def test_contact_and_probe_names_unique(tmp_path):
+    twice = CONTACT + "  - {name: c, type: obstacle, nodes: right, normal: [-1]}\n"
+    err = error_of(tmp_path, twice)
+    assert (err.key, err.line) == ("contacts[1].name", 14) and "duplicate" in err.message
+    err = error_of(tmp_path, BASE + "output:\n  probes: {p: [0], p: [1]}\n")
+    assert err.key == "output.probes.p" and "duplicate" in err.message
+
+
+def test_obstacle_gap_defaults_to_zero(tmp_path):
+    assert load_case(write(tmp_path, CONTACT)).contacts[0].gap == 0.0
+
+
+@pytest.mark.parametrize("section, key", [
+    ("initial:\n  velocity: [\"__import__('os').system('touch {marker}')\"]\n", "initial.velocity[0]"),
+    ("initial:\n  velocity: [{body: b, value: [\"open('{marker}', 'w')\"]}]\n", "initial.velocity[0].value[0]"),
+    ("loads: [{nodes: n, force: [\"x\"]}]\n", "loads[0].force[0]"),
+])
+def test_expressions_are_not_executed(tmp_path, section, key):
+    marker = tmp_path / "X"
+    err = error_of(tmp_path, BASE + section.replace("{marker}", str(marker)))
+    assert err.key == key and err.line
+    assert not marker.exists()
+
+
+def test_loads_need_matching_keys(tmp_path):
+    assert "either 'nodes'" in str(error_of(tmp_path, BASE + "loads: [{force: [1]}]\n"))
+    err = error_of(tmp_path, BASE + "loads: [{body: all, force: [1]}]\n")
+    assert err.key == "loads[0].force" and "not allowed with 'body'" in err.message
+
+
+def test_overrides(tmp_path):
+    path = write(tmp_path, CONTACT)
+    case = load_case(path, ["solver.dt=1e-3", "mesh.cells=400", "contacts.0.gap=0.2",
+                            "contacts.0.normal=[-1]", "damping.alpha=0.5"])
+    assert (case.solver.dt, case.mesh.cells, case.damping.alpha) == (1e-3, 400, 0.5)
+    assert (case.contacts[0].gap, case.contacts[0].normal) == (0.2, [-1.0])
+
+
+@pytest.mark.parametrize("option, text", [
+    ("mesh.cels=400", "mesh.cels: unknown key 'cels'; did you mean 'cells'? (from --set mesh.cels=400)"),
+    ("solver.dt=abc", "solver.dt: expected a number, got 'abc' (from --set solver.dt=abc)"),
+    ("contacts.3.gap=1", "--set: contacts.3: no item 3"),
+    ("solver.dt.x=1", "--set: solver.dt: is not a mapping"),
+    ("solver.dt", "--set: expected KEY.PATH=VALUE"),
+    ("solver.dt=[1", "--set: solver.dt: cannot read the value"),
+])
+def test_bad_overrides(tmp_path, option, text):
+    err = error_of(tmp_path, CONTACT, [option])
+    assert text in str(err) and err.line is None
+
+
+def test_error_from_later_stage_names_override(tmp_path):
+    case = load_case(write(tmp_path, CONTACT), ["contacts.0.nodes=right"])
+    err = case.error(("contacts", 0, "nodes"), "unknown node group 'right'")
+    assert err.line is None and "(from --set contacts.0.nodes=right)" in str(err)

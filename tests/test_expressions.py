@@ -1,0 +1,127 @@
+"""Unit tests for fem_impact.expressions: parsing, vectorized evaluation and the whitelist."""
+
+import math
+
+import numpy as np
+import pytest
+
+from fem_impact.expressions import FUNCTIONS, ExpressionError, parse_expression
+
+
+@pytest.mark.parametrize("source, expected", [
+    ("1 + 2 * 3", 7.0),
+    ("(1 + 2) * 3", 9.0),
+    ("2 ** 3 ** 2", 512.0),
+    ("-2 ** 2", -4.0),
+    ("7 / 2", 3.5),
+    ("+3 - -1", 4.0),
+    ("2 * pi", 2 * math.pi),
+    ("1e-3 * 2", 0.002),
+])
+def test_arithmetic_and_precedence(source, expected):
+    expression = parse_expression(source)
+    assert expression.is_constant
+    assert expression.evaluate() == pytest.approx(expected)
+
+
+def test_numbers_are_constants():
+    expression = parse_expression(3)
+    assert expression.source == 3 and expression.is_constant
+    assert isinstance(expression.evaluate(), float) and expression.evaluate() == 3.0
+    np.testing.assert_array_equal(parse_expression(-1.5).evaluate(shape=4), np.full(4, -1.5))
+
+
+def test_vectorized_over_node_coordinates():
+    x, y = np.array([0.0, 0.5, 1.0]), np.array([1.0, 2.0, 3.0])
+    expression = parse_expression("(1 - x)/2 + y*t")
+    assert expression.variables == {"x", "y", "t"} and not expression.is_constant
+    np.testing.assert_allclose(expression.evaluate(x=x, y=y, t=2.0), (1 - x) / 2 + 2 * y)
+    # A constant, or an expression of t only, is broadcast against the given coordinates.
+    np.testing.assert_array_equal(parse_expression("2").evaluate(x=x, y=y), np.full(3, 2.0))
+    np.testing.assert_array_equal(parse_expression("t")(x=x, t=1.0), np.ones(3))
+    assert parse_expression("sin(t)")(t=0.5) == pytest.approx(math.sin(0.5))
+
+
+@pytest.mark.parametrize("name, argument, expected", [
+    ("sin", 0.5, math.sin(0.5)), ("cos", 0.5, math.cos(0.5)), ("tan", 0.5, math.tan(0.5)),
+    ("asin", 0.5, math.asin(0.5)), ("acos", 0.5, math.acos(0.5)), ("atan", 0.5, math.atan(0.5)),
+    ("sinh", 0.5, math.sinh(0.5)), ("cosh", 0.5, math.cosh(0.5)), ("tanh", 0.5, math.tanh(0.5)),
+    ("exp", 0.5, math.exp(0.5)), ("log", 0.5, math.log(0.5)), ("sqrt", 0.5, math.sqrt(0.5)),
+    ("abs", -0.5, 0.5),
+])
+def test_unary_functions(name, argument, expected):
+    assert parse_expression(f"{name}(x)")(x=argument) == pytest.approx(expected)
+    x = np.array([argument, argument])
+    np.testing.assert_allclose(parse_expression(f"{name}(x)")(x=x), [expected, expected])
+
+
+def test_min_max_reduce_over_arguments():
+    x = np.array([0.0, 1.0, 2.0])
+    np.testing.assert_array_equal(parse_expression("min(x, 1.5, 1)")(x=x), [0.0, 1.0, 1.0])
+    np.testing.assert_array_equal(parse_expression("max(x, 1)")(x=x), [1.0, 1.0, 2.0])
+    assert set(FUNCTIONS) >= {"sin", "cos", "exp", "sqrt", "abs", "min", "max"}
+
+
+def test_huge_powers_overflow_to_inf_quietly():
+    with np.errstate(all="raise"):  # evaluate() must not leak numpy warnings or errors
+        assert parse_expression("9**9**9").evaluate() == math.inf
+
+
+def test_missing_variable():
+    with pytest.raises(ExpressionError, match="needs t"):
+        parse_expression("x * t").evaluate(x=1.0)
+
+
+@pytest.mark.parametrize("source, message", [
+    ("__import__('os').system('touch X')", "function calls other than"),
+    ("().__class__", "attribute access"),
+    ("open('f')", "function calls other than"),
+    ("x.real", "attribute access"),
+    ("[1][0]", "indexing"),
+    ("lambda: 1", "lambda"),
+    ("1 if x else 2", "conditional"),
+    ("x < 1", "comparison"),
+    ("'a'", "numbers only"),
+    ("True", "numbers only"),
+    ("1j", "numbers only"),
+    ("os", "'os' is not an allowed name"),
+    ("__builtins__", "not an allowed name"),
+    ("e", "not an allowed name"),
+    ("x % 2", "not allowed"),
+    ("x and 1", "not allowed"),
+    ("[x for x in ()]", "not allowed"),
+    ("(y := 1)", "not allowed"),
+    ("sin(x=1)", "positional"),
+    ("sin(1, 2)", "exactly 1 argument"),
+    ("max(1)", "at least 2"),
+    ("sin", "not an allowed name"),
+    ("1 +", "invalid expression"),
+    ("", "invalid expression"),
+    ("(" * 500 + "1" + ")" * 500, ""),
+    ("+".join(["1"] * 5000), ""),
+])
+def test_rejects_everything_but_arithmetic(source, message):
+    with pytest.raises(ExpressionError, match=message):
+        parse_expression(source)
+
+
+@pytest.mark.parametrize("source", [True, None, [1.0], {"a": 1}, b"1"])
+def test_rejects_non_numbers(source):
+    with pytest.raises(ExpressionError, match="expected a number"):
+        parse_expression(source)
+
+
+def test_allowed_names_are_restricted():
+    with pytest.raises(ExpressionError, match=r"'t' is not an allowed name \(allowed: x, y, z, pi\)"):
+        parse_expression("x + t", allowed=("x", "y", "z"))
+    assert parse_expression("2*pi*t", allowed=("t",)).variables == {"t"}
+
+
+def test_malicious_expression_does_not_run(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    marker = tmp_path / "X"
+    for source in (f"__import__('os').system('touch {marker}')",
+                   f"[c for c in ().__class__.__base__.__subclasses__()][0]('{marker}')"):
+        with pytest.raises(ExpressionError):
+            parse_expression(source).evaluate(x=0.0, y=0.0, z=0.0, t=0.0)
+    assert not marker.exists()
