@@ -1,0 +1,50 @@
+"""Shared fixtures: run a case file through the real pipeline and read its history."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = ROOT / "cases"
+
+
+def read_history(outdir: Path) -> np.ndarray:
+    """history.csv as a structured array; dots in column names become underscores."""
+    with open(outdir / "history.csv") as f:
+        names = [n.replace(".", "_") for n in f.readline().strip().split(",")]
+    return np.genfromtxt(outdir / "history.csv", delimiter=",", skip_header=1, names=names)
+
+
+def run_case_file(case, outdir: Path, *overrides: str):
+    """Run a case in-process; returns (summary dict, history array)."""
+    from fem_impact.run import run_case
+
+    summary = run_case(Path(case), outdir, list(overrides), progress=False)
+    return summary, read_history(outdir)
+
+
+def run_cli(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    """``fem-impact ARGS`` in a fresh interpreter, as a user would call it."""
+    return subprocess.run([sys.executable, "-m", "fem_impact", *args], capture_output=True, text=True, cwd=cwd)
+
+
+@pytest.fixture
+def run(tmp_path):
+    """``run("impacting_bar", "mesh.cells=100", ...)`` -> (summary, history)."""
+    counter = iter(range(1000))
+
+    def _run(name: str, *overrides: str):
+        case = CASES / f"{name}.yaml" if not str(name).endswith(".yaml") else Path(name)
+        return run_case_file(case, tmp_path / f"run{next(counter)}", *overrides)
+
+    return _run
+
+
+def load_summary(outdir: Path) -> dict:
+    return json.loads((outdir / "summary.json").read_text())
