@@ -1,0 +1,39 @@
+"""The same history in serial and under ``mpirun -n 2`` (distributed matrices and vectors)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import CASES, read_history, run_cli
+
+pytestmark = pytest.mark.mpi
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
+@pytest.mark.parametrize("dim, cells", [(1, 100), (2, 60)])
+def test_serial_and_two_ranks_agree(tmp_path, dim, cells):
+    overrides = ["--set", f"mesh.dim={dim}", "--set", f"mesh.cells={cells}", "--set", f"solver.dt={0.5 / cells}",
+                 "--set", "solver.t_end=2.5", "--set", "output.every=50"]
+    case = str(CASES / "impacting_bar.yaml")
+    serial = run_cli("run", case, "-o", str(tmp_path / "serial"), "-q", *overrides)
+    assert serial.returncode == 0, serial.stderr
+    parallel = subprocess.run(
+        ["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-m", "fem_impact",
+         "run", case, "-o", str(tmp_path / "mpi"), "-q", *overrides],
+        capture_output=True, text=True,
+    )
+    assert parallel.returncode == 0, parallel.stderr
+    a, b = read_history(tmp_path / "serial"), read_history(tmp_path / "mpi")
+    assert a.dtype.names == b.dtype.names and a.shape == b.shape
+    energy_scale = a["kinetic"][0] + a["strain"][0]
+    for name in a.dtype.names:
+        # The balance residual is round-off itself: compare it on the scale of the energy.
+        scale = energy_scale if name == "energy_error" else max(np.abs(a[name]).max(), 1e-300)
+        assert np.abs(a[name] - b[name]).max() <= 1e-8 * scale, name
+    # The contact really happened in both runs (the comparison is not of two empty histories).
+    assert a["wall_impulse"].sum() > 0.9 * (1.0 / 20 if dim == 2 else 1.0) * 2
