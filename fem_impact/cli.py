@@ -47,6 +47,12 @@ def build_parser() -> argparse.ArgumentParser:
                           "e.g. --set solver.dt=1e-3 --set contacts.0.restitution=0.5")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary paragraph")
     run.add_argument("-v", "--verbose", action="store_true", help="log the stages of the run")
+    run.add_argument("--plot", action="store_true", help="also write history.png (contact force and energies)")
+
+    plot = sub.add_parser("plot", help="plot a run's contact forces and energy budget to a PNG",
+                          description="Plot history.csv of a finished run: contact forces and the energy budget.")
+    plot.add_argument("outdir", metavar="OUTDIR", help="a run's output folder")
+    plot.add_argument("-o", "--output", metavar="PNG", help="image path (default: OUTDIR/history.png)")
     return parser
 
 
@@ -56,7 +62,9 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
-    _configure_logging(args.verbose)
+    _configure_logging(getattr(args, "verbose", False))
+    if args.command == "plot":
+        return _plot(args.outdir, args.output)
 
     # Heavy imports (dolfinx, PETSc) only once the arguments are known to be sound.
     from mpi4py import MPI
@@ -77,6 +85,20 @@ def main(argv=None) -> int:
         return _fail(comm, "interrupted (the output folder was left as it was)", 130)
     if comm.rank == 0 and not args.quiet:
         print(describe(summary))
+    if comm.rank == 0 and args.plot:
+        _plot(summary["outdir"], None)
+    return 0
+
+
+def _plot(outdir: str, png) -> int:
+    from pathlib import Path
+
+    from .plots import plot_history
+
+    if not (Path(outdir) / "history.csv").is_file():
+        print(f"fem-impact: error: {outdir}: no history.csv (is it a run's output folder?)", file=sys.stderr)
+        return 2
+    print(f"wrote {plot_history(outdir, png)}")
     return 0
 
 

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+TINY = np.finfo(float).tiny
+
 
 class ContactSolverError(RuntimeError):
     """The small contact problem could not be solved (singular or ill-posed constraints)."""
@@ -22,21 +24,24 @@ def solve_lcp(A: np.ndarray, q: np.ndarray, guess: np.ndarray | None = None) -> 
     Returns ``(x, w, active)``.
     """
     n = q.size
+    if n == 1:  # the common case of one contact row, in closed form
+        x = max(0.0, -q[0] / A[0, 0])
+        return np.array([x]), np.array([0.0 if x > 0.0 else q[0]]), np.array([x > 0.0])
     active = np.zeros(n, dtype=bool) if guess is None else guess.copy()
     if n == 0 or (not active.any() and np.all(q >= 0.0)):
         return np.zeros(n), q.copy(), np.zeros(n, dtype=bool)
-    scale = max(np.abs(q).max(), np.finfo(float).tiny)
+    scale = max(np.abs(q).max(), TINY)
     tol = 1e-13 * scale
     for _ in range(max(50, 20 * n)):
         x = np.zeros(n)
         if active.any():
-            block = A[np.ix_(active, active)]
+            block = A[active][:, active]
             try:
                 x[active] = np.linalg.solve(block, -q[active])
             except np.linalg.LinAlgError:
                 x[active] = np.linalg.lstsq(block, -q[active], rcond=None)[0]
         w = A @ x + q
-        xtol = 1e-13 * max(np.abs(x).max(), np.finfo(float).tiny)
+        xtol = 1e-13 * max(np.abs(x).max(), TINY)
         wrong = (active & (x < -xtol)) | (~active & (w < -tol))
         if not wrong.any():
             x[~active] = 0.0
@@ -81,7 +86,7 @@ def impact_correction(
     lam1, force, lam2 = np.zeros(p), lam0.copy(), np.zeros(p)
     a = np.flatnonzero(closed)
     if a.size:
-        Daa = D[np.ix_(a, a)]
+        Daa = D[a][:, a]
         q1 = -(Daa @ s0[a] + v_star[a] + restitution[a] * np.maximum(v_minus[a], 0.0))
         S, w, active = solve_lcp(Daa, q1, guess=lam0[a] > 0.0)
         lam1[a] = S - s0[a]
@@ -89,9 +94,9 @@ def impact_correction(
         leaving = a[~(active | (w <= 0.0))]
         force[leaving] = 0.0
         if staying.size:
-            Dbb = D[np.ix_(staying, staying)]
+            Dbb = D[staying][:, staying]
             # Normal accelerations after the velocity change are unchanged by it: project them.
-            q2 = -(Dbb @ lam0[staying] + a_normal[staying] + D[np.ix_(staying, leaving)] @ lam0[leaving])
+            q2 = -(Dbb @ lam0[staying] + a_normal[staying] + D[staying][:, leaving] @ lam0[leaving])
             force[staying], _, _ = solve_lcp(Dbb, q2, guess=lam0[staying] > 0.0)
         lam2[a] = force[a] - lam0[a]
     return ImpactResult(lam1, lam2, force)

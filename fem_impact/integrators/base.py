@@ -39,9 +39,8 @@ class Operators:
     d0: np.ndarray
     restitution: np.ndarray
 
-    @property
-    def comm(self) -> MPI.Comm:
-        return self.K.getComm().tompi4py()
+    def __post_init__(self):
+        self.comm: MPI.Comm = self.K.getComm().tompi4py()
 
     @property
     def p(self) -> int:

@@ -6,7 +6,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..contact import impact_correction, solve_lcp
+from ..contact import TINY, impact_correction, solve_lcp
 from .base import EnergyBudget, Operators, SimulationError, StepState, factorize
 
 
@@ -84,7 +84,7 @@ class Newmark:
     def _closed(self, pu: np.ndarray, lam0: np.ndarray) -> np.ndarray:
         """Rows closed at the end of a step: pushed by lam0, or at zero gap up to round-off."""
         gap = self.ops.d0 - pu
-        return (lam0 > 0.0) | (gap <= 1e-10 * (np.abs(self.ops.d0) + np.abs(pu)) + np.finfo(float).tiny)
+        return (lam0 > 0.0) | (gap <= 1e-10 * (np.abs(self.ops.d0) + np.abs(pu)) + TINY)
 
     def _apply_corrections(self, res, pv: np.ndarray) -> np.ndarray:
         """Velocity (-H lam1) and acceleration (-H lam2) corrections; returns the new P V."""
