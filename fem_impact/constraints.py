@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from mpi4py import MPI
+from scipy import sparse
 from scipy.spatial import cKDTree
 
 from .case import Case
@@ -23,12 +24,12 @@ class ContactRows:
 
 @dataclass
 class Constraints:
-    """``P U <= d0``: ``P_local`` holds this rank's owned columns of ``P`` as an (n_local x p) array.
+    """``P U <= d0``: ``P_local`` holds this rank's owned rows of ``P^T`` (sparse, n_local x p).
 
     Every rank holds all p rows, so the small p x p contact problems can be solved redundantly.
     """
 
-    P_local: np.ndarray
+    P_local: sparse.csr_matrix
     d0: np.ndarray
     restitution: np.ndarray
     contacts: list[ContactRows]
@@ -71,25 +72,27 @@ def build_constraints(case: Case, model: Model) -> Constraints:
         gaps.append(gap)
         restitution.append(np.full(len(gap), contact.restitution))
     if not columns:
-        return Constraints(np.zeros((n_local, 0)), np.zeros(0), np.zeros(0), [])
-    P_local = np.hstack(columns)
+        return Constraints(sparse.csr_matrix((n_local, 0)), np.zeros(0), np.zeros(0), [])
     # Supports act first: a held dof cannot move, so it does not enter a constraint.
-    P_local[model.fixed, :] = 0.0
+    free = np.ones(n_local)
+    free[model.fixed] = 0.0
+    P_local = (sparse.diags(free) @ sparse.hstack(columns)).tocsr()
+    P_local.eliminate_zeros()
     cons = Constraints(P_local, np.concatenate(gaps), np.concatenate(restitution), contacts)
-    norms = np.sqrt(model.comm.allreduce((P_local**2).sum(axis=0), op=MPI.SUM))
+    norms = np.sqrt(model.comm.allreduce(np.asarray(P_local.power(2).sum(axis=0)).ravel(), op=MPI.SUM))
     for c in contacts:
         if np.any(norms[c.rows] == 0.0):
             raise case.error(("contacts", c.index, "nodes"), "acts on nodes whose normal direction is fixed by a support")
     return cons
 
 
-def _rows(n_local: int, bs: int, normal: np.ndarray, nodes: NodeSet) -> np.ndarray:
+def _rows(n_local: int, bs: int, normal: np.ndarray, nodes: NodeSet) -> sparse.csr_matrix:
     """Columns of P^T (owned part) for rows ``n . u_node``, one per node of the set."""
-    cols = np.zeros((n_local, len(nodes)))
     owned = np.flatnonzero(nodes.local_node >= 0)
-    for comp, n_c in enumerate(normal):
-        cols[nodes.local_node[owned] * bs + comp, owned] = n_c
-    return cols
+    dofs = (nodes.local_node[owned][:, None] * bs + np.arange(normal.size)).ravel()
+    rows_of = np.repeat(owned, normal.size)
+    values = np.tile(normal, owned.size)
+    return sparse.csr_matrix((values, (dofs, rows_of)), shape=(n_local, len(nodes)))
 
 
 def match_pairs(case: Case, key: tuple, a: NodeSet, b: NodeSet, normal: np.ndarray) -> np.ndarray:

@@ -113,7 +113,8 @@ def pad_vector(values, dim: int, case: Case, key: tuple, what: str) -> list:
     if len(values) == 1:
         zero = parse_expression(0.0) if isinstance(values[0], Expression) else 0.0
         return values + [zero] * (dim - 1)
-    raise case.error(key, f"{what} has {len(values)} components; the mesh is {dim}D (give 1 or {dim})")
+    wanted = "1 component" if dim == 1 else f"1 or {dim} components"
+    raise case.error(key, f"{what} has {len(values)} components; the mesh is {dim}D (give {wanted})")
 
 
 def build_model(case: Case, meshdata: MeshData) -> Model:

@@ -124,7 +124,11 @@ class VTKWriter:
         self.frames += 1
 
     def close(self) -> None:
-        self.series.close()
+        # dolfinx 0.5's VTKFile writes its .pvd again when destroyed: drop it now, while its
+        # folder (the staging folder) exists, not after that has been moved or removed.
+        if self.series is not None:
+            self.series.close()
+            self.series = None
 
 
 class RunStatistics:

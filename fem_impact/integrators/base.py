@@ -9,6 +9,7 @@ from typing import Callable, Protocol
 import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
+from scipy import sparse
 
 
 class SimulationError(RuntimeError):
@@ -26,7 +27,7 @@ class Operators:
     """Plain operators of ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d0``.
 
     ``M``, ``K``, ``C`` (or None) are distributed PETSc matrices; ``P_local`` holds the owned
-    rows of ``P^T`` (n_local x p, a few columns); the p-vectors ``d0`` and ``restitution`` are
+    rows of ``P^T`` (n_local x p, sparse or dense); the p-vectors ``d0`` and ``restitution`` are
     known on every rank. Nothing here knows about meshes, so the integrators run as well on
     a 1-dof system as on a finite-element model.
     """
@@ -35,12 +36,14 @@ class Operators:
     K: PETSc.Mat
     C: PETSc.Mat | None
     load: TimeDependentLoad
-    P_local: np.ndarray
+    P_local: sparse.spmatrix | np.ndarray
     d0: np.ndarray
     restitution: np.ndarray
 
     def __post_init__(self):
         self.comm: MPI.Comm = self.K.getComm().tompi4py()
+        self.P_local = sparse.csr_matrix(self.P_local)
+        self._P = self.P_local.T.tocsr()  # owned columns of P, for P x in O(nnz)
 
     @property
     def p(self) -> int:
@@ -48,7 +51,7 @@ class Operators:
 
     def project(self, local: np.ndarray) -> np.ndarray:
         """``P x`` (or ``P X`` for a block of columns) from owned entries: one global sum."""
-        part = np.ascontiguousarray(self.P_local.T @ local)
+        part = np.ascontiguousarray(self._P @ local)
         comm = self.comm
         if comm.size > 1:
             comm.Allreduce(MPI.IN_PLACE, part, op=MPI.SUM)
@@ -56,15 +59,17 @@ class Operators:
 
     def project_many(self, *vecs: PETSc.Vec) -> list[np.ndarray]:
         """``P x`` for several PETSc vectors with a single reduction."""
-        stacked = self.project(np.column_stack([v.array_r for v in vecs]))
-        return [stacked[:, k] for k in range(len(vecs))]
+        parts = np.concatenate([self._P @ v.array_r for v in vecs])
+        if self.comm.size > 1:
+            self.comm.Allreduce(MPI.IN_PLACE, parts, op=MPI.SUM)
+        return np.split(parts, len(vecs))
 
     def solve_columns(self, solve: Callable[[PETSc.Vec, PETSc.Vec], None]) -> np.ndarray:
         """``A^-1 P^T`` (owned rows) for a factorized ``A``: p solves, once per run."""
         b, x = self.K.createVecs()
-        out = np.empty_like(self.P_local)
+        out = np.empty(self.P_local.shape)
         for j in range(self.p):
-            b.array[:] = self.P_local[:, j]
+            b.array[:] = self._P[j].toarray().ravel()
             solve(b, x)
             out[:, j] = x.array_r
         return out

@@ -49,6 +49,7 @@ class Newmark:
         self.Up, self.Vp, self.rhs, self.work = new(), new(), new(), new()
         self.R, self.R_prev = new(), new()
         self.CV, self.CV_prev = (new(), new()) if ops.C is not None else (None, None)
+        self._du = np.empty(self.U.getLocalSize())
         self.t0 = 0.0
         self.state: StepState | None = None
 
@@ -88,11 +89,11 @@ class Newmark:
 
     def _apply_corrections(self, res, pv: np.ndarray) -> np.ndarray:
         """Velocity (-H lam1) and acceleration (-H lam2) corrections; returns the new P V."""
-        if np.any(res.lam1):
-            self.V.array[:] -= self.H @ res.lam1
+        if np.any(res.lam1) or np.any(res.lam2):
+            dv_da = self.H @ np.column_stack([res.lam1, res.lam2])  # one pass over H for both
+            self.V.array[:] -= dv_da[:, 0]
+            self.A.array[:] -= dv_da[:, 1]
             pv = pv - self.D @ res.lam1
-        if np.any(res.lam2):
-            self.A.array[:] -= self.H @ res.lam2
         return pv
 
     def _impact_loss(self, lam1: np.ndarray, pv_after: np.ndarray) -> float:
@@ -166,15 +167,19 @@ class Newmark:
 
         # Energy budget: kinetic and strain energy from the state; work terms with the
         # scheme's own weights (1 - gamma, gamma), so that the balance closes to round-off.
-        du = U.array_r - U_prev.array_r
+        du = np.subtract(U.array_r, U_prev.array_r, out=self._du)
         work = self.work
-        ops.M.mult(V, work)
         sums = np.empty(4)
+        ops.M.mult(V, work)
         sums[0] = work.array_r @ V.array_r
         ops.K.mult(U, work)
         sums[1] = work.array_r @ U.array_r
-        sums[2] = du @ ((1.0 - gamma) * self.R_prev.array_r + gamma * self.R.array_r)
-        sums[3] = du @ ((1.0 - gamma) * self.CV_prev.array_r + gamma * self.CV.array_r) if ops.C is not None else 0.0
+        # Delta U . ((1 - gamma) R_n + gamma R_n+1) and the same with C V*: dots, no temporaries.
+        sums[2] = (1.0 - gamma) * (du @ self.R_prev.array_r) + gamma * (du @ self.R.array_r)
+        if ops.C is not None:
+            sums[3] = (1.0 - gamma) * (du @ self.CV_prev.array_r) + gamma * (du @ self.CV.array_r)
+        else:
+            sums[3] = 0.0
         if ops.comm.size > 1:
             ops.comm.Allreduce(MPI.IN_PLACE, sums, op=MPI.SUM)
         energy.kinetic, energy.strain = 0.5 * sums[0], 0.5 * sums[1]

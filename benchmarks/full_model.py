@@ -1,0 +1,77 @@
+"""Cost of the full model: setup, time per step, and that step against one bare solve.
+
+For the 1D bar at 100, 1000 and 10 000 cells and a 2D strip of about 20 000 unknowns (B2a,
+Courant number 0.5, the wall reached a quarter into the run so that both free and contact
+steps are timed), prints the setup time, the loop time per step, the time of one bare solve
+with the factorized S measured in the same run, their ratio, and the fixed cost per step
+(step minus solve). Target (issue 2): ratio <= 3 from 10 000 unknowns on.
+
+    python benchmarks/full_model.py [--steps 400] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from mpi4py import MPI
+
+from fem_impact.case import load_case
+from fem_impact.constraints import build_constraints
+from fem_impact.integrators import Newmark, Operators
+from fem_impact.mesh import build_mesh
+from fem_impact.model import build_model
+
+CASE = Path(__file__).resolve().parents[1] / "cases" / "impacting_bar.yaml"
+
+
+def measure(dim: int, cells: int, steps: int, solves: int = 50) -> dict:
+    dt = 0.5 / cells
+    overrides = [f"mesh.dim={dim}", f"mesh.cells={cells}", f"solver.dt={dt}",
+                 f"contacts.0.gap={steps / 4 * dt}"]  # v0 = 1: contact from step steps/4 on
+    t0 = time.perf_counter()
+    case = load_case(CASE, overrides)
+    model = build_model(case, build_mesh(case, MPI.COMM_WORLD))
+    cons = build_constraints(case, model)
+    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
+    integrator = Newmark(ops, dt)
+    integrator.start(model.U0, model.V0)
+    setup = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        state = integrator.step()
+    loop = time.perf_counter() - t0
+    assert state.impulse.sum() > 0 or state.force.sum() > 0, "the benchmark should include contact steps"
+
+    b, x = ops.K.createVecs()
+    b.set(1.0)
+    t0 = time.perf_counter()
+    for _ in range(solves):
+        integrator.solve_S(b, x)
+    solve = (time.perf_counter() - t0) / solves
+    per_step = loop / steps
+    return {"model": f"{dim}D bar, {cells} cells", "dofs": model.dofs, "setup_s": setup, "step_ms": 1e3 * per_step,
+            "solve_ms": 1e3 * solve, "ratio": per_step / solve, "fixed_ms": 1e3 * (per_step - solve)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--steps", type=int, default=400, help="time steps per model (default 400)")
+    parser.add_argument("--quick", action="store_true", help="small models only (for CI)")
+    args = parser.parse_args()
+    models = [(1, 100), (1, 1000)] if args.quick else [(1, 100), (1, 1000), (1, 10000), (2, 440)]
+    header = f"{'model':<22}{'unknowns':>9}{'setup s':>9}{'step ms':>9}{'solve ms':>9}{'ratio':>7}{'fixed ms':>10}"
+    print(header)
+    print("-" * len(header))
+    for dim, cells in models:
+        r = measure(dim, cells, args.steps)
+        print(f"{r['model']:<22}{r['dofs']:>9}{r['setup_s']:>9.3f}{r['step_ms']:>9.3f}{r['solve_ms']:>9.3f}"
+              f"{r['ratio']:>7.2f}{r['fixed_ms']:>10.3f}")
+    print("ratio = time per step / time of one bare solve with the factorized S (same run); "
+          "fixed = step - solve: the Python and vector-update cost per step.")
+
+
+if __name__ == "__main__":
+    main()
