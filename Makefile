@@ -10,7 +10,7 @@ APT_PACKAGES := python3-dolfinx-real python3-petsc4py-real python3-slepc4py-real
                 python3-meshio python3-scipy python3-matplotlib python3-yaml python3-pytest \
                 python3-venv python3-pip openmpi-bin
 
-.PHONY: setup system-packages run test test-all benchmark clean
+.PHONY: setup system-packages run test test-all benchmark docs clean
 
 setup: system-packages $(VENV)/.installed
 
@@ -42,3 +42,8 @@ benchmark: setup
 
 clean:
 	rm -rf $(VENV) results .pytest_cache
+
+# The figure in the README: the default case's contact force and energy budget.
+docs: setup
+	$(VENV)/bin/fem-impact run $(CASE) -q
+	$(VENV)/bin/fem-impact plot results/impacting_bar -o docs/impacting_bar.png

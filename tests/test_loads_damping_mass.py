@@ -1,0 +1,97 @@
+"""Loads, Rayleigh damping and the lumped mass on cases with exact answers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from conftest import CASES, run_case_file
+from fem_impact.case import load_case
+from fem_impact.constraints import build_constraints
+from fem_impact.integrators import Newmark, Operators, integrate
+from fem_impact.mesh import build_mesh
+from fem_impact.model import build_model
+
+BAR = CASES / "impacting_bar.yaml"
+NO_CONTACT = ["contacts=[]", "output.vtk=false"]
+
+
+class Momentum:
+    """Total momentum 1^T M V and centroid displacement (1^T M U) / m per component."""
+
+    def __init__(self, model):
+        self.model = model
+        self.ones = model.M.createVecs()[0]
+        self.ones.set(1.0)
+        self.Mones = model.M.createVecs()[0]
+        model.M.mult(self.ones, self.Mones)
+        self.rows = []
+
+    def write(self, s):
+        bs = self.model.bs
+        mv = (self.Mones.array_r * s.V.array_r).reshape(-1, bs).sum(axis=0)
+        mu = (self.Mones.array_r * s.U.array_r).reshape(-1, bs).sum(axis=0)
+        self.rows.append([s.t, *mv, *mu])
+
+
+def run_with_momentum(*overrides):
+    case = load_case(BAR, list(overrides))
+    model = build_model(case, build_mesh(case, MPI.COMM_WORLD))
+    cons = build_constraints(case, model)
+    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
+    obs = Momentum(model)
+    final = integrate(Newmark(ops, case.solver.dt), model.U0, model.V0, case.solver.t_end, [obs])
+    mass = obs.Mones.array_r.reshape(-1, model.bs)[:, 0].sum()
+    return np.array(obs.rows), mass, final
+
+
+def test_time_dependent_force_on_a_node_group_gives_its_impulse():
+    """Free rod, total force sin(2 pi t) on the right end: momentum (1 - cos 2 pi t) / 2 pi."""
+    rows, mass, final = run_with_momentum("initial.velocity=[0.0]", "loads=[{nodes: right, force: ['sin(2*pi*t)']}]",
+                                          "solver.t_end=1.5", "solver.dt=0.002", "mesh.cells=50", *NO_CONTACT)
+    t, p = rows[:, 0], rows[:, 1]
+    exact = (1 - np.cos(2 * np.pi * t)) / (2 * np.pi)
+    assert mass == pytest.approx(1.0)
+    assert np.abs(p - exact).max() < 1e-5          # trapezoidal rule on the load: O(dt^2)
+    assert abs(final.energy.error) < 1e-10 * final.energy.external_work
+
+
+def test_gravity_on_a_2d_strip_is_free_fall():
+    """Body acceleration (0, -9.81) on a free strip: centroid at -g t^2/2, exact for Newmark."""
+    rows, mass, final = run_with_momentum("mesh.dim=2", "mesh.cells=20", "initial.velocity=[0.0]",
+                                          "loads=[{body: all, acceleration: [0, -9.81]}]", "solver.t_end=0.5",
+                                          "solver.dt=0.01", *NO_CONTACT)
+    t = rows[:, 0]
+    height = 1.0 / 20
+    m = height * 1.0 * 1.0  # area (thickness) 1, rho 1
+    np.testing.assert_allclose(rows[:, 2], -9.81 * m * t, atol=1e-12)          # momentum y
+    np.testing.assert_allclose(rows[:, 4] / m, -9.81 * t**2 / 2, atol=1e-12)   # centroid y
+    np.testing.assert_allclose(rows[:, 1], 0.0, atol=1e-12)                     # nothing along x
+
+
+def test_damped_clamped_rod_settles_at_the_static_tip_displacement(tmp_path):
+    """Clamped at x = 0, step force F at x = L, Rayleigh damping: u(L) -> F L / (E A)."""
+    summary, h = run_case_file(
+        BAR, tmp_path, "initial.velocity=[0.0]", "supports=[{nodes: left, fix: [x]}]",
+        "loads=[{nodes: right, force: [0.01]}]", "damping={alpha: 2.0, beta: 0.001}", "mesh.cells=40",
+        "solver.dt=0.01", "solver.t_end=20.0", *NO_CONTACT,
+    )
+    assert h["right_ux"][-1] == pytest.approx(0.01, rel=1e-4)
+    assert h["left_ux"].max() == 0.0 and h["left_vx"].max() == 0.0   # the support holds
+    assert np.all(np.diff(h["damping_loss"]) >= -1e-15)              # damping only dissipates
+    # Work done = strain energy stored + damping loss (no kinetic energy left).
+    assert h["external_work"][-1] == pytest.approx(h["strain"][-1] + h["damping_loss"][-1], rel=1e-6)
+    assert h["strain"][-1] == pytest.approx(0.5 * 0.01 * 0.01, rel=1e-3)
+    assert summary["max_energy_error"] < 1e-9 * h["external_work"][-1]
+
+
+def test_lumped_mass_impact_loss_is_one_over_two_n(tmp_path):
+    """With a lumped mass and e = 0 one impact removes 1/(2 n_el) of the energy (BENCHMARKS.md B2)."""
+    for n in (50, 100):
+        _, h = run_case_file(BAR, Path(tmp_path) / str(n), "solver.mass=lumped", f"mesh.cells={n}",
+                             f"solver.dt={0.5 / n}", "solver.t_end=2.5", "output.vtk=false")
+        loss = (h["impact_loss"][-1] + h["contact_loss"][-1]) / 0.5
+        assert loss == pytest.approx(1 / (2 * n), rel=0.02)
