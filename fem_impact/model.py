@@ -287,6 +287,9 @@ def _initial_field(case, which, meshdata, V, bs, coords, out: PETSc.Vec) -> None
         x = coords[nodes]
         for comp, expr in enumerate(comps):
             values[nodes, comp] = expr.evaluate(x=x[:, 0], y=x[:, 1], z=x[:, 2], shape=len(nodes))
+            if not meshdata.comm.allreduce(bool(np.isfinite(values[nodes, comp]).all()), op=MPI.LAND):
+                where = key + (comp,) if entry.body is None else key + ("value", comp)
+                raise case.error(where, f"{expr.source!r} is not finite at some nodes (inf or nan)")
 
 
 def _body_nodes(meshdata: MeshData, V, body: str, n_owned: int) -> np.ndarray:

@@ -82,7 +82,8 @@ class Bad:
     at: a text whose first line in the edited case is the line the message must give,
         or None where no line is known (a --set option);
     says: fragments the message must contain;
-    args: extra command-line arguments; fresh: no earlier result in OUT (it must stay absent).
+    args: extra command-line arguments; fresh: no earlier result in OUT (it must stay absent);
+    runtime: the case is valid but fails during the time loop (a "run failed" message).
     """
 
     id: str
@@ -92,6 +93,7 @@ class Bad:
     says: tuple
     args: tuple = ()
     fresh: bool = False
+    runtime: bool = False
 
 
 BAD = [
@@ -163,12 +165,17 @@ BAD = [
         args=("--set", f'initial.velocity=["{PAYLOAD}"]')),
     Bad("expr-attribute", (("velocity: [-1.0]", 'velocity: ["x.__class__"]'),), "initial.velocity[0]",
         "velocity:", ("attribute access is not allowed",)),
+    Bad("initial-not-finite", (("velocity: [-1.0]", 'velocity: ["-1/x"]'),), "initial.velocity[0]",
+        "velocity:", ("'-1/x' is not finite",)),
     # an initial state that already violates a constraint: the left end 0.2 beyond a gap of 0.1
     Bad("initial-penetration", (("  velocity: [-1.0]\n", "  velocity: [-1.0]\n  displacement: [-0.2]\n"),),
         "contacts[0]", "- name: wall", ("violates contact 'wall'",)),
     # errors found after the mesh is built, into an OUT that does not exist yet: it is not created
     Bad("fresh-contact-group", (("nodes: left", "nodes: middle"),), "contacts[0].nodes", "nodes: middle",
         ("no node group 'middle'",), fresh=True),
+    # a valid case whose solution blows up during the time loop (after the staging folder exists)
+    Bad("run-fails", (before_output('loads: [{nodes: right, force: ["exp(1e5*t)"]}]'),), None, None,
+        ("the run failed", "no longer finite", "left as it was"), runtime=True),
 ]
 EXPRESSION_CASES = [bad.id for bad in BAD if bad.id.startswith("expr-")]
 
@@ -220,15 +227,20 @@ class Outcome:
 
 
 @pytest.fixture(scope="module")
-def outcomes(tmp_path_factory):
-    """Run every bad case (concurrently) into an OUT holding an earlier good result."""
+def previous(tmp_path_factory):
+    """The result of a good run (the earlier result every bad run must leave alone)."""
     root = tmp_path_factory.mktemp("bad_input")
     good = root / "good.yaml"
     good.write_text(GOOD)
-    previous = root / "previous"
-    proc = run_cli("run", str(good), "-o", str(previous), "-q", cwd=root)
+    proc = run_cli("run", str(good), "-o", "previous", "-q", cwd=root)
     assert proc.returncode == 0, proc.stderr
-    assert (previous / "history.csv").is_file() and (previous / "summary.json").is_file()
+    return root / "previous"
+
+
+@pytest.fixture(scope="module")
+def outcomes(previous):
+    """Run every bad case (concurrently) into an OUT holding an earlier good result."""
+    root = previous.parent
     write_pair_mesh(root / "pair.msh")
 
     jobs = {}
@@ -241,16 +253,20 @@ def outcomes(tmp_path_factory):
         out = folder / "out"
         if not bad.fresh:
             shutil.copytree(previous, out)
-        jobs[bad.id] = (case, out, snapshot(out))
+        jobs[bad.id] = (bad, case, out, snapshot(out))
 
-    def launch(item):
-        name, (case, out, _) = item
-        return name, run_cli("run", case.name, "-o", "out", *next(b.args for b in BAD if b.id == name),
-                             cwd=case.parent)
+    def launch(job):
+        bad, case, out, before = job
+        proc = run_cli("run", case.name, "-o", out.name, *bad.args, cwd=case.parent)
+        return bad.id, Outcome(case, out, before, proc)
 
     with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 1)) as pool:
-        procs = dict(pool.map(launch, jobs.items()))
-    return {name: Outcome(case, out, before, procs[name]) for name, (case, out, before) in jobs.items()}
+        return dict(pool.map(launch, jobs.values()))
+
+
+def test_good_run_leaves_only_its_output_folder(previous):
+    assert {"history.csv", "summary.json", "case.resolved.yaml", "results.pvd"} <= set(snapshot(previous))
+    assert [p.name for p in previous.parent.iterdir() if p.name.startswith(".previous.")] == []
 
 
 @pytest.mark.parametrize("bad", BAD, ids=[bad.id for bad in BAD])
@@ -260,8 +276,11 @@ def test_bad_input_is_reported(outcomes, bad):
     assert result.proc.returncode not in (0, None), err
     assert "Traceback" not in err, err
     assert len(err.strip().splitlines()) < 5, err
-    assert err.startswith("fem-impact: error: "), err
-    assert result.case.name in err, err
+    if bad.runtime:
+        assert err.startswith("fem-impact: the run failed: "), err
+    else:
+        assert err.startswith("fem-impact: error: "), err
+        assert result.case.name in err, err
     if bad.at is not None:
         lines = result.case.read_text().splitlines()
         line = next(n for n, text in enumerate(lines, 1) if bad.at in text)
