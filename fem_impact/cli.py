@@ -70,8 +70,7 @@ def main(argv=None) -> int:
     from mpi4py import MPI
 
     from .case import CaseError
-    from .contact import ContactSolverError
-    from .integrators import SimulationError
+    from .errors import SimulationError
     from .run import describe, run_case
 
     comm = MPI.COMM_WORLD
@@ -79,7 +78,7 @@ def main(argv=None) -> int:
         summary = run_case(args.case, args.output, args.overrides, comm=comm, progress=not args.quiet)
     except CaseError as err:
         return _fail(comm, f"error: {err}", 2)
-    except (SimulationError, ContactSolverError) as err:
+    except SimulationError as err:
         return _fail(comm, f"the run failed: {err} (the output folder was left as it was)", 3)
     except KeyboardInterrupt:
         return _fail(comm, "interrupted (the output folder was left as it was)", 130)

@@ -82,7 +82,8 @@ def build_constraints(case: Case, model: Model) -> Constraints:
     norms = np.sqrt(model.comm.allreduce(np.asarray(P_local.power(2).sum(axis=0)).ravel(), op=MPI.SUM))
     for c in contacts:
         if np.any(norms[c.rows] == 0.0):
-            raise case.error(("contacts", c.index, "nodes"), "acts on nodes whose normal direction is fixed by a support")
+            raise case.error(("contacts", c.index, "nodes"),
+                             "acts on nodes whose normal direction is fixed by a support")
     return cons
 
 
@@ -95,13 +96,17 @@ def _rows(n_local: int, bs: int, normal: np.ndarray, nodes: NodeSet) -> sparse.c
     return sparse.csr_matrix((values, (dofs, rows_of)), shape=(n_local, len(nodes)))
 
 
+def _nodes(n: int) -> str:
+    return f"{n} node" if n == 1 else f"{n} nodes"
+
+
 def match_pairs(case: Case, key: tuple, a: NodeSet, b: NodeSet, normal: np.ndarray) -> np.ndarray:
     """For each node of ``a``, the index of the node of ``b`` facing it along ``normal``."""
     dim = normal.size
     if len(a) != len(b):
         raise case.error(
             key + ("nodes",),
-            f"pair groups '{a.name}' ({len(a)} nodes) and '{b.name}' ({len(b)} nodes) do not match up",
+            f"pair groups '{a.name}' ({_nodes(len(a))}) and '{b.name}' ({_nodes(len(b))}) do not match up",
         )
     # Pairs face each other along the normal: compare positions projected on the plane normal to it.
     def tangential(x):

@@ -6,14 +6,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import ContactSolverError
+
 TINY = np.finfo(float).tiny
 
 
-class ContactSolverError(RuntimeError):
-    """The small contact problem could not be solved (singular or ill-posed constraints)."""
-
-
-def solve_lcp(A: np.ndarray, q: np.ndarray, guess: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def solve_lcp(
+    A: np.ndarray, q: np.ndarray, guess: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve ``w = A x + q >= 0, x >= 0, x . w = 0`` exactly.
 
     Murty's least-index principal pivoting: finite for any start when ``A`` is a P-matrix (here

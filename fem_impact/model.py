@@ -221,10 +221,13 @@ def _loads(case, meshdata, V, bs, materials, dim, dxm, fixed) -> LoadVector:
     constant.set(0.0)
     varying = []
 
-    def add(expr: Expression, vec: PETSc.Vec) -> None:
+    def add(expr: Expression, vec: PETSc.Vec, key: tuple) -> None:
         vec.array[fixed] = 0.0
         if expr.is_constant:
-            constant.axpy(float(expr.evaluate()), vec)
+            value = float(expr.evaluate())
+            if not np.isfinite(value):
+                raise case.error(key, f"'{expr.source}' is not a finite number")
+            constant.axpy(value, vec)
         else:
             varying.append((expr, vec))
 
@@ -241,7 +244,7 @@ def _loads(case, meshdata, V, bs, materials, dim, dxm, fixed) -> LoadVector:
                 vec = constant.duplicate()
                 vec.set(0.0)
                 vec.array[owned * bs + comp] = 1.0 / len(nodes)
-                add(expr, vec)
+                add(expr, vec, key)
         else:
             key = ("loads", i, "acceleration")
             bodies = meshdata.bodies if load.body == "all" else None
@@ -261,7 +264,7 @@ def _loads(case, meshdata, V, bs, materials, dim, dxm, fixed) -> LoadVector:
                     section = mat.area if dim < 3 else 1.0
                     term = mat.rho * section * ufl.inner(unit, w) * measure
                     form = term if form is None else form + term
-                add(expr, dx.assemble_vector(form))
+                add(expr, dx.assemble_vector(form), key)
     return LoadVector(constant, varying)
 
 

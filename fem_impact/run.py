@@ -13,12 +13,7 @@ from pathlib import Path
 from mpi4py import MPI
 
 from . import __version__
-from .case import Case, load_case
-from .constraints import build_constraints, check_initial_state
-from .integrators import METHODS, Operators, integrate, steps_for
-from .mesh import build_mesh
-from .model import build_model
-from .output import HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
+from .case import Case, CaseError, load_case
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +55,15 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
     t_start = time.perf_counter()
     case = load_case(path, overrides)
     outdir = Path(outdir) if outdir is not None else default_outdir(case)
+    if outdir.exists() and not outdir.is_dir():
+        raise CaseError(str(outdir), None, None, "the output path exists and is not a folder")
+    # dolfinx and PETSc load in about a second: only once the case file is known to be sound.
+    from .constraints import build_constraints, check_initial_state
+    from .integrators import METHODS, Operators, integrate, steps_for
+    from .mesh import build_mesh
+    from .model import build_model
+    from .output import HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
+
     solver = case.solver
     if solver.method not in METHODS:
         raise case.error(("solver", "method"), f"method '{solver.method}' is not available in this version "

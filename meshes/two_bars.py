@@ -54,7 +54,7 @@ def build(length: float = 1.0, gap: float = 0.1, cells: int = 100, output: Path 
         for name, curve in (("bar_a", bar_a), ("bar_b", bar_b)):
             tag = gmsh.model.addPhysicalGroup(1, [curve])
             gmsh.model.setPhysicalName(1, tag, name)
-        for name, point in zip(("a_left", "a_right", "b_left", "b_right"), points):
+        for name, point in zip(("a_left", "a_right", "b_left", "b_right"), points, strict=True):
             tag = gmsh.model.addPhysicalGroup(0, [point])
             gmsh.model.setPhysicalName(0, tag, name)
 

@@ -155,7 +155,7 @@ BAD = [
         ("nonzero length",)),
     # pair groups that do not match up (1 node against 2)
     Bad("pair-mismatch", (PAIR_MESH, pair("a_right, b_left_extra")), "contacts[0].nodes", "nodes: [a_right",
-        ("do not match up", "1 nodes", "2 nodes")),
+        ("do not match up", "1 node)", "2 nodes")),
     # expressions that are not plain arithmetic (the payload would touch SENTINEL if executed)
     Bad("expr-velocity", (("velocity: [-1.0]", f'velocity: ["{PAYLOAD}"]'),), "initial.velocity[0]",
         "velocity:", ("not allowed",)),

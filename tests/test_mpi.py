@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -22,10 +23,13 @@ def test_serial_and_two_ranks_agree(tmp_path, dim, cells):
     case = str(CASES / "impacting_bar.yaml")
     serial = run_cli("run", case, "-o", str(tmp_path / "serial"), "-q", *overrides)
     assert serial.returncode == 0, serial.stderr
+    # This pytest process has initialized MPI itself (singleton): its OMPI_/PMIX_ variables
+    # would make the child mpirun think it is nested, so they are not passed on.
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}
     parallel = subprocess.run(
         ["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-m", "fem_impact",
          "run", case, "-o", str(tmp_path / "mpi"), "-q", *overrides],
-        capture_output=True, text=True,
+        capture_output=True, text=True, env=env,
     )
     assert parallel.returncode == 0, parallel.stderr
     a, b = read_history(tmp_path / "serial"), read_history(tmp_path / "mpi")

@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 from scipy import sparse
 
-
-class SimulationError(RuntimeError):
-    """The run cannot go on (blow-up, NaN, a contact problem without solution)."""
+from ..errors import SimulationError  # noqa: F401  (re-exported)
 
 
 class TimeDependentLoad(Protocol):
@@ -116,7 +115,7 @@ class EnergyBudget:
             + self.damping_loss + self.impact_loss + self.contact_loss
         )
 
-    def copy(self) -> "EnergyBudget":
+    def copy(self) -> EnergyBudget:
         return dataclasses.replace(self)
 
 
