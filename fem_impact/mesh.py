@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from mpi4py import MPI
@@ -30,7 +30,6 @@ class MeshData:
     bodies: dict[str, int]
     node_groups: dict[str, np.ndarray]
     description: str
-    sizes: dict[str, float] = field(default_factory=dict)
 
     @property
     def comm(self) -> MPI.Comm:
@@ -59,13 +58,10 @@ def _builtin_bar(spec: MeshSpec, comm: MPI.Comm) -> MeshData:
     across = lambda size: max(1, int(round(cells * size / length)))  # noqa: E731
     if dim == 1:
         msh = dx.interval(comm, cells, length)
-        sizes = {"length": length}
     elif dim == 2:
         msh = dx.rectangle(comm, cells, across(height), length, height)
-        sizes = {"length": length, "height": height}
     else:
         msh = dx.box(comm, (cells, across(height), across(width)), (length, height, width))
-        sizes = {"length": length, "height": height, "width": width}
     tol = 1e-9 * length
     planes = {"left": (0, 0.0), "right": (0, length)}
     if dim >= 2:
@@ -76,7 +72,7 @@ def _builtin_bar(spec: MeshSpec, comm: MPI.Comm) -> MeshData:
         name: dx.locate_vertices(msh, lambda x, a=axis, c=coord: np.abs(x[a] - c) < tol)
         for name, (axis, coord) in planes.items()
     }
-    return MeshData(msh, dim, None, {"bar": 0}, groups, f"built-in bar, {dim}D, {cells} cells along", sizes)
+    return MeshData(msh, dim, None, {"bar": 0}, groups, f"built-in bar, {dim}D, {cells} cells along")
 
 
 def _read_gmsh(case: Case, comm: MPI.Comm) -> MeshData:
@@ -117,7 +113,7 @@ def _read_gmsh(case: Case, comm: MPI.Comm) -> MeshData:
     for name, points in info["node_groups"].items():
         tree = cKDTree(points)
         groups[name] = dx.locate_vertices(msh, lambda x, t=tree: t.query(x.T, distance_upper_bound=tol)[0] < tol)
-    return MeshData(msh, dim, cell_tags, info["bodies"], groups, f"Gmsh file {path.name}, {dim}D", {})
+    return MeshData(msh, dim, cell_tags, info["bodies"], groups, f"Gmsh file {path.name}, {dim}D")
 
 
 def _gmsh_groups(model) -> dict:

@@ -151,7 +151,7 @@ def build_model(case: Case, meshdata: MeshData) -> Model:
     if case.damping.alpha or case.damping.beta:
         C = K.copy()
         C.scale(case.damping.beta)
-        C.axpy(case.damping.alpha, M, structure=_pattern(M, K))
+        C.axpy(case.damping.alpha, M, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
 
     load = _loads(case, meshdata, V, bs, materials, dim, dxm, fixed)
     U0, V0 = M.createVecs()
@@ -161,11 +161,6 @@ def build_model(case: Case, meshdata: MeshData) -> Model:
         vec.array[fixed] = 0.0
     log.info("model: %d dofs, %s mass", K.getSize()[0], case.solver.mass)
     return Model(meshdata, V, bs, M, K, C, fixed, load, U0, V0, coords, n_owned, first)
-
-
-def _pattern(M: PETSc.Mat, K: PETSc.Mat):
-    same = M.getInfo()["nz_used"] == K.getInfo()["nz_used"]
-    return PETSc.Mat.Structure.SAME_NONZERO_PATTERN if same else PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN
 
 
 def _materials(case: Case, meshdata: MeshData) -> dict[str, Material]:

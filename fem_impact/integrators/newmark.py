@@ -31,11 +31,12 @@ class Newmark:
         if beta <= 0.0:
             raise ValueError("Newmark needs beta > 0 for position-level contact multipliers")
         self.ops, self.dt, self.beta, self.gamma = ops, dt, beta, gamma
+        # Supports may have removed diagonal entries from K's pattern: let PETSc merge patterns.
         S = ops.K.copy()
         S.scale(beta * dt * dt)
-        S.axpy(1.0, ops.M, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        S.axpy(1.0, ops.M, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
         if ops.C is not None:
-            S.axpy(gamma * dt, ops.C, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            S.axpy(gamma * dt, ops.C, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
         self.S = S
         self.solve_S = factorize(S)
         self.solve_M = factorize(ops.M)
