@@ -90,7 +90,7 @@ class Newmark:
 
     def _apply_corrections(self, res, pv: np.ndarray) -> np.ndarray:
         """Velocity (-H lam1) and acceleration (-H lam2) corrections; returns the new P V."""
-        if np.any(res.lam1) or np.any(res.lam2):
+        if res.lam1.any() or res.lam2.any():
             dv_da = self.H @ np.column_stack([res.lam1, res.lam2])  # one pass over H for both
             self.V.array[:] -= dv_da[:, 0]
             self.A.array[:] -= dv_da[:, 1]
