@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
+
+# The dense products of the time loop (N x p, p small) are memory bound: BLAS threads gain
+# nothing there and would compete with MPI ranks for the cores.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 DESCRIPTION = """\
 fem-impact: dynamics of elastic structures with unilateral constraints.

@@ -90,11 +90,11 @@ class Newmark:
 
     def _apply_corrections(self, res, pv: np.ndarray) -> np.ndarray:
         """Velocity (-H lam1) and acceleration (-H lam2) corrections; returns the new P V."""
-        if res.lam1.any() or res.lam2.any():
-            dv_da = self.H @ np.column_stack([res.lam1, res.lam2])  # one pass over H for both
-            self.V.array[:] -= dv_da[:, 0]
-            self.A.array[:] -= dv_da[:, 1]
+        if res.lam1.any():
+            self.V.array[:] -= self.H @ res.lam1
             pv = pv - self.D @ res.lam1
+        if res.lam2.any():
+            self.A.array[:] -= self.H @ res.lam2
         return pv
 
     def _impact_loss(self, lam1: np.ndarray, pv_after: np.ndarray) -> float:
