@@ -19,6 +19,26 @@ from .model import AXES, Model, pad_vector
 ENERGY_COLUMNS = ("kinetic", "strain", "external_work", "damping_loss", "impact_loss", "contact_loss", "energy_error")
 
 
+class NodalFields:
+    """Physical fields of the full model: the state vectors are the nodal values.
+
+    The reduced model has its own reader (``reduce.ReducedFields``) with the same two methods,
+    so observers never need to know which model produced a step.
+    """
+
+    def __init__(self, cons: Constraints):
+        self.cons = cons
+
+    def at(self, state: StepState, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Displacement and velocity at a few owned dofs."""
+        return state.U.array_r[dofs], state.V.array_r[dofs]
+
+    def frame(self, state: StepState) -> dict[str, np.ndarray]:
+        """Owned values of u, v, a and the contact force on the structure (-P^T F_N)."""
+        return {"u": state.U.array_r, "v": state.V.array_r, "a": state.A.array_r,
+                "contact_force": -(self.cons.P_local @ state.force)}
+
+
 @dataclass
 class Probes:
     """Named points, each read at the mesh node nearest to it (one owner rank per probe)."""
@@ -28,14 +48,12 @@ class Probes:
     distance: np.ndarray       # distance from the asked point to the node used
     dim: int
 
-    def values(self, state: StepState, comm: MPI.Comm) -> np.ndarray:
+    def values(self, state: StepState, comm: MPI.Comm, fields) -> np.ndarray:
         """(u, v) at every probe as one flat array [p0.ux, p0.uy, ..., p0.vx, ...]."""
         out = np.zeros((len(self.names), 2, self.dim))
         mine = self.owned_dofs[:, 0] >= 0
         if mine.any():
-            dofs = self.owned_dofs[mine]
-            out[mine, 0] = state.U.array_r[dofs]
-            out[mine, 1] = state.V.array_r[dofs]
+            out[mine, 0], out[mine, 1] = fields.at(state, self.owned_dofs[mine])
         if comm.size > 1:
             comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)
         return out.reshape(-1)
@@ -69,8 +87,9 @@ def find_probes(case, model: Model) -> Probes:
 class HistoryWriter:
     """``history.csv``: one row for t = 0 and one per step (INTERFACE.md)."""
 
-    def __init__(self, path: Path, cons: Constraints, probes: Probes, comm: MPI.Comm, flush_every: int = 2000):
-        self.cons, self.probes, self.comm = cons, probes, comm
+    def __init__(self, path: Path, cons: Constraints, probes: Probes, comm: MPI.Comm, fields,
+                 flush_every: int = 2000):
+        self.cons, self.probes, self.comm, self.fields = cons, probes, comm, fields
         self.rows: list[list[float]] = []
         self.flush_every = flush_every
         self.columns = ["t"]
@@ -87,7 +106,7 @@ class HistoryWriter:
         for c in self.cons.contacts:
             r = c.rows
             row += [state.gap[r].min(), state.force[r].sum(), state.impulse[r].sum()]
-        row += self.probes.values(state, self.comm).tolist() if self.probes.names else []
+        row += self.probes.values(state, self.comm, self.fields).tolist() if self.probes.names else []
         e = state.energy
         row += [e.kinetic, e.strain, e.external_work, e.damping_loss, e.impact_loss, e.contact_loss, e.error]
         if self._file:
@@ -109,18 +128,15 @@ class HistoryWriter:
 class VTKWriter:
     """``results.pvd``: u, v, a and the contact force on the structure (-P^T F_N) every N steps."""
 
-    def __init__(self, path: Path, model: Model, cons: Constraints, every: int, last_step: int):
-        self.model, self.cons, self.every, self.last_step = model, cons, every, last_step
+    def __init__(self, path: Path, model: Model, fields, every: int, last_step: int):
+        self.fields, self.every, self.last_step = fields, every, last_step
         self.series = dx.VTKSeries(model.comm, path, model.V, ("u", "v", "a", "contact_force"))
         self.frames = 0
 
     def write(self, state: StepState) -> None:
         if state.step % self.every and state.step != self.last_step:
             return
-        self.series.write(state.t, {
-            "u": state.U.array_r, "v": state.V.array_r, "a": state.A.array_r,
-            "contact_force": -(self.cons.P_local @ state.force),
-        })
+        self.series.write(state.t, self.fields.frame(state))
         self.frames += 1
 
     def close(self) -> None:

@@ -62,7 +62,7 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
     from .integrators import METHODS, Operators, integrate, steps_for
     from .mesh import build_mesh
     from .model import build_model
-    from .output import HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
+    from .output import HistoryWriter, NodalFields, Progress, RunStatistics, VTKWriter, find_probes
 
     solver = case.solver
     if solver.method not in METHODS:
@@ -81,12 +81,13 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
 
     with staged_directory(outdir, comm) as stage:
-        history = HistoryWriter(stage / "history.csv", cons, probes, comm)
+        fields = NodalFields(cons)
+        history = HistoryWriter(stage / "history.csv", cons, probes, comm, fields)
         stats = RunStatistics(cons)
         observers = [history, stats]
         vtk = None
         if case.output.vtk:
-            vtk = VTKWriter(stage / "results.pvd", model, cons, case.output.every, n_steps)
+            vtk = VTKWriter(stage / "results.pvd", model, fields, case.output.every, n_steps)
             observers.append(vtk)
         t_loop = time.perf_counter()
         try:

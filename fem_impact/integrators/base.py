@@ -20,6 +20,24 @@ class TimeDependentLoad(Protocol):
     def evaluate(self, t: float, out: PETSc.Vec) -> PETSc.Vec: ...
 
 
+class StaticPart(Protocol):
+    """A massless, quasi-static part of the displacement, ``U_s = S_k (R(t) - P^T lam)``.
+
+    The reduced model's residual flexibility (METHOD.md s. 3): the contact rows see
+    ``P U = P U_dyn + offset(t) - compliance lam``, so the contact becomes compliant; the
+    energy of U_s and the work of the loads on it enter the energy budget.
+    """
+
+    compliance: np.ndarray     # P S_k P^T (p x p)
+    rigid_rows: np.ndarray     # rows without compliance (they get Carnot's impact correction)
+
+    def offset(self, t: float) -> np.ndarray: ...                      # P S_k R(t)
+
+    def energy(self, t: float, force: np.ndarray) -> float: ...        # 1/2 f^T S_k f
+
+    def work(self, t0: float, t1: float, f0: np.ndarray, f1: np.ndarray, gamma: float) -> float: ...
+
+
 @dataclass
 class Operators:
     """Plain operators of ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d0``.
@@ -37,6 +55,7 @@ class Operators:
     P_local: sparse.spmatrix | np.ndarray
     d0: np.ndarray
     restitution: np.ndarray
+    static: StaticPart | None = None
 
     def __post_init__(self):
         self.comm: MPI.Comm = self.K.getComm().tompi4py()

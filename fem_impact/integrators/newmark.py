@@ -44,6 +44,11 @@ class Newmark:
         self.H = ops.solve_columns(self.solve_M)   # M^-1 P^T
         self.W = ops.project(self.G)               # P S^-1 P^T (p x p, on every rank)
         self.D = ops.project(self.H)               # P M^-1 P^T
+        # A quasi-static part (reduced model) makes the contact rows compliant: lam0 then
+        # solves an LCP in beta dt^2 W + P S_k P^T, and only rigid rows get Carnot's correction.
+        static = ops.static
+        self.lcp_matrix = beta * dt * dt * self.W + (static.compliance if static else 0.0)
+        self.rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
         new = lambda: ops.K.createVecs()[0]  # noqa: E731
         # State and work vectors, allocated once; "_prev" ones are swapped by reference.
         self.U, self.V, self.A, self.U_prev = new(), new(), new(), new()
@@ -68,17 +73,27 @@ class Newmark:
             ops.C.mult(V, self.CV)  # C V*_0, before any correction, as in the step
             self.rhs.axpy(-1.0, self.CV)
         self.solve_M(self.rhs, A)
-        p = ops.p
+        p, static = ops.p, ops.static
         pu, pv, pa = ops.project_many(U, V, A) if p else (np.zeros(0),) * 3
         force = lam1 = np.zeros(p)
         energy = EnergyBudget()
         if p:
-            res = impact_correction(self.D, self._closed(pu, np.zeros(p)), np.zeros(p), pv, pv, pa,
-                                    np.zeros(p), ops.restitution)
+            if static:  # forces of the compliant rows that the initial state already loads
+                force = np.zeros(p)
+                c = ~self.rigid
+                force[c] = solve_lcp(static.compliance[c][:, c], (ops.d0 - static.offset(t0) - pu)[c])[0]
+                if force.any():
+                    A.array[:] -= self.H @ force
+                    pa = pa - self.D @ force
+                pu = pu + static.offset(t0) - static.compliance @ force
+            res = impact_correction(self.D, self._closed(pu, force) & self.rigid, np.zeros(p), pv, pv, pa,
+                                    force, ops.restitution)
             lam1, force = res.lam1, res.force
             pv = self._apply_corrections(res, pv)
             energy.impact_loss = self._impact_loss(res.lam1, pv)
         energy.kinetic, energy.strain = self._quadratic_energies()
+        if static:
+            energy.strain += static.energy(t0, force)
         energy.initial = energy.total + energy.impact_loss
         self.state = StepState(0, t0, U, V, A, ops.d0 - pu, force, lam1.copy(), energy, pu, pv)
         return self.state
@@ -137,8 +152,9 @@ class Newmark:
         lam0 = np.zeros(p)
         if p:
             pu_pred, pv_pred, pa = ops.project_many(Up, Vp, A)
-            q = ops.d0 - (pu_pred + beta * dt * dt * pa)
-            lam0, _, _ = solve_lcp(beta * dt * dt * self.W, q, guess=st.force > 0.0)
+            offset = ops.static.offset(t1) if ops.static else 0.0
+            q = ops.d0 - offset - (pu_pred + beta * dt * dt * pa)
+            lam0, _, _ = solve_lcp(self.lcp_matrix, q, guess=st.force > 0.0)
             if lam0.any():
                 A.array[:] -= self.G @ lam0
                 pa = pa - self.W @ lam0
@@ -155,11 +171,13 @@ class Newmark:
         pu, pv = st.normal_displacement, st.normal_velocity
         if p:
             pu = pu_pred + beta * dt * dt * pa
+            if ops.static:
+                pu = pu + offset - ops.static.compliance @ lam0
             pv_star = pv_pred + gamma * dt * pa
             f_mean = (1.0 - gamma) * st.force + gamma * lam0
             s0 = dt * f_mean
-            res = impact_correction(self.D, self._closed(pu, lam0), s0, pv_star, st.normal_velocity, pa, lam0,
-                                    ops.restitution)
+            res = impact_correction(self.D, self._closed(pu, lam0) & self.rigid, s0, pv_star, st.normal_velocity,
+                                    pa, lam0, ops.restitution)
             force, impulse = res.force, s0 + res.lam1
             pv = self._apply_corrections(res, pv_star)
             energy.impact_loss += self._impact_loss(res.lam1, pv)
@@ -185,6 +203,9 @@ class Newmark:
             ops.comm.Allreduce(MPI.IN_PLACE, sums, op=MPI.SUM)
         energy.kinetic, energy.strain = 0.5 * sums[0], 0.5 * sums[1]
         energy.external_work += sums[2]
+        if ops.static:
+            energy.strain += ops.static.energy(t1, force)
+            energy.external_work += ops.static.work(st.t, t1, st.force, force, gamma)
         energy.damping_loss += sums[3]
         if not np.isfinite(energy.kinetic + energy.strain):
             raise SimulationError(f"the solution is no longer finite at t = {t1:.6g} (step {st.step + 1})")
