@@ -29,6 +29,12 @@ examples:
   mpirun -n 2 fem-impact run cases/impacting_bar.yaml --set mesh.dim=2
 """
 
+MODES_EXAMPLES = """\
+examples:
+  fem-impact modes cases/signorini_bar.yaml -n 5
+  fem-impact modes cases/impacting_bar.yaml --set mesh.dim=3 --set mesh.cells=80 -n 12 -o results/bar3d-modes
+"""
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -58,6 +64,27 @@ def build_parser() -> argparse.ArgumentParser:
                           description="Plot history.csv of a finished run: contact forces and the energy budget.")
     plot.add_argument("outdir", metavar="OUTDIR", help="a run's output folder")
     plot.add_argument("-o", "--output", metavar="PNG", help="image path (default: OUTDIR/history.png)")
+
+    modes = sub.add_parser(
+        "modes", help="natural frequencies and mode shapes of a case's structure",
+        description="Compute the lowest natural modes (K y = w^2 M y; supports held, contacts ignored) and\n"
+                    "write into OUTDIR:\n"
+                    "  modes.csv           per mode: frequency, rigid/elastic, effective mass per direction\n"
+                    "                      (% of the free mass), residual\n"
+                    "  modes.pvd           the mass-normalized shapes, one frame per mode (t = mode number)\n"
+                    "  case.resolved.yaml  the case with every default filled in",
+        epilog=MODES_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    modes.add_argument("case", metavar="CASE.yaml", help="the case file")
+    modes.add_argument("-n", "--modes", dest="count", type=int, metavar="N",
+                       help="number of modes (default: solver.modes of the case if it is a number, else 10)")
+    modes.add_argument("-o", "--output", metavar="OUTDIR",
+                       help="output folder (default: results/<case name>-modes/ under the current folder); "
+                            "replaced only when the computation completes")
+    modes.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
+                       help="override a case-file key, value typed as in YAML (repeatable)")
+    modes.add_argument("-q", "--quiet", action="store_true", help="do not print the table")
+    modes.add_argument("-v", "--verbose", action="store_true", help="log the stages of the computation")
     return parser
 
 
@@ -70,6 +97,8 @@ def main(argv=None) -> int:
     _configure_logging(getattr(args, "verbose", False))
     if args.command == "plot":
         return _plot(args.outdir, args.output)
+    if args.command == "modes":
+        return _modes(args)
 
     # Heavy imports (dolfinx, PETSc) only once the arguments are known to be sound.
     from mpi4py import MPI
@@ -91,6 +120,32 @@ def main(argv=None) -> int:
         print(describe(summary))
     if comm.rank == 0 and args.plot:
         _plot(summary["outdir"], None)
+    return 0
+
+
+def _modes(args) -> int:
+    from mpi4py import MPI
+
+    comm = MPI.COMM_WORLD
+    if args.count is not None and args.count < 1:
+        return _fail(comm, f"error: -n {args.count}: ask for at least 1 mode", 2)
+
+    from .case import CaseError
+    from .errors import SimulationError
+    from .modes import ModeCountError, format_table, run_modes
+
+    try:
+        summary = run_modes(args.case, args.output, args.overrides, args.count, comm=comm)
+    except CaseError as err:
+        return _fail(comm, f"error: {err}", 2)
+    except ModeCountError as err:
+        return _fail(comm, f"error: -n {args.count}: {err}", 2)
+    except SimulationError as err:
+        return _fail(comm, f"the modal analysis failed: {err} (the output folder was left as it was)", 3)
+    except KeyboardInterrupt:
+        return _fail(comm, "interrupted (the output folder was left as it was)", 130)
+    if comm.rank == 0 and not args.quiet:
+        print(format_table(summary))
     return 0
 
 

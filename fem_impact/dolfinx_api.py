@@ -125,4 +125,7 @@ class VTKSeries:
         self._file.write_function(list(self.functions.values()), t)
 
     def close(self) -> None:
+        # dolfinx 0.5 rewrites the .pvd when the file object is destroyed: destroy it now,
+        # before the output folder is moved into place.
         self._file.close()
+        self._file = None

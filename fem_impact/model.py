@@ -81,6 +81,16 @@ class Model:
     def dofs(self) -> int:
         return self.K.getSize()[0]
 
+    def held_rows(self) -> np.ndarray:
+        """Global PETSc row indices of the dofs held by supports (owned by this rank)."""
+        return (self.fixed + self.first_node * self.bs).astype(np.int32)
+
+    def regular_stiffness(self) -> PETSc.Mat:
+        """K with a unit diagonal on held dofs: regular for a constrained body (static solves)."""
+        K = self.K.copy()
+        K.zeroRowsColumns(self.held_rows(), diag=1.0)
+        return K
+
     def node_set(self, case: Case, name: str, key: tuple) -> NodeSet:
         return node_set(self.meshdata, self.V, case, name, key)
 

@@ -8,6 +8,7 @@ import logging
 import os
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from mpi4py import MPI
@@ -16,6 +17,49 @@ from . import __version__
 from .case import Case, CaseError, load_case
 
 log = logging.getLogger(__name__)
+
+
+@dataclass
+class System:
+    """What the time loop integrates, and how to read physical fields from its state."""
+
+    operators: object
+    fields: object
+    U0: object
+    V0: object
+    summary: dict
+
+
+def full_model(case: Case, model, cons) -> System:
+    """The finite-element system itself (method ``newmark``)."""
+    from .integrators import Operators
+    from .output import NodalFields
+
+    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
+    return System(ops, NodalFields(cons), model.U0, model.V0, {"modes": None})
+
+
+def reduced_model(case: Case, model, cons) -> System:
+    """Kept modes plus the static correction of the truncated ones (method ``modal``)."""
+    from .modes import compute_modes
+    from .reduce import build_reduced
+
+    solver = case.solver
+    n1 = solver.modes
+    if not isinstance(n1, int):
+        raise case.error(("solver", "modes"), "give the number of kept modes (automatic choice comes later)")
+    modes = compute_modes(model, n1)
+    red = build_reduced(model, cons, modes, n1, solver.static_correction, case.damping.alpha, case.damping.beta,
+                        solver.dt)
+    summary = {
+        "modes": red.modes, "rigid_modes": int(modes.rigid[:n1].sum()), "cutoff_hz": red.cutoff_hz,
+        "static_correction": solver.static_correction,
+        "neglected_flexibility": {c.name: float(red.neglected_flexibility[c.rows].max()) for c in cons.contacts},
+    }
+    return System(red.operators, red.fields, red.Z0, red.Zdot0, summary)
+
+
+MODELS = {"newmark": full_model, "modal": reduced_model}
 
 
 def default_outdir(case: Case) -> Path:
@@ -59,29 +103,29 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
         raise CaseError(str(outdir), None, None, "the output path exists and is not a folder")
     # dolfinx and PETSc load in about a second: only once the case file is known to be sound.
     from .constraints import build_constraints, check_initial_state
-    from .integrators import METHODS, Operators, integrate, steps_for
+    from .integrators import Newmark, integrate, steps_for
     from .mesh import build_mesh
     from .model import build_model
-    from .output import HistoryWriter, NodalFields, Progress, RunStatistics, VTKWriter, find_probes
+    from .output import HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
 
     solver = case.solver
-    if solver.method not in METHODS:
+    if solver.method not in MODELS:
         raise case.error(("solver", "method"), f"method '{solver.method}' is not available in this version "
-                         f"(available: {', '.join(METHODS)})")
+                         f"(available: {', '.join(MODELS)})")
 
     meshdata = build_mesh(case, comm)
     model = build_model(case, meshdata)
     cons = build_constraints(case, model)
     check_initial_state(case, cons, model)
     probes = find_probes(case, model)
-    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
-    integrator = METHODS[solver.method](ops, solver.dt, beta=solver.beta, gamma=solver.gamma)
+    system = MODELS[solver.method](case, model, cons)
+    integrator = Newmark(system.operators, solver.dt, beta=solver.beta, gamma=solver.gamma)
     n_steps = steps_for(solver.t_end, solver.dt)
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
 
     with staged_directory(outdir, comm) as stage:
-        fields = NodalFields(cons)
+        fields = system.fields
         history = HistoryWriter(stage / "history.csv", cons, probes, comm, fields)
         stats = RunStatistics(cons)
         observers = [history, stats]
@@ -91,7 +135,9 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
             observers.append(vtk)
         t_loop = time.perf_counter()
         try:
-            final = integrate(integrator, model.U0, model.V0, solver.t_end, observers,
+            if hasattr(fields, "write"):   # the reduced model's fields remember the previous step
+                observers.append(fields)
+            final = integrate(integrator, system.U0, system.V0, solver.t_end, observers,
                               progress=Progress(comm) if progress else None)
         finally:
             history.close()
@@ -109,7 +155,7 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
             "t_end": final.t,
             "dofs": model.dofs,
             "constraints": cons.p,
-            "modes": None,
+            **system.summary,
             "mpi_ranks": comm.size,
             "mesh": meshdata.description,
             "max_penetration": stats.max_penetration,
