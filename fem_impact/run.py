@@ -41,14 +41,24 @@ def full_model(case: Case, model, cons) -> System:
 
 def reduced_model(case: Case, model, cons) -> System:
     """Kept modes plus the static correction of the truncated ones (method ``modal``)."""
-    from .modes import compute_modes
+    from .modes import ModeCountError, compute_modes
     from .reduce import build_reduced
 
     solver = case.solver
     n1 = solver.modes
     if not isinstance(n1, int):
         raise case.error(("solver", "modes"), "give the number of kept modes (automatic choice comes later)")
-    modes = compute_modes(model, n1)
+    # One mode more than kept: it tells whether a rigid-body mode would be left out.
+    try:
+        modes = compute_modes(model, n1 + 1)
+    except ModeCountError as err:
+        if err.requested != err.available + 1:
+            raise case.error(("solver", "modes"), str(err).replace(str(n1 + 1), str(n1), 1)) from None
+        modes = compute_modes(model, n1)   # all modes of a small model
+    if modes.n > n1 and modes.rigid[n1]:
+        raise case.error(("solver", "modes"), f"keeps {n1} modes but the model moves freely in at least "
+                         f"{int(modes.rigid.sum())} rigid-body modes: keep them all (modes >= "
+                         f"{int(modes.rigid.sum())}), or add supports")
     red = build_reduced(model, cons, modes, n1, solver.static_correction, case.damping.alpha, case.damping.beta,
                         solver.dt)
     summary = {

@@ -89,3 +89,18 @@ def test_residual_flexibility_matches_a_dense_eigendecomposition(overrides):
     exact = (P @ Y[:, truncated]) @ np.diag(1 / w2[truncated]) @ (P @ Y[:, truncated]).T
     np.testing.assert_allclose(red.operators.static.compliance, exact, rtol=1e-8, atol=1e-12 * np.abs(exact).max())
     assert np.abs(exact).max() > 0
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["solver.modes=300"], "solver.modes: asked for 300 modes but the model has only 51 free dofs"),
+    (["mesh.dim=2", "mesh.cells=20", "solver.modes=2"], "rigid-body modes: keep them all (modes >= 3)"),
+    (["solver.tolerance=1.5"], "solver.tolerance: must be in (0, 1), got 1.5"),
+    (["solver.modes=0"], "solver.modes: expected 'auto' or an integer >= 1, got 0"),
+])
+def test_bad_reduced_model_input(tmp_path, overrides, message):
+    from conftest import run_cli
+
+    args = [a for o in ["solver.method=modal", "mesh.cells=50", *overrides] for a in ("--set", o)]
+    proc = run_cli("run", str(BAR), "-o", str(tmp_path / "out"), *args)
+    assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "out").exists()
