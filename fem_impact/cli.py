@@ -60,6 +60,17 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("-v", "--verbose", action="store_true", help="log the stages of the run")
     run.add_argument("--plot", action="store_true", help="also write history.png (contact force and energies)")
 
+    reduction = sub.add_parser(
+        "reduction", help="table of the reduced model's errors and times against the full model",
+        description="Run a case with the full model and with the modal model (n1 modes, with and without "
+                    "the static correction); print and write reduction.csv with the errors of a probe's "
+                    "displacement and velocity and of the contact impulse, and the time of each run.")
+    reduction.add_argument("case", metavar="CASE.yaml")
+    reduction.add_argument("--modes", default="2,5,10,20", help="kept mode counts, comma-separated (default 2,5,10,20)")
+    reduction.add_argument("--probe", help="probe to compare (default: the case's first probe)")
+    reduction.add_argument("-o", "--output", metavar="OUTDIR", help="default: results/<case>-reduction/")
+    reduction.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE")
+
     plot = sub.add_parser("plot", help="plot a run's contact forces and energy budget to a PNG",
                           description="Plot history.csv of a finished run: contact forces and the energy budget.")
     plot.add_argument("outdir", metavar="OUTDIR", help="a run's output folder")
@@ -97,6 +108,8 @@ def main(argv=None) -> int:
     _configure_logging(getattr(args, "verbose", False))
     if args.command == "plot":
         return _plot(args.outdir, args.output)
+    if args.command == "reduction":
+        return _reduction(args)
     if args.command == "modes":
         return _modes(args)
 
@@ -146,6 +159,31 @@ def _modes(args) -> int:
         return _fail(comm, "interrupted (the output folder was left as it was)", 130)
     if comm.rank == 0 and not args.quiet:
         print(format_table(summary))
+    return 0
+
+
+def _reduction(args) -> int:
+    from mpi4py import MPI
+
+    from .case import CaseError
+    from .errors import SimulationError
+    from .studies import format_reduction, reduction_table
+
+    comm = MPI.COMM_WORLD
+    try:
+        modes = [int(m) for m in args.modes.split(",")]
+    except ValueError:
+        return _fail(comm, f"error: --modes {args.modes}: give whole numbers separated by commas, e.g. 2,5,10", 2)
+    try:
+        rows = reduction_table(args.case, modes, args.output, args.overrides, args.probe, comm)
+    except CaseError as err:
+        return _fail(comm, f"error: {err}", 2)
+    except ValueError as err:
+        return _fail(comm, f"error: {err}", 2)
+    except SimulationError as err:
+        return _fail(comm, f"the study failed: {err}", 3)
+    if comm.rank == 0:
+        print(format_reduction(rows))
     return 0
 
 

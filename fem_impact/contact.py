@@ -11,6 +11,19 @@ from .errors import ContactSolverError
 TINY = np.finfo(float).tiny
 
 
+def regularized(A: np.ndarray, relative: float = 1e-10) -> np.ndarray:
+    """``A`` itself when regular; else ``A + eps I`` with eps a tiny fraction of its diagonal.
+
+    More contact rows than the motion can tell apart (a reduced model with fewer modes than
+    pairs, nodes sharing a constraint) make the Delassus matrix singular: the LCP then has
+    many solutions and pivoting may cycle. The shift selects the smallest-norm forces, at the
+    price of a gap error of ``eps * lam`` (1e-10 relative).
+    """
+    if A.size == 0 or np.linalg.cond(A) < 1.0 / (relative * 100):
+        return A
+    return A + relative * np.abs(np.diag(A)).max() * np.eye(A.shape[0])
+
+
 def solve_lcp(
     A: np.ndarray, q: np.ndarray, guess: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -32,7 +45,7 @@ def solve_lcp(
         return np.zeros(n), q.copy(), np.zeros(n, dtype=bool)
     scale = max(np.abs(q).max(), TINY)
     tol = 1e-13 * scale
-    for _ in range(max(50, 20 * n)):
+    for _ in range(4 * n + 10):
         x = np.zeros(n)
         if active.any():
             block = A[active][:, active]
@@ -49,7 +62,26 @@ def solve_lcp(
             return np.maximum(x, 0.0), np.maximum(w, 0.0), active
         j = int(np.argmax(wrong))
         active[j] = not active[j]
-    raise ContactSolverError(f"contact LCP of size {n} did not converge (constraints dependent or ill-posed)")
+    # Pivoting is finite for P-matrices but may take many steps (and round-off can make it
+    # cycle on ill-conditioned ones): fall back on the equivalent convex problem.
+    return _lcp_as_nnls(A, q)
+
+
+def _lcp_as_nnls(A: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The LCP with symmetric positive definite ``A`` is ``min 1/2 x'Ax + q'x, x >= 0``, i.e. the
+    non-negative least-squares problem ``min |L'x + L^-1 q|`` with ``A = L L'`` (Lawson-Hanson)."""
+    from scipy.optimize import nnls
+
+    try:
+        L = np.linalg.cholesky(0.5 * (A + A.T))
+    except np.linalg.LinAlgError:
+        raise ContactSolverError(f"contact problem of size {q.size} is not positive definite "
+                                 "(dependent or conflicting constraints)") from None
+    x = nnls(L.T, -np.linalg.solve(L, q), maxiter=50 * q.size)[0]
+    w = A @ x + q
+    active = x > 0.0
+    w[active] = 0.0
+    return x, np.maximum(w, 0.0), active
 
 
 @dataclass

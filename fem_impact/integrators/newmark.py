@@ -6,7 +6,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..contact import TINY, impact_correction, solve_lcp
+from ..contact import TINY, impact_correction, regularized, solve_lcp
 from .base import EnergyBudget, Operators, SimulationError, StepState, factorize
 
 
@@ -47,7 +47,8 @@ class Newmark:
         # A quasi-static part (reduced model) makes the contact rows compliant: lam0 then
         # solves an LCP in beta dt^2 W + P S_k P^T, and only rigid rows get Carnot's correction.
         static = ops.static
-        self.lcp_matrix = beta * dt * dt * self.W + (static.compliance if static else 0.0)
+        self.lcp_matrix = regularized(beta * dt * dt * self.W + (static.compliance if static else 0.0))
+        self.D = regularized(self.D)
         self.rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
         new = lambda: ops.K.createVecs()[0]  # noqa: E731
         # State and work vectors, allocated once; "_prev" ones are swapped by reference.
