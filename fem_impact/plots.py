@@ -47,8 +47,10 @@ def plot_history(outdir, png=None, units: dict | None = None) -> Path:
     ax_e.plot(t, col["kinetic"] + col["strain"], "k", lw=1.5, label="total (kinetic + strain)")
     ax_e.set_ylabel(f"energy {units.get('energy', '')}".strip())
     ax_e.set_xlabel(f"time {units.get('time', '')}".strip())
-    residual = np.abs(col["energy_error"]).max() / e0 if e0 else np.abs(col["energy_error"]).max()
-    ax_e.set_title(f"energy budget (balance residual max {residual:.1e} of the initial energy)", fontsize=10)
+    # Relative to the energy that flows through the run: the initial energy or the work done.
+    scale = max(e0, np.abs(col["external_work"]).max())
+    residual = np.abs(col["energy_error"]).max() / scale if scale else 0.0
+    ax_e.set_title(f"energy budget (balance residual max {residual:.1e} of the energy scale)", fontsize=10)
     ax_e.legend(loc="center right", fontsize=8)
     ax_e.grid(alpha=0.3)
     summary = outdir / "summary.json"
