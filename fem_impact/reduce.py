@@ -175,18 +175,31 @@ class ReducedModel:
     modes: int
     cutoff_hz: float
     neglected_flexibility: np.ndarray   # per contact row: (P S_k P^T)_jj / (P K^+ P^T)_jj
+    flexibility_columns: np.ndarray     # K^+ [P^T, R_c, b_1, ...] (owned rows): reusable
+
+
+def static_load_columns(model: Model, cons: Constraints) -> np.ndarray:
+    """[P^T, R_c, b_1, ...]: the load patterns whose static response the reduction needs (owned rows)."""
+    load = model.load
+    R_cols = [load.constant.array_r.copy()] + [b.array_r.copy() for _, b in load.varying]
+    return np.column_stack([cons.P_local.toarray()] + R_cols)
 
 
 def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correction: bool, alpha: float,
-                  beta: float, dt: float) -> ReducedModel:
-    """The reduced operators for the first ``n1`` modes of ``modes`` (rigid ones included)."""
+                  beta: float, dt: float, flexibility_columns: np.ndarray | None = None) -> ReducedModel:
+    """The reduced operators for the first ``n1`` modes of ``modes`` (rigid ones included).
+
+    ``flexibility_columns`` (K^+ applied to ``static_load_columns``, from an earlier run of the
+    same scene) skips the static solves.
+    """
     comm = model.comm
     Y1 = np.ascontiguousarray(modes.Y_local[:, :n1])
     w2 = np.asarray(modes.omega2[:n1], dtype=float)
     P_local = cons.P_local
     Pr = _allsum(comm, (P_local.T @ Y1))                       # P Y1 (p x n1)
     load = model.load
-    R_cols = [load.constant.array_r.copy()] + [b.array_r.copy() for _, b in load.varying]
+    columns = static_load_columns(model, cons)
+    R_cols = [columns[:, k] for k in range(cons.p, columns.shape[1])]
     R_modal = [_allsum(comm, Y1.T @ r) for r in R_cols]
     modal_load = ModalLoad(R_modal[0], [(f, r) for (f, _), r in zip(load.varying, R_modal[1:], strict=True)])
 
@@ -198,14 +211,15 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
 
     # Residual flexibility of the truncated modes, from static solves on the elastic subspace.
     elastic = ~modes.rigid
-    rigid_local = modes.Y_local[:, modes.rigid]
-    first_w2 = float(modes.omega2[elastic][0]) if elastic.any() else 1.0
-    flex = Flexibility(model.regular_stiffness(), model.M, rigid_local, first_w2)
+    if flexibility_columns is None:
+        rigid_local = modes.Y_local[:, modes.rigid]
+        first_w2 = float(modes.omega2[elastic][0]) if elastic.any() else 1.0
+        flex = Flexibility(model.regular_stiffness(), model.M, rigid_local, first_w2)
+        flexibility_columns = np.column_stack([flex.apply(columns[:, j]) for j in range(columns.shape[1])])
+    full = flexibility_columns
     kept_elastic = elastic[:n1]
     Y1e, w1e = Y1[:, kept_elastic], w2[kept_elastic]
-    P_dense = P_local.toarray()
-    columns = np.column_stack([P_dense] + R_cols) if cons.p else np.column_stack(R_cols)
-    full = np.column_stack([flex.apply(columns[:, j]) for j in range(columns.shape[1])])
+    P_dense = columns[:, : cons.p]
     X = full - Y1e @ (_allsum(comm, Y1e.T @ columns) / w1e[:, None])
     XP, XR = X[:, : cons.p], X[:, cons.p:]
     flex_full = np.diag(_allsum(comm, P_dense.T @ full[:, : cons.p])) if cons.p else np.zeros(0)
@@ -229,4 +243,4 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
     fields = ReducedFields(Y1, XR if static else None, XP if static else None, static, cons, dt)
     cutoff = float(np.sqrt(w2[-1]) / (2 * np.pi))
     log.info("reduced model: %d modes (cut-off %.4g Hz), static correction %s", n1, cutoff, static_correction)
-    return ReducedModel(ops, fields, Z0, Zdot0, n1, cutoff, neglected)
+    return ReducedModel(ops, fields, Z0, Zdot0, n1, cutoff, neglected, full)

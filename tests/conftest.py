@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+# Modes and static solves are cached on disk: tests keep their own cache, away from the user's.
+os.environ["FEM_IMPACT_CACHE"] = tempfile.mkdtemp(prefix="fem-impact-cache-")
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = ROOT / "cases"

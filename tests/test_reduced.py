@@ -104,3 +104,17 @@ def test_bad_reduced_model_input(tmp_path, overrides, message):
     proc = run_cli("run", str(BAR), "-o", str(tmp_path / "out"), *args)
     assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_second_run_reuses_modes_and_static_solves(tmp_path):
+    """Cached by a hash of K, M, supports and load patterns: the same scene reuses them, the
+    same history comes out, and a changed scene (another material) does not pick them up."""
+    args = ["solver.method=modal", "solver.modes=8", "mesh.cells=40", "output.vtk=false"]
+    first, h1 = run_case_file(BAR, tmp_path / "a", *args)
+    second, h2 = run_case_file(BAR, tmp_path / "b", *args)
+    other, _ = run_case_file(BAR, tmp_path / "c", *args, "material.E=2.0")
+    assert first["reused_from_cache"] == []
+    assert second["reused_from_cache"] == ["modes", "static solves"]
+    assert other["reused_from_cache"] == []
+    for name in h1.dtype.names:
+        np.testing.assert_array_equal(h1[name], h2[name])
