@@ -17,14 +17,18 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from . import cache
+from .case import Case
 from .constraints import Constraints
 from .integrators import Operators, StepState
 from .integrators.base import factorize
 from .model import Model
+from .modes import ModeCountError, Modes, compute_modes, free_dof_count
 
 log = logging.getLogger(__name__)
 
 RIGID_ROW = 1e-9   # neglected flexibility ratio below which a row counts as rigid (no compliance)
+AUTO_LIMIT = 400   # most modes `modes: auto` will consider
 
 
 def _allsum(comm: MPI.Comm, local: np.ndarray) -> np.ndarray:
@@ -244,3 +248,112 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
     cutoff = float(np.sqrt(w2[-1]) / (2 * np.pi))
     log.info("reduced model: %d modes (cut-off %.4g Hz), static correction %s", n1, cutoff, static_correction)
     return ReducedModel(ops, fields, Z0, Zdot0, n1, cutoff, neglected, full)
+
+
+def prepare_reduced(case: Case, model: Model, cons: Constraints) -> tuple[ReducedModel, dict]:
+    """Modes (given or chosen), static solves (both cached) and the reduced model of a case."""
+    solver, comm = case.solver, model.comm
+    scene = cache.key(comm, model.K, model.M, model.fixed)
+    reused = set()
+    if solver.modes == "auto":
+        available = free_dof_count(model)
+        cap = max(1, min(available - 1, AUTO_LIMIT))
+        n_try = min(cap, 32)
+        f_scene = 1.0 / (2.0 * case.output.every * solver.dt)
+        while True:
+            modes = _modes(model, n_try, scene, reused)
+            columns = _flexibility(model, cons, modes, scene, reused)
+            n1, reason = choose_mode_count(modes, cons, columns, solver.tolerance, f_scene)
+            if n1 is not None:
+                break
+            if n_try >= cap:
+                raise case.error(("solver", "tolerance"), f"no count of modes up to {n_try} meets it: {reason}; "
+                                 "loosen solver.tolerance, or use the full model (method: newmark)")
+            n_try = min(cap, 2 * n_try)
+    else:
+        n1, reason = solver.modes, "as given (solver.modes)"
+        # One mode more than kept tells whether a rigid-body mode would be left out.
+        try:
+            modes = _modes(model, n1 + 1, scene, reused)
+        except ModeCountError as err:
+            if err.requested != err.available + 1:
+                raise case.error(("solver", "modes"), str(err).replace(str(n1 + 1), str(n1), 1)) from None
+            modes = _modes(model, n1, scene, reused)   # all modes of a small model
+        if modes.n > n1 and modes.rigid[n1]:
+            raise case.error(("solver", "modes"), f"keeps {n1} modes but the model moves freely in at least "
+                             f"{int(modes.rigid.sum())} rigid-body modes: keep them all (modes >= "
+                             f"{int(modes.rigid.sum())}), or add supports")
+        columns = _flexibility(model, cons, modes, scene, reused)
+    red = build_reduced(model, cons, modes, n1, solver.static_correction, case.damping.alpha, case.damping.beta,
+                        solver.dt, columns)
+    if reused:
+        log.info("reused from the cache (%s): %s", cache.cache_dir(), " and ".join(sorted(reused)))
+    summary = {
+        "modes": red.modes, "modes_reason": reason, "rigid_modes": int(modes.rigid[:n1].sum()),
+        "cutoff_hz": red.cutoff_hz, "static_correction": solver.static_correction,
+        "neglected_flexibility": {c.name: float(red.neglected_flexibility[c.rows].max()) for c in cons.contacts},
+        "reused_from_cache": sorted(reused),
+    }
+    return red, summary
+
+
+def _modes(model: Model, n: int, scene: str, reused: set) -> Modes:
+    comm = model.comm
+    name = f"modes-{cache.key(comm, scene, n)}"
+    stored = cache.load(name, comm)
+    if stored is not None:
+        reused.add("modes")
+        return Modes(stored["omega2"], stored["Y_local"], stored["residual"], stored["rigid"],
+                     float(stored["scale"]), float(stored["shift"]), comm)
+    modes = compute_modes(model, n)
+    cache.save(name, comm, omega2=modes.omega2, Y_local=modes.Y_local, residual=modes.residual,
+               rigid=modes.rigid, scale=modes.scale, shift=modes.shift)
+    return modes
+
+
+def _flexibility(model: Model, cons: Constraints, modes: Modes, scene: str, reused: set) -> np.ndarray:
+    """K^+ applied to the load and contact patterns (static solves), cached."""
+    comm, columns = model.comm, static_load_columns(model, cons)
+    name = f"static-{cache.key(comm, scene, modes.Y_local[:, modes.rigid], columns)}"
+    stored = cache.load(name, comm)
+    if stored is not None:
+        reused.add("static solves")
+        return stored["columns"]
+    elastic = ~modes.rigid
+    first_w2 = float(modes.omega2[elastic][0]) if elastic.any() else 1.0
+    flex = Flexibility(model.regular_stiffness(), model.M, modes.Y_local[:, modes.rigid], first_w2)
+    result = np.column_stack([flex.apply(columns[:, j]) for j in range(columns.shape[1])])
+    cache.save(name, comm, columns=result)
+    return result
+
+
+def choose_mode_count(modes: Modes, cons: Constraints, columns: np.ndarray, tolerance: float,
+                      f_scene: float) -> tuple[int | None, str]:
+    """The smallest n1 (all rigid modes included) whose neglected flexibility at every contact
+    row, ``(P S_k P^T)_jj / (P K^+ P^T)_jj``, is at most ``tolerance`` and whose cut-off frequency
+    reaches ``f_scene`` (what the output resolves: half the output sampling rate).
+
+    Returns (n1, why) or (None, what falls short with all of ``modes``).
+    """
+    comm = modes.comm
+    P = cons.P_local.toarray()
+    freq = np.sqrt(modes.omega2) / (2 * np.pi)
+    n_rigid = int(modes.rigid.sum())
+    if cons.p:
+        flex = np.diag(_allsum(comm, P.T @ columns[:, : cons.p]))
+        PY = _allsum(comm, P.T @ modes.Y_local)
+        contribution = np.where(modes.rigid, 0.0, PY**2 / np.where(modes.rigid, 1.0, modes.omega2))
+        neglected = 1.0 - np.cumsum(contribution, axis=1) / np.where(flex > 0, flex, 1.0)[:, None]
+        worst = neglected.max(axis=0)          # after keeping 1, 2, ... modes
+    else:
+        worst = np.zeros(modes.n)
+    ok = (worst <= tolerance) & (freq >= f_scene) & (np.arange(1, modes.n + 1) >= max(n_rigid, 1))
+    if not ok.any():
+        return None, (f"with {modes.n} modes the neglected flexibility is {worst[-1]:.3g} (tolerance "
+                      f"{tolerance:g}) and the cut-off {freq[-1]:.4g} Hz (output resolves {f_scene:.4g} Hz)")
+    n1 = int(np.argmax(ok)) + 1
+    first_flex = int(np.argmax(worst <= tolerance)) + 1 if (worst <= tolerance).any() else modes.n
+    binding = "neglected flexibility" if first_flex >= n1 else "cut-off frequency"
+    return n1, (f"smallest count with neglected flexibility {worst[n1 - 1]:.3g} <= {tolerance:g} at every contact "
+                f"row and cut-off {freq[n1 - 1]:.4g} Hz >= {f_scene:.4g} Hz (half the output rate); "
+                f"{binding} decided")

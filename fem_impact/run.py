@@ -41,55 +41,9 @@ def full_model(case: Case, model, cons) -> System:
 
 def reduced_model(case: Case, model, cons) -> System:
     """Kept modes plus the static correction of the truncated ones (method ``modal``)."""
-    from . import cache
-    from .modes import ModeCountError, Modes, compute_modes
-    from .reduce import build_reduced, static_load_columns
+    from .reduce import prepare_reduced
 
-    solver = case.solver
-    n1 = solver.modes
-    if not isinstance(n1, int):
-        raise case.error(("solver", "modes"), "give the number of kept modes (automatic choice comes later)")
-    # Modes and static solves depend on K, M (mesh, materials, supports) and the load and
-    # contact patterns: cached under a hash of exactly those.
-    comm = model.comm
-    scene = cache.key(comm, model.K, model.M, model.fixed)
-    modes_name = f"modes-{cache.key(comm, scene, n1)}"
-    stored = cache.load(modes_name, comm)
-    reused = []
-    if stored is not None:
-        modes = Modes(stored["omega2"], stored["Y_local"], stored["residual"], stored["rigid"],
-                      float(stored["scale"]), float(stored["shift"]), comm)
-        reused.append("modes")
-    else:
-        # One mode more than kept: it tells whether a rigid-body mode would be left out.
-        try:
-            modes = compute_modes(model, n1 + 1)
-        except ModeCountError as err:
-            if err.requested != err.available + 1:
-                raise case.error(("solver", "modes"), str(err).replace(str(n1 + 1), str(n1), 1)) from None
-            modes = compute_modes(model, n1)   # all modes of a small model
-        cache.save(modes_name, comm, omega2=modes.omega2, Y_local=modes.Y_local, residual=modes.residual,
-                   rigid=modes.rigid, scale=modes.scale, shift=modes.shift)
-    if modes.n > n1 and modes.rigid[n1]:
-        raise case.error(("solver", "modes"), f"keeps {n1} modes but the model moves freely in at least "
-                         f"{int(modes.rigid.sum())} rigid-body modes: keep them all (modes >= "
-                         f"{int(modes.rigid.sum())}), or add supports")
-    static_name = f"static-{cache.key(comm, scene, modes.Y_local[:, modes.rigid], static_load_columns(model, cons))}"
-    stored = cache.load(static_name, comm)
-    red = build_reduced(model, cons, modes, n1, solver.static_correction, case.damping.alpha, case.damping.beta,
-                        solver.dt, None if stored is None else stored["columns"])
-    if stored is None:
-        cache.save(static_name, comm, columns=red.flexibility_columns)
-    else:
-        reused.append("static solves")
-    if reused:
-        log.info("reused from the cache (%s): %s", cache.cache_dir(), " and ".join(reused))
-    summary = {
-        "modes": red.modes, "rigid_modes": int(modes.rigid[:n1].sum()), "cutoff_hz": red.cutoff_hz,
-        "static_correction": solver.static_correction,
-        "neglected_flexibility": {c.name: float(red.neglected_flexibility[c.rows].max()) for c in cons.contacts},
-        "reused_from_cache": reused,
-    }
+    red, summary = prepare_reduced(case, model, cons)
     return System(red.operators, red.fields, red.Z0, red.Zdot0, summary)
 
 
@@ -230,7 +184,8 @@ def _reduction_note(summary: dict) -> str:
     if summary.get("modes") is None:
         return ""
     flex = ", ".join(f"{k} {v:.3g}" for k, v in summary["neglected_flexibility"].items())
-    note = (f" Reduced model: {summary['modes']} modes ({summary['rigid_modes']} rigid), cut-off "
+    note = (f" Reduced model: {summary['modes']} modes ({summary['rigid_modes']} rigid; "
+            f"{summary['modes_reason']}), cut-off "
             f"{summary['cutoff_hz']:.4g} Hz, static correction {'on' if summary['static_correction'] else 'off'}"
             f"{', neglected flexibility ' + flex if flex else ''}.")
     if summary.get("reused_from_cache"):

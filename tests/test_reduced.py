@@ -118,3 +118,22 @@ def test_second_run_reuses_modes_and_static_solves(tmp_path):
     assert other["reused_from_cache"] == []
     for name in h1.dtype.names:
         np.testing.assert_array_equal(h1[name], h2[name])
+
+
+def test_modes_auto_picks_the_smallest_count_that_meets_the_tolerance(tmp_path):
+    """`modes: auto`: the fewest modes whose neglected flexibility at the wall is within the
+    tolerance - one mode fewer is not - when the flexibility is the binding criterion (coarse
+    output); with the default output the cut-off frequency (half the output rate) decides."""
+    # Output every 100 steps resolves 2.5 Hz: the flexibility decides.
+    auto = ["solver.method=modal", "solver.modes=auto", "solver.tolerance=0.05", "output.vtk=false"]
+    summary, _ = run_case_file(BAR, tmp_path / "auto", *auto, "output.every=100")
+    n1 = summary["modes"]
+    assert summary["neglected_flexibility"]["wall"] <= 0.05
+    assert "neglected flexibility decided" in summary["modes_reason"]
+    fewer, _ = run_case_file(BAR, tmp_path / "fewer", "solver.method=modal", f"solver.modes={n1 - 1}",
+                             "output.vtk=false")
+    assert fewer["neglected_flexibility"]["wall"] > 0.05
+    # Output every 20 steps resolves 12.5 Hz: the bar's modes are k/2 Hz, so 26 modes (1 rigid).
+    fine, _ = run_case_file(BAR, tmp_path / "fine", *auto)
+    assert "cut-off frequency decided" in fine["modes_reason"]
+    assert fine["modes"] == 26 and fine["cutoff_hz"] == pytest.approx(12.5, rel=0.01)
