@@ -114,77 +114,77 @@ def main(argv=None) -> int:
         return _modes(args)
 
     # Heavy imports (dolfinx, PETSc) only once the arguments are known to be sound.
-    from mpi4py import MPI
-
-    from .case import CaseError
-    from .errors import SimulationError
     from .run import describe, run_case
 
-    comm = MPI.COMM_WORLD
+    def run():
+        summary = run_case(args.case, args.output, args.overrides, comm=_comm(), progress=not args.quiet)
+        if _comm().rank == 0 and not args.quiet:
+            print(describe(summary))
+        if _comm().rank == 0 and args.plot:
+            _plot(summary["outdir"], None)
+
+    return _guarded(run, "the run failed")
+
+
+class _UsageError(Exception):
+    """A command-line option that does not fit the case (reported like bad input)."""
+
+
+def _comm():
+    from mpi4py import MPI
+
+    return MPI.COMM_WORLD
+
+
+def _guarded(action, failure: str) -> int:
+    """Run ``action``; bad input -> one line and status 2, a failed computation -> status 3."""
+    from .case import CaseError
+    from .errors import SimulationError
+
     try:
-        summary = run_case(args.case, args.output, args.overrides, comm=comm, progress=not args.quiet)
-    except CaseError as err:
-        return _fail(comm, f"error: {err}", 2)
+        action()
+    except (CaseError, _UsageError) as err:
+        return _fail(_comm(), f"error: {err}", 2)
     except SimulationError as err:
-        return _fail(comm, f"the run failed: {err} (the output folder was left as it was)", 3)
+        return _fail(_comm(), f"{failure}: {err} (the output folder was left as it was)", 3)
     except KeyboardInterrupt:
-        return _fail(comm, "interrupted (the output folder was left as it was)", 130)
-    if comm.rank == 0 and not args.quiet:
-        print(describe(summary))
-    if comm.rank == 0 and args.plot:
-        _plot(summary["outdir"], None)
+        return _fail(_comm(), "interrupted (the output folder was left as it was)", 130)
     return 0
 
 
 def _modes(args) -> int:
-    from mpi4py import MPI
-
-    comm = MPI.COMM_WORLD
     if args.count is not None and args.count < 1:
-        return _fail(comm, f"error: -n {args.count}: ask for at least 1 mode", 2)
-
-    from .case import CaseError
-    from .errors import SimulationError
+        return _fail(_comm(), f"error: -n {args.count}: ask for at least 1 mode", 2)
     from .modes import ModeCountError, format_table, run_modes
 
-    try:
-        summary = run_modes(args.case, args.output, args.overrides, args.count, comm=comm)
-    except CaseError as err:
-        return _fail(comm, f"error: {err}", 2)
-    except ModeCountError as err:
-        return _fail(comm, f"error: -n {args.count}: {err}", 2)
-    except SimulationError as err:
-        return _fail(comm, f"the modal analysis failed: {err} (the output folder was left as it was)", 3)
-    except KeyboardInterrupt:
-        return _fail(comm, "interrupted (the output folder was left as it was)", 130)
-    if comm.rank == 0 and not args.quiet:
-        print(format_table(summary))
-    return 0
+    def modes():
+        try:
+            summary = run_modes(args.case, args.output, args.overrides, args.count, comm=_comm())
+        except ModeCountError as err:
+            raise _UsageError(f"-n {args.count}: {err}") from None
+        if _comm().rank == 0 and not args.quiet:
+            print(format_table(summary))
+
+    return _guarded(modes, "the modal analysis failed")
 
 
 def _reduction(args) -> int:
-    from mpi4py import MPI
-
-    from .case import CaseError
-    from .errors import SimulationError
     from .studies import format_reduction, reduction_table
 
-    comm = MPI.COMM_WORLD
     try:
         modes = [int(m) for m in args.modes.split(",")]
     except ValueError:
-        return _fail(comm, f"error: --modes {args.modes}: give whole numbers separated by commas, e.g. 2,5,10", 2)
-    try:
-        rows = reduction_table(args.case, modes, args.output, args.overrides, args.probe, comm)
-    except CaseError as err:
-        return _fail(comm, f"error: {err}", 2)
-    except ValueError as err:
-        return _fail(comm, f"error: {err}", 2)
-    except SimulationError as err:
-        return _fail(comm, f"the study failed: {err}", 3)
-    if comm.rank == 0:
-        print(format_reduction(rows))
-    return 0
+        return _fail(_comm(), f"error: --modes {args.modes}: give whole numbers separated by commas, e.g. 2,5,10", 2)
+
+    def study():
+        try:
+            rows = reduction_table(args.case, modes, args.output, args.overrides, args.probe, _comm())
+        except ValueError as err:
+            raise _UsageError(str(err)) from None
+        if _comm().rank == 0:
+            print(format_reduction(rows))
+
+    return _guarded(study, "the study failed")
 
 
 def _plot(outdir: str, png) -> int:
