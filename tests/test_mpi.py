@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -16,10 +17,11 @@ pytestmark = pytest.mark.mpi
 
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
-@pytest.mark.parametrize("dim, cells", [(1, 100), (2, 60)])
-def test_serial_and_two_ranks_agree(tmp_path, dim, cells):
+@pytest.mark.parametrize("dim, cells, method", [(1, 100, "newmark"), (2, 60, "newmark"), (2, 60, "modal")])
+def test_serial_and_two_ranks_agree(tmp_path, dim, cells, method):
     overrides = ["--set", f"mesh.dim={dim}", "--set", f"mesh.cells={cells}", "--set", f"solver.dt={0.5 / cells}",
-                 "--set", "solver.t_end=2.5", "--set", "output.every=50"]
+                 "--set", "solver.t_end=2.5", "--set", "output.every=50", "--set", f"solver.method={method}",
+                 "--set", "solver.modes=10"]
     case = str(CASES / "impacting_bar.yaml")
     serial = run_cli("run", case, "-o", str(tmp_path / "serial"), "-q", *overrides)
     assert serial.returncode == 0, serial.stderr
@@ -41,3 +43,5 @@ def test_serial_and_two_ranks_agree(tmp_path, dim, cells):
         assert np.abs(a[name] - b[name]).max() <= 1e-8 * scale, name
     # The contact really happened in both runs (the comparison is not of two empty histories).
     assert a["wall_impulse"].sum() > 0.9 * (1.0 / 20 if dim == 2 else 1.0) * 2
+    if method == "modal":   # modes and static solves computed on 2 ranks, not read from the cache
+        assert json.loads((tmp_path / "mpi" / "summary.json").read_text())["reused_from_cache"] == []
