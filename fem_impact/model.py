@@ -51,7 +51,7 @@ class LoadVector:
     def evaluate(self, t: float, out: PETSc.Vec) -> PETSc.Vec:
         self.constant.copy(out)
         for f, b in self.varying:
-            out.axpy(float(f.evaluate(t=t)), b)
+            out.axpy(f.at_time(t), b)
         return out
 
 

@@ -11,7 +11,7 @@ precomputed columns only for probes (a few dofs) and output frames.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from mpi4py import MPI
@@ -103,7 +103,7 @@ class ModalLoad:
     def evaluate(self, t: float, out: PETSc.Vec) -> PETSc.Vec:
         values = self.constant.copy()
         for f, r in self.varying:
-            values += float(f.evaluate(t=t)) * r
+            values += f.at_time(t) * r
         out.array[:] = values
         return out
 
@@ -117,9 +117,16 @@ class StaticCorrection:
     load_offsets: np.ndarray       # P S_k [R_c, b_1, ...]           (p x nl)
     load_gram: np.ndarray          # [R_c, b_i]^T S_k [R_c, b_i]      (nl x nl)
     functions: list                # the time functions of b_1, ... (R_c has 1)
+    _recent: dict = field(default_factory=dict, repr=False)   # t -> coefficients, last two times
 
     def coefficients(self, t: float) -> np.ndarray:
-        return np.array([1.0] + [float(f.evaluate(t=t)) for f in self.functions])
+        """(1, f_1(t), ...): asked for several times per step, so the last two times are kept."""
+        cache = self._recent
+        if t not in cache:
+            if len(cache) >= 2:
+                cache.pop(next(iter(cache)))
+            cache[t] = np.array([1.0] + [f.at_time(t) for f in self.functions])
+        return cache[t]
 
     def offset(self, t: float) -> np.ndarray:
         return self.load_offsets @ self.coefficients(t)
