@@ -96,6 +96,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="override a case-file key, value typed as in YAML (repeatable)")
     modes.add_argument("-q", "--quiet", action="store_true", help="do not print the table")
     modes.add_argument("-v", "--verbose", action="store_true", help="log the stages of the computation")
+
+    from .animate import add_parser as add_animate_parser
+
+    add_animate_parser(sub)
     return parser
 
 
@@ -112,6 +116,10 @@ def main(argv=None) -> int:
         return _reduction(args)
     if args.command == "modes":
         return _modes(args)
+    if args.command == "animate":
+        from .animate import main as animate_main
+
+        return animate_main(args)
 
     # Heavy imports (dolfinx, PETSc) only once the arguments are known to be sound.
     from .run import describe, run_case
