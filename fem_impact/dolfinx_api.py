@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import numpy as np
 import ufl
@@ -114,6 +115,7 @@ class VTKSeries:
         self.out_bs = W.dofmap.index_map_bs
         self.functions = {name: function(W, name) for name in names}
         self._file = io.VTKFile(comm, str(path), "w")
+        self._path, self._comm = Path(path), comm
 
     def write(self, t: float, owned_values: dict) -> None:
         """Write one frame; ``owned_values`` maps a field name to its owned dof values."""
@@ -129,3 +131,21 @@ class VTKSeries:
         # before the output folder is moved into place.
         self._file.close()
         self._file = None
+        if self._comm.rank == 0:
+            _drop_repeated_pieces(self._path)
+
+
+def _drop_repeated_pieces(pvd: Path) -> None:
+    """dolfinx 0.5 lists every piece once per field in each .pvtu, so ParaView would load the
+    mesh several times over: keep each piece once."""
+    for pvtu in pvd.parent.glob(f"{pvd.stem}*.pvtu"):
+        lines = pvtu.read_text().splitlines(keepends=True)
+        seen, kept = set(), []
+        for line in lines:
+            if line.lstrip().startswith("<Piece "):
+                if line in seen:
+                    continue
+                seen.add(line)
+            kept.append(line)
+        if len(kept) < len(lines):
+            pvtu.write_text("".join(kept))

@@ -160,6 +160,10 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
         if comm.rank == 0:
             (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
             case.write_resolved(stage / "case.resolved.yaml")
+            if vtk is not None:
+                from .paraview_view import write_view_script
+
+                write_view_script(stage, meshdata.dim, final_dir=outdir)
     summary["outdir"] = str(outdir.resolve())
     return summary
 

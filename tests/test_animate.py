@@ -1,0 +1,148 @@
+"""``fem-impact animate``: off-screen GIF/MP4 of a run's stored time series (pyvista)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+from conftest import CASES, run_case_file, run_cli
+
+pytest.importorskip("pyvista", reason="pyvista is not installed (make setup installs it)")
+Image = pytest.importorskip("PIL.Image", reason="Pillow is not installed")
+
+SHORT = ("solver.dt=0.02", "solver.t_end=0.4", "output.every=2")   # 20 steps, a frame every 2nd: 11 frames
+
+
+def pvd_times(outdir):
+    return [float(d.get("timestep")) for d in ET.parse(outdir / "results.pvd").getroot().iter("DataSet")]
+
+
+def gif_frames(path):
+    """All frames of a GIF as RGB arrays."""
+    im = Image.open(path)
+    assert im.format == "GIF"
+    frames = []
+    for k in range(im.n_frames):
+        im.seek(k)
+        frames.append(np.asarray(im.convert("RGB")).astype(int))
+    return frames
+
+
+@pytest.fixture(scope="module")
+def strip(tmp_path_factory):
+    out = tmp_path_factory.mktemp("animate") / "strip"
+    summary, _ = run_case_file(CASES / "impacting_bar.yaml", out, "mesh.dim=2", "mesh.cells=20", *SHORT)
+    assert summary["vtk_frames"] == 11
+    return out
+
+
+@pytest.fixture(scope="module")
+def rod(tmp_path_factory):
+    out = tmp_path_factory.mktemp("animate") / "rod"
+    run_case_file(CASES / "impacting_bar.yaml", out, "mesh.cells=40", *SHORT)
+    return out
+
+
+def test_gif_of_a_2d_run_has_one_frame_per_time_step_and_the_bar_moves(strip, tmp_path):
+    gif = tmp_path / "strip.gif"
+    proc = run_cli("animate", str(strip), "-o", str(gif), "--size", "320x192", "--fps", "5")
+    assert proc.returncode == 0, proc.stderr
+    assert f"wrote {gif} (11 frames" in proc.stdout
+    assert "Traceback" not in proc.stderr
+    frames = gif_frames(gif)
+    assert len(frames) == len(pvd_times(strip)) == 11
+    assert frames[0].shape == (192, 320, 3)
+    # below the labels (time, caption) and above the colour bar: the bar itself
+    body = [f[40:140] for f in frames]
+    assert all(np.any(body[k] != body[k + 1]) for k in range(len(body) - 1)), "two frames show the same picture"
+    assert np.abs(body[0] - body[-1]).sum() > 255 * 100, "the bar did not move"
+    # red contact-force arrows appear once the bar touches the wall (gap 0.1 at speed 1: t = 0.1)
+    red = [np.sum((f[..., 0] > 150) & (f[..., 1] < 80) & (f[..., 2] < 80)) for f in frames]
+    assert red[0] == 0 and max(red) > 20
+
+
+def test_default_output_and_scale(strip):
+    from fem_impact.animate import animate
+
+    out, scale, frames = animate(strip, field="contact", size=(160, 96), progress=False)
+    assert out == strip / "animation.gif" and out.is_file() and frames == 11
+    # the largest displacement (the free end's, about v0 t_end = 0.4) becomes 10 % of L = 1;
+    # max |u| read back from the .vtu pieces by an independent (numpy) parser
+    from fem_impact.paraview_view import series_extremes
+
+    ext = series_extremes(strip)
+    assert ext["size"] == pytest.approx(1.0) and ext["max_u"] == pytest.approx(0.4, rel=0.05)
+    assert scale == pytest.approx(0.1 / ext["max_u"], rel=2e-3)
+    out, scale, _ = animate(strip, field="u", scale=2.5, output=strip / "u.gif", size=(160, 96), progress=False)
+    assert scale == 2.5 and len(gif_frames(out)) == 11
+
+
+def test_a_1d_run_renders(rod, tmp_path):
+    from fem_impact.animate import animate
+
+    gif = tmp_path / "rod.gif"
+    out, scale, frames = animate(rod, field="v", output=gif, size=(320, 96), progress=False)
+    assert frames == 11 and scale > 0
+    f = gif_frames(gif)
+    assert len(f) == 11
+    assert np.abs(f[0][20:80] - f[-1][20:80]).sum() > 0
+
+
+@pytest.mark.mpi
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
+def test_the_pieces_of_a_two_rank_run_join_into_the_serial_mesh(strip, tmp_path):
+    from fem_impact.animate import load_series
+
+    # as in test_mpi.py: this process's own MPI variables would make mpirun think it is nested
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}
+    proc = subprocess.run(
+        ["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-m", "fem_impact", "run",
+         str(CASES / "impacting_bar.yaml"), "-o", str(tmp_path / "mpi"), "-q", "--set", "mesh.dim=2",
+         "--set", "mesh.cells=20", *(x for o in SHORT for x in ("--set", o))],
+        capture_output=True, text=True, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert "results_p1_000000.vtu" in {p.name for p in (tmp_path / "mpi").iterdir()}
+    a, b = load_series(tmp_path / "mpi", "v"), load_series(strip, "v")
+    assert (a.grid.n_points, a.grid.n_cells) == (b.grid.n_points, b.grid.n_cells)   # no ghosts, no doubles
+    ka = np.lexsort(np.asarray(a.grid.points).T)
+    kb = np.lexsort(np.asarray(b.grid.points).T)
+    assert np.allclose(np.asarray(a.grid.points)[ka], np.asarray(b.grid.points)[kb], atol=1e-14)
+    assert np.allclose(a.u[:, ka], b.u[:, kb], atol=1e-6) and np.allclose(a.scalar[:, ka], b.scalar[:, kb], atol=1e-6)
+
+
+def test_mp4(strip, tmp_path):
+    pytest.importorskip("imageio_ffmpeg", reason="imageio-ffmpeg is not installed: MP4 is not available")
+    import imageio.v2 as iio
+
+    mp4 = tmp_path / "strip.mp4"
+    proc = run_cli("animate", str(strip), "-o", str(mp4), "--size", "320x192")
+    assert proc.returncode == 0, proc.stderr
+    reader = iio.get_reader(mp4)
+    try:
+        assert reader.count_frames() == 11
+    finally:
+        reader.close()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["{tmp}"], "no results.pvd"),
+    (["{tmp}/nowhere"], "no such folder"),
+    (["{run}", "--field", "w"], "--field w: unknown, choose one of u, v, a, contact"),
+    (["{run}", "-o", "{tmp}/a.png"], "write a .gif or an .mp4"),
+    (["{run}", "--scale", "-1"], "--scale -1: must be a number > 0"),
+    (["{run}", "--scale", "big"], "--scale big: must be a number > 0"),
+    (["{run}", "--size", "12"], "--size 12: give WIDTHxHEIGHT"),
+])
+def test_bad_input_one_line_exit_2(strip, tmp_path, args, message):
+    args = [a.format(tmp=tmp_path, run=strip) for a in args]
+    proc = run_cli("animate", *args)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("fem-impact: error: ") and message in lines[0], proc.stderr
+    assert not list(tmp_path.glob("*.gif")) and not list(tmp_path.glob(".*partial*"))
