@@ -26,6 +26,8 @@ from pathlib import Path
 
 import gmsh
 
+from fem_impact.gmsh_utils import add_named_groups, write_msh
+
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "two_bars.msh"
 
@@ -51,18 +53,11 @@ def build(length: float = 1.0, gap: float = 0.1, cells: int = 100, output: Path 
             geo.mesh.setTransfiniteCurve(curve, cells + 1)
         geo.synchronize()
 
-        for name, curve in (("bar_a", bar_a), ("bar_b", bar_b)):
-            tag = gmsh.model.addPhysicalGroup(1, [curve])
-            gmsh.model.setPhysicalName(1, tag, name)
-        for name, point in zip(("a_left", "a_right", "b_left", "b_right"), points, strict=True):
-            tag = gmsh.model.addPhysicalGroup(0, [point])
-            gmsh.model.setPhysicalName(0, tag, name)
-
+        add_named_groups(1, {"bar_a": [bar_a], "bar_b": [bar_b]})
+        add_named_groups(0, {name: [p] for name, p in zip(("a_left", "a_right", "b_left", "b_right"), points,
+                                                          strict=True)})
         gmsh.model.mesh.generate(1)
-        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
-        gmsh.option.setNumber("Mesh.Binary", 0)
-        output.parent.mkdir(parents=True, exist_ok=True)
-        gmsh.write(str(output))
+        write_msh(output)
     finally:
         gmsh.finalize()
     return output

@@ -49,6 +49,8 @@ from pathlib import Path
 
 import gmsh
 
+from fem_impact.gmsh_utils import add_named_groups, write_msh
+
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "vibroconverter.msh"
 STEEL_WAVE_SPEED = math.sqrt(210e9 / 7800.0)   # m/s, sqrt(E / rho) of the cases' steel
@@ -98,17 +100,10 @@ def build(length: float = 0.1, split: float = 0.5, h: float | None = None, eleme
         geo.mesh.setTransfiniteCurve(large, n1 + 1)
         geo.mesh.setTransfiniteCurve(small, n2 + 1)
         geo.synchronize()
-        for name, curve in (("horn_large", large), ("horn_small", small)):
-            tag = gmsh.model.addPhysicalGroup(1, [curve])
-            gmsh.model.setPhysicalName(1, tag, name)
-        for name, point in zip(("drive", "step", "tip"), points, strict=True):
-            tag = gmsh.model.addPhysicalGroup(0, [point])
-            gmsh.model.setPhysicalName(0, tag, name)
+        add_named_groups(1, {"horn_large": [large], "horn_small": [small]})
+        add_named_groups(0, {name: [p] for name, p in zip(("drive", "step", "tip"), points, strict=True)})
         gmsh.model.mesh.generate(1)
-        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
-        gmsh.option.setNumber("Mesh.Binary", 0)
-        output.parent.mkdir(parents=True, exist_ok=True)
-        gmsh.write(str(output))
+        write_msh(output)
     finally:
         gmsh.finalize()
     f1 = wave_speed / (2.0 * length)
