@@ -151,6 +151,7 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
             "max_energy_error_relative": stats.max_energy_error / stats.energy_scale if stats.energy_scale else 0.0,
             "initial_energy": final.energy.initial,
             "final_energy": final.energy.total,
+            "max_energy": stats.max_energy,
             "impact_loss": final.energy.impact_loss,
             "contact_loss": final.energy.contact_loss,
             "total_impulse": stats.total_impulse,
