@@ -41,6 +41,7 @@ test-all: setup
 
 benchmark: setup
 	$(PY) benchmarks/full_model.py
+	$(PY) benchmarks/reduced_model.py
 
 clean:
 	rm -rf $(VENV) results .pytest_cache
