@@ -45,8 +45,8 @@ def measure(dim: int, cells: int, steps: int, solves: int = 100) -> dict:
 
     # Chunks of steps and of bare solves, interleaved; the fastest chunk of each is kept, which
     # filters out what else the machine is doing.
-    b, x = ops.K.createVecs()
-    b.set(1.0)
+    b, x = ops.algebra.vector(), ops.algebra.vector()
+    b[:] = 1.0
     chunk, step_times, solve_times, loop = 20, [], [], 0.0
     for _ in range(steps // chunk):
         t0 = time.perf_counter()

@@ -16,8 +16,8 @@ import yaml
 from .expressions import Expression, ExpressionError, parse_expression
 
 SHAPES = ("bar",)
-METHODS = ("newmark", "modal")
-MASS_MATRICES = ("consistent", "lumped")
+METHODS = ("newmark", "central_difference", "modal")
+MASS_MATRICES = ("consistent", "lumped", "redistributed")
 CONTACT_TYPES = ("obstacle", "pair")
 COMPONENTS = ("x", "y", "z")
 SPACE = ("x", "y", "z")  # variables of initial fields
@@ -118,6 +118,7 @@ class Solver:
     dt: float
     t_end: float
     mass: str = "consistent"
+    impact_correction: bool = True
     modes: int | str | None = None
     static_correction: bool = True
     tolerance: float = 0.01
@@ -626,11 +627,20 @@ def _solver(value, path):
     f = _fields(value, path, {
         "dt": (_real(gt=0), _REQUIRED), "t_end": (_real(gt=0), _REQUIRED),
         "method": (_choice(*METHODS), "newmark"), "beta": (_real(gt=0), 0.25),
-        "gamma": (_real(ge=0), 0.5), "mass": (_choice(*MASS_MATRICES), "consistent"),
+        "gamma": (_real(ge=0), 0.5), "mass": (_choice(*MASS_MATRICES), None),
+        "impact_correction": (_boolean, True),
         "modes": (_modes, None), "static_correction": (_boolean, True),
         "tolerance": (_real(gt=0, lt=1), 0.01)})
     if f["dt"] > f["t_end"]:
         raise _Invalid(path + ("dt",), f"must be <= t_end ({f['t_end']:g}), got {f['dt']:g}")
+    # The explicit scheme is meant for the lumped (diagonal) mass: no solve per step.
+    if f["mass"] is None:
+        f["mass"] = "lumped" if f["method"] == "central_difference" else "consistent"
+    if f["mass"] == "redistributed" and f["method"] != "newmark":
+        raise _Invalid(path + ("mass",), f"'redistributed' (no mass on the contact nodes) needs method newmark; "
+                                         f"{f['method']} needs mass on every node")
+    if f["gamma"] < 0.5:
+        raise _Invalid(path + ("gamma",), f"must be >= 0.5 (below, Newmark amplifies every mode), got {f['gamma']:g}")
     return Solver(**f)
 
 

@@ -72,6 +72,10 @@ def _builtin_bar(spec: MeshSpec, comm: MPI.Comm) -> MeshData:
         name: dx.locate_vertices(msh, lambda x, a=axis, c=coord: np.abs(x[a] - c) < tol)
         for name, (axis, coord) in planes.items()
     }
+    if dim >= 2:  # the edges (2D: corners) where an end meets a side, e.g. a stop under the tip
+        for end in ("left", "right"):
+            for side in ("bottom", "top"):
+                groups[f"{end}_{side}"] = np.intersect1d(groups[end], groups[side])
     return MeshData(msh, dim, None, {"bar": 0}, groups, f"built-in bar, {dim}D, {cells} cells along")
 
 

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 import ufl
@@ -12,6 +13,7 @@ from petsc4py import PETSc
 
 from . import dolfinx_api as dx
 from .case import BodyValue, Case, Material
+from .errors import SimulationError
 from .expressions import Expression, parse_expression
 from .mesh import MeshData
 
@@ -38,21 +40,34 @@ class NodeSet:
 
 
 class LoadVector:
-    """R(t) = R_const + sum_i f_i(t) b_i, with the vectors b_i assembled once."""
+    """R(t) = R_const + sum_i f_i(t) b_i, with the vectors b_i assembled once.
+
+    ``evaluate`` fills the owned entries of R(t) into a numpy array (the integrators' vectors).
+    """
 
     def __init__(self, constant: PETSc.Vec, varying: list[tuple[Expression, PETSc.Vec]]):
         self.constant = constant
         self.varying = varying
+        self._constant = constant.array_r.copy()
+        self._varying = [(f, b.array_r.copy()) for f, b in varying]
 
     @property
     def time_dependent(self) -> bool:
         return bool(self.varying)
 
-    def evaluate(self, t: float, out: PETSc.Vec) -> PETSc.Vec:
-        self.constant.copy(out)
-        for f, b in self.varying:
-            out.axpy(f.at_time(t), b)
+    def evaluate(self, t: float, out: np.ndarray) -> np.ndarray:
+        out[:] = self._constant
+        for f, b in self._varying:
+            out += load_factor(f, t) * b
         return out
+
+
+def load_factor(f: Expression, t: float) -> float:
+    """The value of a load's time function at t; a run whose load overflows stops with its name."""
+    value = f.at_time(t)
+    if not math.isfinite(value):
+        raise SimulationError(f"the load '{f.source}' is no longer finite at t = {t:.6g} ({value})")
+    return value
 
 
 @dataclass
@@ -72,6 +87,7 @@ class Model:
     node_coords: np.ndarray    # local node coordinates (owned, then ghosts) x 3
     n_owned_nodes: int
     first_node: int
+    massless: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # owned dofs without mass
 
     @property
     def comm(self) -> MPI.Comm:
@@ -152,6 +168,10 @@ def build_model(case: Case, meshdata: MeshData) -> Model:
         M = _lumped(M)
 
     fixed = _fixed_dofs(case, meshdata, V, bs)
+    massless = np.zeros(0, dtype=np.int64)
+    if case.solver.mass == "redistributed":
+        massless = np.setdiff1d(_contact_dofs(case, meshdata, V, bs), fixed)
+        M = _redistributed(M, massless, first * bs, case)
     rows = (fixed + first * bs).astype(np.int32)
     # Supports: zero rows and columns; unit mass and zero stiffness on the diagonal keep S
     # regular for any Newmark parameters while the held dofs see a zero right-hand side.
@@ -170,7 +190,7 @@ def build_model(case: Case, meshdata: MeshData) -> Model:
     for vec in (U0, V0):
         vec.array[fixed] = 0.0
     log.info("model: %d dofs, %s mass", K.getSize()[0], case.solver.mass)
-    return Model(meshdata, V, bs, M, K, C, fixed, load, U0, V0, coords, n_owned, first)
+    return Model(meshdata, V, bs, M, K, C, fixed, load, U0, V0, coords, n_owned, first, massless)
 
 
 def _materials(case: Case, meshdata: MeshData) -> dict[str, Material]:
@@ -207,6 +227,58 @@ def _lumped(M: PETSc.Mat) -> PETSc.Mat:
     L.setDiagonal(diag)
     L.assemble()
     return L
+
+
+def _contact_dofs(case: Case, meshdata: MeshData, V, bs: int) -> np.ndarray:
+    """Owned dofs (all components) of the nodes that any contact acts on."""
+    dofs = []
+    for i, contact in enumerate(case.contacts):
+        for group in contact.nodes:
+            nodes = node_set(meshdata, V, case, group, ("contacts", i, "nodes"))
+            owned = nodes.local_node[nodes.local_node >= 0]
+            dofs.append((owned[:, None] * bs + np.arange(meshdata.dim)).ravel())
+    return np.unique(np.concatenate(dofs)).astype(np.int64) if dofs else np.zeros(0, dtype=np.int64)
+
+
+def _redistributed(M: PETSc.Mat, massless: np.ndarray, first_dof: int, case: Case) -> PETSc.Mat:
+    """Mass redistribution (Khenous, Laborde & Renard 2008): no mass on the contact dofs.
+
+    The rows and columns of the contact dofs are removed from the consistent M, and the mass
+    they held goes to the diagonal of their neighbours (dofs coupled to them in M): neighbour j
+    gets back its coupling ``M_jc`` plus the share ``M_jc / s_c`` of the contact dof's row mass
+    ``r_c`` (``s_c`` = its coupling to the dofs that keep their mass). One product ``M w`` with
+    ``w_c = 1 + r_c / s_c`` on the contact dofs gives all of it. Total mass is conserved exactly;
+    the centre of mass moves by O(h) toward the interior (KLR also keep it, with a wider stencil).
+    """
+    comm = M.getComm().tompi4py()
+    if not comm.allreduce(massless.size, op=MPI.SUM):
+        return M
+    ones, row_mass = M.createVecs()
+    ones.set(1.0)
+    M.mult(ones, row_mass)
+    contact = ones.duplicate()
+    contact.set(0.0)
+    contact.array[massless] = 1.0
+    keep = ones.duplicate()
+    keep.array[:] = 1.0 - contact.array_r
+    coupling = row_mass.duplicate()
+    M.mult(keep, coupling)                       # s_c: row mass toward the dofs that keep theirs
+    s = coupling.array_r[massless]
+    if np.any(s <= 0.0):
+        raise case.error(("solver", "mass"), "mass redistribution needs every contact node to share an element "
+                         "with a node that is not in contact (refine the mesh near the contacts)")
+    weights = contact.duplicate()
+    weights.set(0.0)
+    weights.array[massless] = 1.0 + row_mass.array_r[massless] / s
+    gained = row_mass.duplicate()
+    M.mult(weights, gained)
+    gained.array[massless] = 0.0
+    R = M.copy()
+    R.zeroRowsColumns((massless + first_dof).astype(np.int32), diag=0.0)
+    diagonal = R.getDiagonal()
+    diagonal.axpy(1.0, gained)
+    R.setDiagonal(diagonal)
+    return R
 
 
 def _fixed_dofs(case: Case, meshdata: MeshData, V, bs: int) -> np.ndarray:

@@ -31,11 +31,11 @@ class NodalFields:
 
     def at(self, state: StepState, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Displacement and velocity at a few owned dofs."""
-        return state.U.array_r[dofs], state.V.array_r[dofs]
+        return state.U[dofs], state.V[dofs]
 
     def frame(self, state: StepState) -> dict[str, np.ndarray]:
         """Owned values of u, v, a and the contact force on the structure (-P^T F_N)."""
-        return {"u": state.U.array_r, "v": state.V.array_r, "a": state.A.array_r,
+        return {"u": state.U, "v": state.V, "a": state.A,
                 "contact_force": -(self.cons.P_local @ state.force)}
 
 

@@ -22,7 +22,7 @@ from .case import Case
 from .constraints import Constraints
 from .integrators import Operators, StepState
 from .integrators.base import factorize
-from .model import Model
+from .model import Model, load_factor
 from .modes import ModeCountError, Modes, compute_modes, free_dof_count
 
 log = logging.getLogger(__name__)
@@ -36,15 +36,6 @@ def _allsum(comm: MPI.Comm, local: np.ndarray) -> np.ndarray:
     if comm.size > 1:
         comm.Allreduce(MPI.IN_PLACE, local, op=MPI.SUM)
     return local
-
-
-def _diagonal(values: np.ndarray) -> PETSc.Mat:
-    """A small diagonal matrix on this rank alone (the reduced system is replicated)."""
-    A = PETSc.Mat().createAIJ([values.size, values.size], nnz=1, comm=PETSc.COMM_SELF)
-    d = PETSc.Vec().createWithArray(np.array(values, dtype=float), comm=PETSc.COMM_SELF)
-    A.setDiagonal(d)
-    A.assemble()
-    return A
 
 
 class Flexibility:
@@ -100,11 +91,10 @@ class ModalLoad:
         self.constant, self.varying = constant, varying
         self.time_dependent = bool(varying)
 
-    def evaluate(self, t: float, out: PETSc.Vec) -> PETSc.Vec:
-        values = self.constant.copy()
+    def evaluate(self, t: float, out: np.ndarray) -> np.ndarray:
+        out[:] = self.constant
         for f, r in self.varying:
-            values += f.at_time(t) * r
-        out.array[:] = values
+            out += load_factor(f, t) * r
         return out
 
 
@@ -125,7 +115,7 @@ class StaticCorrection:
         if t not in cache:
             if len(cache) >= 2:
                 cache.pop(next(iter(cache)))
-            cache[t] = np.array([1.0] + [f.at_time(t) for f in self.functions])
+            cache[t] = np.array([1.0] + [load_factor(f, t) for f in self.functions])
         return cache[t]
 
     def offset(self, t: float) -> np.ndarray:
@@ -156,8 +146,8 @@ class ReducedFields:
         return self.XR[rows] @ self.static.coefficients(t) - self.XP[rows] @ force
 
     def _parts(self, state: StepState, rows):
-        u = self.Y1[rows] @ state.U.array_r + self._static(rows, state.t, state.force)
-        v = self.Y1[rows] @ state.V.array_r
+        u = self.Y1[rows] @ state.U + self._static(rows, state.t, state.force)
+        v = self.Y1[rows] @ state.V
         if self.static is not None and self._previous is not None and self._previous[0] < state.t:
             t0, f0 = self._previous
             v = v + (self._static(rows, state.t, state.force) - self._static(rows, t0, f0)) / (state.t - t0)
@@ -170,7 +160,7 @@ class ReducedFields:
     def frame(self, state: StepState) -> dict[str, np.ndarray]:
         rows = slice(None)
         u, v = self._parts(state, rows)
-        return {"u": u, "v": v, "a": self.Y1 @ state.A.array_r, "contact_force": -(self.cons.P_local @ state.force)}
+        return {"u": u, "v": v, "a": self.Y1 @ state.A, "contact_force": -(self.cons.P_local @ state.force)}
 
     def write(self, state: StepState) -> None:
         """Observer hook, registered last: remembers the step for the next velocity difference."""
@@ -181,8 +171,8 @@ class ReducedFields:
 class ReducedModel:
     operators: Operators
     fields: ReducedFields
-    Z0: PETSc.Vec
-    Zdot0: PETSc.Vec
+    Z0: np.ndarray
+    Zdot0: np.ndarray
     modes: int
     cutoff_hz: float
     neglected_flexibility: np.ndarray   # per contact row: (P S_k P^T)_jj / (P K^+ P^T)_jj
@@ -217,8 +207,8 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
     M_U0, M_V0 = model.M.createVecs()
     model.M.mult(model.U0, M_U0)
     model.M.mult(model.V0, M_V0)
-    Z0 = PETSc.Vec().createWithArray(_allsum(comm, Y1.T @ M_U0.array_r), comm=PETSc.COMM_SELF)
-    Zdot0 = PETSc.Vec().createWithArray(_allsum(comm, Y1.T @ M_V0.array_r), comm=PETSc.COMM_SELF)
+    Z0 = _allsum(comm, Y1.T @ M_U0.array_r)
+    Zdot0 = _allsum(comm, Y1.T @ M_V0.array_r)
 
     # Residual flexibility of the truncated modes, from static solves on the elastic subspace.
     elastic = ~modes.rigid
@@ -248,9 +238,9 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
             load_gram=_allsum(comm, np.column_stack(R_cols).T @ XR),
             functions=[f for f, _ in load.varying],
         )
-    C = _diagonal(alpha + beta * w2) if (alpha or beta) else None
-    ops = Operators(_diagonal(np.ones(n1)), _diagonal(w2), C, modal_load, Pr.T.copy(), cons.d0, cons.restitution,
-                    static=static)
+    # The modal equations are diagonal: M = I, K = diag(w1^2), C = diag(alpha + beta w1^2).
+    C = (alpha + beta * w2) if (alpha or beta) else None
+    ops = Operators(np.ones(n1), w2.copy(), C, modal_load, Pr.T.copy(), cons.d0, cons.restitution, static=static)
     fields = ReducedFields(Y1, XR if static else None, XP if static else None, static, cons, dt)
     cutoff = float(np.sqrt(w2[-1]) / (2 * np.pi))
     log.info("reduced model: %d modes (cut-off %.4g Hz), static correction %s", n1, cutoff, static_correction)

@@ -35,7 +35,8 @@ def full_model(case: Case, model, cons) -> System:
     from .integrators import Operators
     from .output import NodalFields
 
-    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
+    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
+                    massless=model.massless)
     return System(ops, NodalFields(cons), model.U0, model.V0, {"modes": None})
 
 
@@ -47,7 +48,18 @@ def reduced_model(case: Case, model, cons) -> System:
     return System(red.operators, red.fields, red.Z0, red.Zdot0, summary)
 
 
-MODELS = {"newmark": full_model, "modal": reduced_model}
+MODELS = {"newmark": full_model, "central_difference": full_model, "modal": reduced_model}
+
+
+def make_integrator(case: Case, operators):
+    """The time integrator of ``solver.method`` (the modal model is integrated with Newmark)."""
+    from .integrators import CentralDifference, Newmark
+
+    solver = case.solver
+    if solver.method == "central_difference":
+        return CentralDifference(operators, solver.dt)
+    return Newmark(operators, solver.dt, beta=solver.beta, gamma=solver.gamma,
+                   impact_correction=solver.impact_correction)
 
 
 def default_outdir(case: Case) -> Path:
@@ -91,7 +103,7 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
         raise CaseError(str(outdir), None, None, "the output path exists and is not a folder")
     # dolfinx and PETSc load in about a second: only once the case file is known to be sound.
     from .constraints import build_constraints, check_initial_state
-    from .integrators import Newmark, integrate, steps_for
+    from .integrators import integrate, steps_for
     from .mesh import build_mesh
     from .model import build_model
     from .output import HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
@@ -107,7 +119,7 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
     check_initial_state(case, cons, model)
     probes = find_probes(case, model)
     system = MODELS[solver.method](case, model, cons)
-    integrator = Newmark(system.operators, solver.dt, beta=solver.beta, gamma=solver.gamma)
+    integrator = make_integrator(case, system.operators)
     n_steps = steps_for(solver.t_end, solver.dt)
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)

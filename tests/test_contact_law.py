@@ -56,7 +56,7 @@ class ConstantLoad:
         self.value = value
 
     def evaluate(self, t, out):
-        out.set(self.value)
+        out[:] = self.value
         return out
 
 
@@ -72,7 +72,7 @@ class Recorder:
         self.rows = []
 
     def write(self, s):
-        self.rows.append((s.t, s.U.array[0], s.V.array[0], s.impulse[0], s.force[0], s.energy.error,
+        self.rows.append((s.t, s.U[0], s.V[0], s.impulse[0], s.force[0], s.energy.error,
                           s.energy.impact_loss + s.energy.contact_loss))
 
     def array(self):

@@ -32,8 +32,8 @@ class Momentum:
 
     def write(self, s):
         bs = self.model.bs
-        mv = (self.Mones.array_r * s.V.array_r).reshape(-1, bs).sum(axis=0)
-        mu = (self.Mones.array_r * s.U.array_r).reshape(-1, bs).sum(axis=0)
+        mv = (self.Mones.array_r * s.V).reshape(-1, bs).sum(axis=0)
+        mu = (self.Mones.array_r * s.U).reshape(-1, bs).sum(axis=0)
         self.rows.append([s.t, *mv, *mu])
 
 

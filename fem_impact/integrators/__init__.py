@@ -1,8 +1,10 @@
 """Time integrators, chosen by name from a registry (``solver.method`` in the case file)."""
 
 from .base import EnergyBudget, Operators, SimulationError, StepState, integrate, steps_for
+from .central_difference import CentralDifference
 from .newmark import Newmark
 
-METHODS = {Newmark.name: Newmark}
+METHODS = {Newmark.name: Newmark, CentralDifference.name: CentralDifference}
 
-__all__ = ["METHODS", "EnergyBudget", "Newmark", "Operators", "SimulationError", "StepState", "integrate", "steps_for"]
+__all__ = ["METHODS", "CentralDifference", "EnergyBudget", "Newmark", "Operators", "SimulationError", "StepState",
+           "integrate", "steps_for"]

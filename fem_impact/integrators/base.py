@@ -1,4 +1,12 @@
-"""What every integrator shares: the operators it works on, its state, the energy budget, the loop."""
+"""What every integrator shares: the linear algebra it runs on, the operators, its state, the
+energy budget and the time loop.
+
+The integrators work on numpy arrays: the owned entries of distributed PETSc vectors for a
+finite-element model (``PETScAlgebra``: each array is the memory of a PETSc ``Vec``, so
+matrix products and solves go through PETSc without copies), or small replicated arrays for
+the reduced model (``DenseAlgebra``: diagonal or dense matrices, numpy only). The same
+integrator code runs on both; only products, solves and global sums differ.
+"""
 
 from __future__ import annotations
 
@@ -11,13 +19,127 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from scipy import sparse
 
-from ..errors import SimulationError  # noqa: F401  (re-exported)
+from ..errors import SimulationError
+
+BLOW_UP = 10.0   # kinetic + strain energy above this many times the energy put in: the run blew up
+
+
+class PETScAlgebra:
+    """Distributed vectors as numpy arrays of their owned entries, each backed by a PETSc ``Vec``."""
+
+    distributed = True
+
+    def __init__(self, template: PETSc.Mat):
+        self.comm: MPI.Comm = template.getComm().tompi4py()
+        self._petsc_comm = template.getComm()
+        self.sizes = template.getSizes()[0]   # (owned, global)
+        self._vecs: dict[int, tuple[np.ndarray, PETSc.Vec]] = {}
+
+    def vector(self) -> np.ndarray:
+        array = np.zeros(self.sizes[0])
+        vec = PETSc.Vec().createWithArray(array, size=self.sizes, comm=self._petsc_comm)
+        self._vecs[id(array)] = (array, vec)   # keeps both alive; products look the Vec up by the array
+        return array
+
+    def _vec(self, array: np.ndarray) -> PETSc.Vec:
+        return self._vecs[id(array)][1]
+
+    def mult(self, A: PETSc.Mat, x: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``out = A x`` (both arrays made by ``vector()``)."""
+        A.mult(self._vec(x), self._vec(out))
+        return out
+
+    def combine(self, *terms) -> PETSc.Mat:
+        """``sum c_i A_i`` over the terms (c, A) whose A is not None (patterns merged)."""
+        (c0, A0), *rest = [(c, A) for c, A in terms if A is not None]
+        S = A0.copy()
+        S.scale(c0)
+        for c, A in rest:
+            # Supports may have removed diagonal entries from one pattern: let PETSc merge them.
+            S.axpy(c, A, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        return S
+
+    def factorize(self, A: PETSc.Mat) -> Callable[[np.ndarray, np.ndarray], None]:
+        """A direct solver for ``A``, factorized now, once: ``solve(b, x)`` on arrays from ``vector()``.
+
+        Serial runs use PETSc's own sparse LU (for small systems its per-solve overhead is a
+        fraction of MUMPS'); parallel runs use MUMPS.
+        """
+        ksp = factorize(A)
+        vec = self._vec
+        return lambda b, x: ksp(vec(b), vec(x))
+
+    def diagonal(self, A: PETSc.Mat) -> np.ndarray:
+        return A.getDiagonal().array_r.copy()
+
+    def allsum(self, local: np.ndarray) -> np.ndarray:
+        """Sum over ranks, in place (one reduction)."""
+        if self.comm.size > 1:
+            self.comm.Allreduce(MPI.IN_PLACE, local, op=MPI.SUM)
+        return local
+
+
+class DenseAlgebra:
+    """A small system replicated on every rank: matrices are numpy arrays, 1D for a diagonal."""
+
+    distributed = False
+
+    def __init__(self, template: np.ndarray):
+        self.comm = MPI.COMM_SELF
+        self.sizes = (template.shape[0], template.shape[0])
+
+    def vector(self) -> np.ndarray:
+        return np.zeros(self.sizes[0])
+
+    @staticmethod
+    def mult(A: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:
+        if A.ndim == 1:
+            return np.multiply(A, x, out=out)
+        return np.dot(A, x, out=out)
+
+    @staticmethod
+    def combine(*terms) -> np.ndarray:
+        terms = [(c, A) for c, A in terms if A is not None]
+        if all(A.ndim == 1 for _, A in terms):
+            return sum(c * A for c, A in terms)
+        return sum(c * (np.diag(A) if A.ndim == 1 else A) for c, A in terms)
+
+    @staticmethod
+    def factorize(A: np.ndarray) -> Callable[[np.ndarray, np.ndarray], None]:
+        if A.ndim == 1:
+            if np.any(A == 0.0):
+                raise SimulationError("a diagonal operator of the reduced system is singular")
+            inverse = 1.0 / A
+            return lambda b, x: np.multiply(inverse, b, out=x)
+        inverse = np.linalg.inv(A)   # a few dozen unknowns at most
+        return lambda b, x: np.dot(inverse, b, out=x)
+
+    @staticmethod
+    def diagonal(A: np.ndarray) -> np.ndarray:
+        return A.copy() if A.ndim == 1 else np.diag(A).copy()
+
+    @staticmethod
+    def allsum(local: np.ndarray) -> np.ndarray:
+        return local
+
+
+def factorize(A: PETSc.Mat) -> Callable[[PETSc.Vec, PETSc.Vec], None]:
+    """A direct PETSc solver for ``A``, factorized now: ``solve(b, x)`` on PETSc vectors."""
+    ksp = PETSc.KSP().create(A.getComm())
+    ksp.setOperators(A)
+    ksp.setType(PETSc.KSP.Type.PREONLY)
+    pc = ksp.getPC()
+    pc.setType(PETSc.PC.Type.LU)
+    if A.getComm().getSize() > 1 and PETSc.Sys.hasExternalPackage("mumps"):
+        pc.setFactorSolverType("mumps")
+    ksp.setUp()
+    return ksp.solve
 
 
 class TimeDependentLoad(Protocol):
     time_dependent: bool
 
-    def evaluate(self, t: float, out: PETSc.Vec) -> PETSc.Vec: ...
+    def evaluate(self, t: float, out: np.ndarray) -> np.ndarray: ...
 
 
 class StaticPart(Protocol):
@@ -42,27 +164,37 @@ class StaticPart(Protocol):
 class Operators:
     """Plain operators of ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d0``.
 
-    ``M``, ``K``, ``C`` (or None) are distributed PETSc matrices; ``P_local`` holds the owned
-    rows of ``P^T`` (n_local x p, sparse or dense); the p-vectors ``d0`` and ``restitution`` are
-    known on every rank. Nothing here knows about meshes, so the integrators run as well on
-    a 1-dof system as on a finite-element model.
+    ``M``, ``K``, ``C`` (or None) are distributed PETSc matrices (a finite-element model) or
+    numpy arrays (a small replicated system; 1D = diagonal); the algebra follows from their
+    type. ``P_local`` holds the owned rows of ``P^T`` (n_local x p, sparse or dense); the
+    p-vectors ``d0`` and ``restitution`` are known on every rank. ``massless`` lists the owned
+    dofs without mass (mass redistribution): their rows of M are zero. Nothing here knows
+    about meshes, so the integrators run as well on a 1-dof system as on a finite-element model.
     """
 
-    M: PETSc.Mat
-    K: PETSc.Mat
-    C: PETSc.Mat | None
+    M: PETSc.Mat | np.ndarray
+    K: PETSc.Mat | np.ndarray
+    C: PETSc.Mat | np.ndarray | None
     load: TimeDependentLoad
     P_local: sparse.spmatrix | np.ndarray
     d0: np.ndarray
     restitution: np.ndarray
     static: StaticPart | None = None
+    massless: np.ndarray | None = None
 
     def __post_init__(self):
-        self.comm: MPI.Comm = self.K.getComm().tompi4py()
+        self.algebra = PETScAlgebra(self.K) if isinstance(self.K, PETSc.Mat) else DenseAlgebra(self.K)
+        self.comm: MPI.Comm = self.algebra.comm
         self.P_local = sparse.csr_matrix(self.P_local)
         self._P = self.P_local.T.tocsr()  # owned columns of P, for P x in O(nnz)
         coo = self._P.tocoo()
         self._rows, self._cols, self._vals = coo.row, coo.col, coo.data
+        if self.massless is None:
+            self.massless = np.zeros(0, dtype=np.int64)
+        # Rows of P that touch a dof without mass: no velocity jump there, so no Carnot correction.
+        touches = np.zeros(self.P_local.shape[0])
+        touches[self.massless] = 1.0
+        self.massless_rows = self.algebra.allsum(np.asarray(abs(self.P_local).T @ touches, dtype=float)) > 0.0
 
     @property
     def p(self) -> int:
@@ -70,50 +202,49 @@ class Operators:
 
     def project(self, local: np.ndarray) -> np.ndarray:
         """``P x`` (or ``P X`` for a block of columns) from owned entries: one global sum."""
-        part = np.ascontiguousarray(self._P @ local)
-        comm = self.comm
-        if comm.size > 1:
-            comm.Allreduce(MPI.IN_PLACE, part, op=MPI.SUM)
-        return part
+        return self.algebra.allsum(np.ascontiguousarray(self._P @ local))
 
-    def project_many(self, *vecs: PETSc.Vec) -> list[np.ndarray]:
-        """``P x`` for several PETSc vectors with a single reduction."""
+    def project_many(self, *arrays: np.ndarray) -> list[np.ndarray]:
+        """``P x`` for several vectors with a single reduction."""
         # A few nonzeros per row: one gather and one bincount per vector beat a sparse product.
         p, rows, cols, vals = self.p, self._rows, self._cols, self._vals
         # (astype: bincount of an empty array, on a rank without constraint dofs, gives ints)
-        parts = [np.bincount(rows, vals * v.array_r[cols], minlength=p).astype(float, copy=False) for v in vecs]
+        parts = [np.bincount(rows, vals * x[cols], minlength=p).astype(float, copy=False) for x in arrays]
         if self.comm.size > 1:
-            stacked = np.concatenate(parts)
-            self.comm.Allreduce(MPI.IN_PLACE, stacked, op=MPI.SUM)
-            parts = [stacked[k * p:(k + 1) * p] for k in range(len(vecs))]
+            stacked = self.algebra.allsum(np.concatenate(parts))
+            parts = [stacked[k * p:(k + 1) * p] for k in range(len(arrays))]
         return parts
 
-    def solve_columns(self, solve: Callable[[PETSc.Vec, PETSc.Vec], None]) -> np.ndarray:
+    def mass_for_solves(self):
+        """M, with a unit diagonal on the massless dofs so that it can be factorized."""
+        if not self.massless.size:
+            return self.M
+        if isinstance(self.M, PETSc.Mat):
+            M = self.M.copy()
+            first = self.M.getOwnershipRange()[0]
+            M.zeroRowsColumns((self.massless + first).astype(np.int32), diag=1.0)
+            return M
+        M = self.M.copy()
+        if M.ndim == 1:
+            M[self.massless] = 1.0
+        else:
+            M[self.massless, self.massless] = 1.0
+        return M
+
+    def solve_columns(self, solve: Callable[[np.ndarray, np.ndarray], None]) -> np.ndarray:
         """``A^-1 P^T`` (owned rows) for a factorized ``A``: p solves, once per run."""
-        b, x = self.K.createVecs()
+        b, x = self.algebra.vector(), self.algebra.vector()
         out = np.empty(self.P_local.shape)
         for j in range(self.p):
-            b.array[:] = self._P[j].toarray().ravel()
+            b[:] = self._P[j].toarray().ravel()
             solve(b, x)
-            out[:, j] = x.array_r
+            out[:, j] = x
         return out
 
 
-def factorize(A: PETSc.Mat) -> Callable[[PETSc.Vec, PETSc.Vec], None]:
-    """A direct solver for ``A``, factorized now, once.
-
-    Serial runs use PETSc's own sparse LU (for small systems its per-solve overhead is a
-    fraction of MUMPS'); parallel runs use MUMPS.
-    """
-    ksp = PETSc.KSP().create(A.getComm())
-    ksp.setOperators(A)
-    ksp.setType(PETSc.KSP.Type.PREONLY)
-    pc = ksp.getPC()
-    pc.setType(PETSc.PC.Type.LU)
-    if A.getComm().getSize() > 1 and PETSc.Sys.hasExternalPackage("mumps"):
-        pc.setFactorSolverType("mumps")
-    ksp.setUp()
-    return ksp.solve
+def owned_values(x) -> np.ndarray:
+    """The owned entries of a PETSc vector, or the array itself."""
+    return x.array_r if isinstance(x, PETSc.Vec) else np.asarray(x, dtype=float)
 
 
 @dataclass
@@ -147,13 +278,13 @@ class EnergyBudget:
 
 @dataclass
 class StepState:
-    """The state after a step, as observers see it. Vectors are the integrator's own: read only."""
+    """The state after a step, as observers see it. Arrays are the integrator's own: read only."""
 
     step: int
     t: float
-    U: PETSc.Vec
-    V: PETSc.Vec
-    A: PETSc.Vec
+    U: np.ndarray                    # owned entries of the displacement (or modal coordinates)
+    V: np.ndarray
+    A: np.ndarray
     gap: np.ndarray                  # d0 - P U per row
     force: np.ndarray                # normal forces F_N at t
     impulse: np.ndarray              # impulses S_N over the step
@@ -166,14 +297,47 @@ class Observer(Protocol):
     def write(self, state: StepState) -> None: ...
 
 
+class BlowUpGuard:
+    """Stops a run whose energy grows far beyond what was put in (an unstable scheme).
+
+    A stable run keeps ``E <= E0 + W_ext`` up to its losses (all >= 0 but for a little contact
+    work, added to the bound) and the balance residual. Growth past ``BLOW_UP`` times that
+    bound is no accuracy problem but an instability: the run stops with a SimulationError
+    instead of writing ever larger numbers (and then NaN).
+    """
+
+    def __init__(self, factor: float = BLOW_UP):
+        self.factor = factor
+        self.bound = 0.0
+
+    def check(self, state: StepState) -> None:
+        e = state.energy
+        self.bound = max(self.bound, e.initial + abs(e.external_work) + max(-e.contact_loss, 0.0))
+        if not np.isfinite(e.total):
+            raise SimulationError(f"the solution is no longer finite at t = {state.t:.6g} (step {state.step}): "
+                                  "the scheme blew up (for an explicit method: is dt above its stable limit?)")
+        if e.total > self.factor * self.bound and e.total > 0.0:
+            raise SimulationError(
+                f"blew up at t = {state.t:.6g} (step {state.step}): kinetic + strain energy {e.total:.4g} is "
+                f"{e.total / max(self.bound, np.finfo(float).tiny):.3g} times the initial energy plus the work put "
+                f"in ({self.bound:.4g}); the scheme is unstable at this time step")
+
+
 def integrate(integrator, U0, V0, t_end: float, observers=(), t0: float = 0.0, progress=None) -> StepState:
-    """Run ``integrator`` from (U0, V0) at ``t0`` to ``t_end``, calling each observer every step."""
+    """Run ``integrator`` from (U0, V0) at ``t0`` to ``t_end``, calling each observer every step.
+
+    Stops with a SimulationError (before the observers see it) when the state stops being
+    finite or its energy blows up.
+    """
     n_steps = steps_for(t_end - t0, integrator.dt)
+    guard = BlowUpGuard()
     state = integrator.start(U0, V0, t0)
+    guard.check(state)
     for obs in observers:
         obs.write(state)
     for _ in range(n_steps):
         state = integrator.step()
+        guard.check(state)
         for obs in observers:
             obs.write(state)
         if progress is not None:

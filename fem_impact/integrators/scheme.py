@@ -1,0 +1,157 @@
+"""What the time-stepping schemes with contact share: the constant operators built once, the
+state vectors, the initial acceleration, the energy budget of a step, the step's report."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..contact import TINY, ImpactResult, impact_correction, regularized, solve_lcp
+from .base import EnergyBudget, Operators, StepState, owned_values
+
+
+class ContactScheme:
+    """Base of the integrators: ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d0``, ``lam >= 0``.
+
+    Built once: the factorization of the step matrix ``S`` (given by the subclass) and of ``M``,
+    ``G = S^-1 P^T``, ``H = M^-1 P^T`` and the p x p matrices ``W = P G`` and ``D = P H``.
+    ``impact_rows`` are the rows that get Carnot's velocity correction and the acceleration
+    projection: rigid (no compliance), with mass on their dofs, and the correction switched on.
+    """
+
+    name = ""
+
+    def __init__(self, ops: Operators, dt: float, S, impact_correction: bool = True):
+        alg = ops.algebra
+        self.ops, self.alg, self.dt = ops, alg, dt
+        self.S = S
+        self.solve_S = alg.factorize(S)
+        self.solve_M = alg.factorize(ops.mass_for_solves())
+        self.G = ops.solve_columns(self.solve_S)   # S^-1 P^T, owned rows (n_local x p)
+        self.H = ops.solve_columns(self.solve_M)   # M^-1 P^T
+        self.W = ops.project(self.G)               # P S^-1 P^T (p x p, on every rank)
+        self.D = regularized(ops.project(self.H))  # P M^-1 P^T
+        static = ops.static
+        rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
+        self.impact_rows = rigid & ~ops.massless_rows & bool(impact_correction)
+        new = alg.vector
+        # State and work vectors, allocated once; "_prev" ones are swapped by reference.
+        self.U, self.V, self.A, self.U_prev = new(), new(), new(), new()
+        self.Up, self.Vp, self.rhs, self.work = new(), new(), new(), new()
+        self.R, self.R_prev = new(), new()
+        self.CV, self.CV_prev = (new(), new()) if ops.C is not None else (None, None)
+        self.t0 = 0.0
+        self.state: StepState | None = None
+
+    # -- pieces of a step ----------------------------------------------------------------
+    def _free_acceleration(self, t: float, U: np.ndarray, V: np.ndarray, solve, out: np.ndarray) -> None:
+        """``out = solve(R(t) - K U - C V)``; C V is kept in ``self.CV``; massless dofs get a zero right-hand side."""
+        ops, alg, rhs = self.ops, self.alg, self.rhs
+        alg.mult(ops.K, U, rhs)
+        np.subtract(self.R, rhs, out=rhs)
+        if ops.C is not None:
+            alg.mult(ops.C, V, self.CV)
+            rhs -= self.CV
+        rhs[ops.massless] = 0.0
+        solve(rhs, out)
+
+    def _evaluate_load(self, t: float) -> None:
+        """R(t) into ``self.R`` (the previous one is kept in ``self.R_prev``)."""
+        self.R, self.R_prev = self.R_prev, self.R
+        if self.ops.load.time_dependent:
+            self.ops.load.evaluate(t, self.R)
+        else:
+            self.R[:] = self.R_prev
+
+    def _closed(self, pu: np.ndarray, lam0: np.ndarray) -> np.ndarray:
+        """Rows closed at the end of a step: pushed by lam0, or at zero gap up to round-off."""
+        gap = self.ops.d0 - pu
+        return (lam0 > 0.0) | (gap <= 1e-10 * (np.abs(self.ops.d0) + np.abs(pu)) + TINY)
+
+    def _apply_corrections(self, res: ImpactResult, pv: np.ndarray) -> np.ndarray:
+        """Velocity (-H lam1) and acceleration (-H lam2) corrections; returns the new P V."""
+        if res.lam1.any():
+            self.V -= self.H @ res.lam1
+            pv = pv - self.D @ res.lam1
+        if res.lam2.any():
+            self.A -= self.H @ res.lam2
+        return pv
+
+    def _impact_loss(self, lam1: np.ndarray, pv_after: np.ndarray) -> float:
+        """Kinetic energy removed by dV = -H lam1: 1/2 V-MV- - 1/2 V+MV+, exactly, in p x p terms."""
+        return float(lam1 @ (pv_after + 0.5 * self.D @ lam1))
+
+    def _quadratic_energies(self) -> tuple[float, float]:
+        ops, alg, work = self.ops, self.alg, self.work
+        sums = np.empty(2)
+        alg.mult(ops.M, self.V, work)
+        sums[0] = work @ self.V
+        alg.mult(ops.K, self.U, work)
+        sums[1] = work @ self.U
+        alg.allsum(sums)
+        return 0.5 * sums[0], 0.5 * sums[1]
+
+    def _step_energies(self, energy: EnergyBudget, w_prev: float, w_new: float) -> None:
+        """Kinetic and strain energy at the new step; external work and damping loss over the step.
+
+        Work terms use the weights (w_prev, w_new) of the scheme's own rule for the forces over a
+        step (the trapezoidal rule: 1/2, 1/2), with ``Delta U``: for the Newmark family the
+        balance then closes to round-off.
+        """
+        ops, alg, work = self.ops, self.alg, self.work
+        du = np.subtract(self.U, self.U_prev, out=self.Up)   # the predictor is no longer needed
+        sums = np.empty(4)
+        alg.mult(ops.M, self.V, work)
+        sums[0] = work @ self.V
+        alg.mult(ops.K, self.U, work)
+        sums[1] = work @ self.U
+        sums[2] = w_prev * (du @ self.R_prev) + w_new * (du @ self.R)
+        sums[3] = (w_prev * (du @ self.CV_prev) + w_new * (du @ self.CV)) if ops.C is not None else 0.0
+        alg.allsum(sums)
+        energy.kinetic, energy.strain = 0.5 * sums[0], 0.5 * sums[1]
+        energy.external_work += sums[2]
+        energy.damping_loss += sums[3]
+
+    def _initial_state(self, U0, V0, t0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """U, V from (U0, V0); R(t0); the free initial acceleration ``M A = R - K U - C V``; (P U, P V, P A)."""
+        ops = self.ops
+        self.t0 = t0
+        self.U[:] = owned_values(U0)
+        self.V[:] = owned_values(V0)
+        ops.load.evaluate(t0, self.R)
+        self._free_acceleration(t0, self.U, self.V, self.solve_M, self.A)
+        if ops.p:
+            return tuple(ops.project_many(self.U, self.V, self.A))
+        return (np.zeros(0),) * 3
+
+    def _initial_contacts(self, pu, pv, pa, energy: EnergyBudget):
+        """Closed contacts at t0: the static part's forces, Carnot's correction and the force that
+        keeps them closed. Returns (force, impulse, P U, P V)."""
+        ops, static, p, t0 = self.ops, self.ops.static, self.ops.p, self.t0
+        force = np.zeros(p)
+        if static:  # forces of the compliant rows that the initial state already loads
+            c = ~static.rigid_rows
+            force[c] = solve_lcp(static.compliance[c][:, c], (ops.d0 - static.offset(t0) - pu)[c])[0]
+            if force.any():
+                self.A -= self.H @ force
+                pa = pa - self.D @ force
+            pu = pu + static.offset(t0) - static.compliance @ force
+        res = impact_correction(self.D, self._closed(pu, force) & self.impact_rows, np.zeros(p), pv, pv, pa,
+                                force, ops.restitution)
+        pv = self._apply_corrections(res, pv)
+        energy.impact_loss = self._impact_loss(res.lam1, pv)
+        return res.force, res.lam1.copy(), pu, pv
+
+    def start(self, U0, V0, t0: float = 0.0) -> StepState:
+        """Initial acceleration from the equation of motion; closed contacts get their impulse and force."""
+        ops = self.ops
+        pu, pv, pa = self._initial_state(U0, V0, t0)
+        energy = EnergyBudget()
+        force, impulse = np.zeros(ops.p), np.zeros(ops.p)
+        if ops.p:
+            force, impulse, pu, pv = self._initial_contacts(pu, pv, pa, energy)
+        energy.kinetic, energy.strain = self._quadratic_energies()
+        if ops.static:
+            energy.strain += ops.static.energy(t0, force)
+        energy.initial = energy.total + energy.impact_loss
+        self.state = StepState(0, t0, self.U, self.V, self.A, ops.d0 - pu, force, impulse, energy, pu, pv)
+        return self.state
