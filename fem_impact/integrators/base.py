@@ -21,7 +21,7 @@ from scipy import sparse
 
 from ..errors import SimulationError
 
-BLOW_UP = 10.0   # kinetic + strain energy above this many times the energy put in: the run blew up
+BLOW_UP = 100.0  # kinetic + strain energy above this many times the energy put in: the run blew up
 
 
 class PETScAlgebra:
@@ -231,6 +231,28 @@ class Operators:
             M[self.massless, self.massless] = 1.0
         return M
 
+    def equilibrate_massless(self, U: np.ndarray, R: np.ndarray) -> float:
+        """Move the massless dofs of ``U`` to their static equilibrium ``(K U)_c = R_c``, in place.
+
+        Without mass they follow the rest of the structure instantly: an initial state that
+        does not satisfy this (a stressed free end) would snap in the first step, with an
+        energy change no term of the budget books. Returns the largest move.
+        """
+        alg = self.algebra
+        if not alg.distributed or not self.comm.allreduce(self.massless.size, op=MPI.SUM):
+            return 0.0
+        first = self.K.getOwnershipRange()[0]
+        massive = np.setdiff1d(np.arange(alg.sizes[0]), self.massless)
+        Q = self.K.copy()
+        Q.zeroRows((massive + first).astype(np.int32), diag=1.0)   # massive rows: U_j = U_j (kept)
+        b, x = alg.vector(), alg.vector()
+        b[:] = R
+        b[massive] = U[massive]
+        alg.factorize(Q)(b, x)
+        move = self.comm.allreduce(float(np.max(np.abs(x - U), initial=0.0)), op=MPI.MAX)
+        U[:] = x
+        return move
+
     def solve_columns(self, solve: Callable[[np.ndarray, np.ndarray], None]) -> np.ndarray:
         """``A^-1 P^T`` (owned rows) for a factorized ``A``: p solves, once per run."""
         b, x = self.algebra.vector(), self.algebra.vector()
@@ -301,9 +323,11 @@ class BlowUpGuard:
     """Stops a run whose energy grows far beyond what was put in (an unstable scheme).
 
     A stable run keeps ``E <= E0 + W_ext`` up to its losses (all >= 0 but for a little contact
-    work, added to the bound) and the balance residual. Growth past ``BLOW_UP`` times that
-    bound is no accuracy problem but an instability: the run stops with a SimulationError
-    instead of writing ever larger numbers (and then NaN).
+    work) and the balance residual. Growth past ``BLOW_UP`` times that bound is no accuracy
+    problem but a runaway instability (an explicit scheme above its step limit): the run stops
+    with a SimulationError instead of writing ever larger numbers (and then NaN). Milder energy
+    growth (position-level multipliers alone pump energy in over repeated impacts) is left
+    for the studies to classify.
     """
 
     def __init__(self, factor: float = BLOW_UP):
@@ -312,7 +336,7 @@ class BlowUpGuard:
 
     def check(self, state: StepState) -> None:
         e = state.energy
-        self.bound = max(self.bound, e.initial + abs(e.external_work) + max(-e.contact_loss, 0.0))
+        self.bound = max(self.bound, e.initial + abs(e.external_work))
         if not np.isfinite(e.total):
             raise SimulationError(f"the solution is no longer finite at t = {state.t:.6g} (step {state.step}): "
                                   "the scheme blew up (for an explicit method: is dt above its stable limit?)")

@@ -48,7 +48,7 @@ class CentralDifference(ContactScheme):
         self.lcp_matrix = regularized(dt * dt * self.W)
         self.start_matrix = regularized(0.5 * dt * dt * self.D)
         self.critical_dt = critical_time_step(ops)
-        if dt > self.critical_dt:
+        if dt > self.critical_dt * (1.0 + 1e-9):
             log.warning("central difference: dt = %.4g is above the stable limit 2/omega_max = %.4g "
                         "(ratio %.3g): expect the run to blow up", dt, self.critical_dt, dt / self.critical_dt)
         else:

@@ -3,10 +3,14 @@ state vectors, the initial acceleration, the energy budget of a step, the step's
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from ..contact import TINY, ImpactResult, impact_correction, regularized, solve_lcp
 from .base import EnergyBudget, Operators, StepState, owned_values
+
+log = logging.getLogger(__name__)
 
 
 class ContactScheme:
@@ -43,15 +47,21 @@ class ContactScheme:
         self.state: StepState | None = None
 
     # -- pieces of a step ----------------------------------------------------------------
-    def _free_acceleration(self, t: float, U: np.ndarray, V: np.ndarray, solve, out: np.ndarray) -> None:
-        """``out = solve(R(t) - K U - C V)``; C V is kept in ``self.CV``; massless dofs get a zero right-hand side."""
+    def _free_acceleration(self, t: float, U: np.ndarray, V: np.ndarray, solve, out: np.ndarray,
+                           massless_at_rest: bool = False) -> None:
+        """``out = solve(R(t) - K U - C V)``; C V is kept in ``self.CV``.
+
+        ``massless_at_rest``: a zero right-hand side on the massless dofs (for the solve with M,
+        whose unit diagonal there is a placeholder; a step matrix S holds their equation).
+        """
         ops, alg, rhs = self.ops, self.alg, self.rhs
         alg.mult(ops.K, U, rhs)
         np.subtract(self.R, rhs, out=rhs)
         if ops.C is not None:
             alg.mult(ops.C, V, self.CV)
             rhs -= self.CV
-        rhs[ops.massless] = 0.0
+        if massless_at_rest:
+            rhs[ops.massless] = 0.0
         solve(rhs, out)
 
     def _evaluate_load(self, t: float) -> None:
@@ -118,7 +128,12 @@ class ContactScheme:
         self.U[:] = owned_values(U0)
         self.V[:] = owned_values(V0)
         ops.load.evaluate(t0, self.R)
-        self._free_acceleration(t0, self.U, self.V, self.solve_M, self.A)
+        if ops.massless.size or ops.algebra.distributed:
+            move = ops.equilibrate_massless(self.U, self.R)
+            if move:
+                log.info("mass redistribution: the massless contact nodes start in static equilibrium "
+                         "(moved by up to %.3g)", move)
+        self._free_acceleration(t0, self.U, self.V, self.solve_M, self.A, massless_at_rest=True)
         if ops.p:
             return tuple(ops.project_many(self.U, self.V, self.A))
         return (np.zeros(0),) * 3

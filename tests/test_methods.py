@@ -1,0 +1,165 @@
+"""The integration methods besides the default (issue 5's list), each against an exact answer:
+central difference with forward-increment multipliers, Newmark with numerical damping, Newmark
+without the Carnot correction, and mass redistribution. Where each fails is shown in the
+stability studies; here each does what its definition says."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from conftest import CASES, run_case_file, run_cli
+from fem_impact.case import load_case
+from fem_impact.constraints import build_constraints
+from fem_impact.errors import SimulationError
+from fem_impact.integrators import Operators
+from fem_impact.integrators.central_difference import critical_time_step
+from fem_impact.mesh import build_mesh
+from fem_impact.model import build_model
+from test_bar_benchmarks import TOLERANCES, b2_checks
+
+BAR = CASES / "impacting_bar.yaml"
+B2A = dict(L=1.0, E=1.0, rho=1.0, A=1.0, v0=1.0, g0=0.1)
+
+
+def model_of(case_file, *overrides):
+    case = load_case(case_file, list(overrides))
+    model = build_model(case, build_mesh(case, MPI.COMM_WORLD))
+    return case, model, build_constraints(case, model)
+
+
+def test_central_difference_meets_b2a_and_conserves_energy_to_order_dt2(tmp_path):
+    """Lumped rod at Courant 0.5: the B2 tolerances of the default method; the scheme conserves a
+    modified energy, so the balance residual is O(dt^2), not round-off, and nothing grows."""
+    summary, h = run_case_file(BAR, tmp_path, "solver.method=central_difference", "output.vtk=false")
+    errors = b2_checks(h, **B2A)
+    for key, tol in TOLERANCES.items():
+        assert errors[key] < tol, f"{key}: {errors[key]:.3g} >= {tol}"
+    e0 = h["kinetic"][0] + h["strain"][0]
+    assert summary["max_energy_error"] < 1e-3 * e0
+    assert (h["kinetic"] + h["strain"]).max() <= e0 * (1 + 1e-9)
+    assert summary["max_penetration"] < 1e-12   # forward increment: the gap is closed, never crossed
+
+
+def test_central_difference_stable_limit_of_the_lumped_rod_is_h_over_c():
+    """omega_max of the lumped rod is 2 c / h exactly, so 2 / omega_max = h / c (the CFL limit)."""
+    for cells, E, rho in [(50, 1.0, 1.0), (200, 210e9, 7800.0)]:
+        _, model, cons = model_of(BAR, f"mesh.cells={cells}", "solver.mass=lumped", f"material.E={E}",
+                                  f"material.rho={rho}")
+        ops = Operators(model.M, model.K, None, model.load, cons.P_local, cons.d0, cons.restitution)
+        assert critical_time_step(ops) == pytest.approx((1.0 / cells) / np.sqrt(E / rho), rel=1e-12)
+
+
+@pytest.mark.parametrize("courant, fails", [(1.0, False), (1.05, True)])
+def test_central_difference_blows_up_above_the_cfl_limit_and_is_stopped(tmp_path, courant, fails):
+    """At c dt / h = 1 the run completes; 5 % above, the energy runs away and the command stops
+    with status 3 and a message that says so, long before the end (2000 steps)."""
+    out = tmp_path / "out"
+    result = run_cli("run", str(BAR), "-o", str(out), "-q", "--set", "solver.method=central_difference",
+                     "--set", f"solver.dt={courant / 250}", "--set", "output.vtk=false")
+    if not fails:
+        assert result.returncode == 0, result.stderr
+        return
+    assert result.returncode == 3
+    assert "blew up" in result.stderr and "above the stable limit" in result.stderr
+    step = int(result.stderr.split("(step ")[1].split(")")[0])
+    assert step < 200
+    assert not out.exists() and "Traceback" not in result.stderr
+
+
+def test_damped_newmark_dissipates_at_first_order(tmp_path):
+    """gamma = 0.6, beta = (gamma + 1/2)^2 / 4: high frequencies damped, the scheme first order, so
+    the energy it loses on B2a halves when dt halves (mesh fixed); the balance residual is that
+    numerical loss (negative) and the default trapezoidal rule has none."""
+    losses = []
+    for dt in (0.004, 0.002):
+        summary, h = run_case_file(BAR, tmp_path / str(dt), "solver.gamma=0.6", "solver.beta=0.3025",
+                                   f"solver.dt={dt}", "contacts=[]", "solver.t_end=2", "output.vtk=false",
+                                   "initial.velocity=[\"sin(pi*x)\"]")
+        e = h["kinetic"] + h["strain"]
+        losses.append(1.0 - e[-1] / e[0])
+        assert np.all(np.diff(e) <= 1e-14 * e[0])           # only ever loses energy
+        assert h["energy_error"][-1] == pytest.approx(-losses[-1] * e[0], rel=1e-9)
+    order = np.log2(losses[0] / losses[1])
+    assert order == pytest.approx(1.0, abs=0.15)
+    summary, h = run_case_file(BAR, tmp_path / "trap", "solver.dt=0.002", "contacts=[]", "solver.t_end=2",
+                               "output.vtk=false", "initial.velocity=[\"sin(pi*x)\"]")
+    assert abs(h["energy_error"]).max() < 1e-12
+
+
+def test_position_multipliers_alone_close_the_balance_but_let_the_bar_chatter(tmp_path):
+    """Without Carnot's correction the node pinned by lam0 keeps the trapezoidal rule's spurious
+    velocity: the contact opens and closes, the position-level forces pump energy in (a negative
+    contact loss) and the force oscillates about rho c A v0 = 1 by more than its own size. Every
+    term is still booked: the balance closes to round-off."""
+    summary, h = run_case_file(BAR, tmp_path, "solver.impact_correction=false", "output.vtk=false")
+    e0 = h["kinetic"][0] + h["strain"][0]
+    assert summary["max_energy_error"] < 1e-9 * e0
+    assert h["impact_loss"][-1] == 0.0
+    assert (h["kinetic"] + h["strain"]).max() > 2 * e0       # energy pumped in (METHOD.md s. 5)
+    assert h["contact_loss"][-1] < -e0
+    busy = (h["t"] > 0.2) & (h["t"] < 2.0)
+    assert np.sqrt(np.mean((h["wall_force"][busy] - 1.0) ** 2)) > 1.0
+
+
+def test_mass_redistribution_removes_the_contact_mass_and_keeps_the_total(tmp_path):
+    """No mass on the contact node, the same total mass; B2a within its tolerances, energy conserved
+    to round-off (the trapezoidal rule with a massless contact node needs no impact law)."""
+    _, model, _ = model_of(BAR, "solver.mass=redistributed", "mesh.cells=20")
+    _, consistent, _ = model_of(BAR, "mesh.cells=20")
+    ones, m_red, m_cons = model.M.createVecs()[0], *model.M.createVecs()
+    ones.set(1.0)
+    model.M.mult(ones, m_red)
+    consistent.M.mult(ones, m_cons)
+    assert m_red.sum() == pytest.approx(m_cons.sum(), rel=1e-14)     # rho A L = 1
+    dense = model.M.convert("dense").getDenseArray()
+    assert not dense[0].any() and not dense[:, 0].any()               # node x = 0 (the wall) is massless
+    assert list(model.massless) == [0]
+
+    summary, h = run_case_file(BAR, tmp_path, "solver.mass=redistributed", "output.vtk=false")
+    errors = b2_checks(h, **B2A)
+    for key, tol in TOLERANCES.items():
+        assert errors[key] < tol, f"{key}: {errors[key]:.3g} >= {tol}"
+    e0 = h["kinetic"][0] + h["strain"][0]
+    assert summary["max_energy_error"] < 1e-9 * e0
+    assert h["impact_loss"][-1] == 0.0                   # nothing for Carnot to correct
+    assert (h["kinetic"] + h["strain"])[-1] > e0 * (1 - 1e-4)   # the bar leaves with all its energy
+
+
+def test_mass_redistribution_starts_the_massless_node_in_equilibrium(tmp_path):
+    """B1 starts with a stressed free end (u0 = (1 - x)/2): a massless end node cannot hold that,
+    so it starts where its row of K U = R holds (the first element's strain energy, 1/(8 n), is
+    not part of the initial state), and the budget closes to round-off from there."""
+    summary, h = run_case_file(CASES / "signorini_bar.yaml", tmp_path, "solver.mass=redistributed",
+                               "solver.t_end=3", "output.vtk=false")
+    n = 200
+    assert h["kinetic"][0] + h["strain"][0] == pytest.approx(1 / 8 * (1 - 1 / n), rel=1e-9)
+    assert summary["max_energy_error"] < 1e-9 / 8
+
+
+def test_blow_up_guard_stops_a_runaway_energy():
+    """The guard's bound is E0 + max |W_ext|; a state 100 times above it stops the run."""
+    from fem_impact.integrators.base import BlowUpGuard, EnergyBudget, StepState
+
+    guard = BlowUpGuard()
+    def state(total, work=0.0):
+        e = EnergyBudget(kinetic=total, external_work=work, initial=1.0)
+        return StepState(1, 0.1, np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(0), np.zeros(0), np.zeros(0),
+                         e, np.zeros(0), np.zeros(0))
+    guard.check(state(50.0))
+    guard.check(state(900.0, work=10.0))     # energy put in raises the bound to 11
+    with pytest.raises(SimulationError, match="blew up"):
+        guard.check(state(1200.0))
+    with pytest.raises(SimulationError, match="no longer finite"):
+        BlowUpGuard().check(state(np.nan))
+
+
+def test_explicit_method_defaults_to_the_lumped_mass(tmp_path):
+    """central_difference without solver.mass gets the lumped (diagonal) mass it is meant for, and the
+    resolved case says so; Newmark keeps the consistent mass."""
+    case = load_case(BAR, ["solver.method=central_difference"])
+    assert case.solver.mass == "lumped"
+    assert case.resolved()["solver"]["mass"] == "lumped"
+    assert load_case(BAR).solver.mass == "consistent"
+    assert load_case(BAR, ["solver.method=central_difference", "solver.mass=consistent"]).solver.mass == "consistent"
