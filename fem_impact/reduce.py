@@ -118,16 +118,28 @@ class StaticCorrection:
             cache[t] = np.array([1.0] + [load_factor(f, t) for f in self.functions])
         return cache[t]
 
+    def __post_init__(self):
+        # Constant loads only (the common case): the load terms are constants, computed once.
+        self._constant = not self.functions
+        self._offset0 = self.load_offsets[:, 0].copy()
+        self._energy0 = 0.5 * float(self.load_gram[0, 0])
+
     def offset(self, t: float) -> np.ndarray:
+        if self._constant:
+            return self._offset0
         return self.load_offsets @ self.coefficients(t)
 
     def energy(self, t: float, force: np.ndarray) -> float:
         """1/2 f^T S_k f with f = R(t) - P^T force."""
+        if self._constant:
+            return self._energy0 - force @ self._offset0 + 0.5 * force @ (self.compliance @ force)
         c = self.coefficients(t)
         return 0.5 * (c @ self.load_gram @ c) - force @ (self.load_offsets @ c) + 0.5 * force @ self.compliance @ force
 
     def work(self, t0: float, t1: float, f0: np.ndarray, f1: np.ndarray, gamma: float) -> float:
         """Work of the loads on the static displacement over a step: R_mean^T S_k (f1 - f0)."""
+        if self._constant:
+            return -float(self._offset0 @ (f1 - f0))
         c0, c1 = self.coefficients(t0), self.coefficients(t1)
         c_mean = (1.0 - gamma) * c0 + gamma * c1
         return c_mean @ self.load_gram @ (c1 - c0) - c_mean @ self.load_offsets.T @ (f1 - f0)

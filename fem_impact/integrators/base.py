@@ -189,6 +189,8 @@ class Operators:
         self._P = self.P_local.T.tocsr()  # owned columns of P, for P x in O(nnz)
         coo = self._P.tocoo()
         self._rows, self._cols, self._vals = coo.row, coo.col, coo.data
+        # A replicated small system: P as a dense p x n array (a handful of products per step).
+        self._P_dense = None if self.algebra.distributed else self._P.toarray()
         if self.massless is None:
             self.massless = np.zeros(0, dtype=np.int64)
         # Rows of P that touch a dof without mass: no velocity jump there, so no Carnot correction.
@@ -206,6 +208,8 @@ class Operators:
 
     def project_many(self, *arrays: np.ndarray) -> list[np.ndarray]:
         """``P x`` for several vectors with a single reduction."""
+        if self._P_dense is not None:
+            return [self._P_dense @ x for x in arrays]
         # A few nonzeros per row: one gather and one bincount per vector beat a sparse product.
         p, rows, cols, vals = self.p, self._rows, self._cols, self._vals
         # (astype: bincount of an empty array, on a rank without constraint dofs, gives ints)
