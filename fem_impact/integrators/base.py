@@ -18,6 +18,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 from scipy import sparse
+from scipy.linalg.blas import dgemv
 
 from ..errors import SimulationError
 
@@ -266,6 +267,13 @@ class Operators:
             solve(b, x)
             out[:, j] = x
         return out
+
+
+def subtract_product(y: np.ndarray, X: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """``y -= X @ c`` in one pass over X (BLAS gemv, in place): X is a tall n x p column block."""
+    if y.size:   # (a rank may own no rows)
+        dgemv(-1.0, X.T, c, beta=1.0, y=y, overwrite_y=1, trans=1)
+    return y
 
 
 def owned_values(x) -> np.ndarray:

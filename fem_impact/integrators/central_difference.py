@@ -9,7 +9,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from ..contact import regularized, solve_lcp
-from .base import EnergyBudget, Operators, StepState
+from .base import EnergyBudget, Operators, StepState, subtract_product
 from .scheme import ContactScheme
 
 log = logging.getLogger(__name__)
@@ -64,7 +64,7 @@ class CentralDifference(ContactScheme):
             q = ops.d0 - (pu + dt * pv + 0.5 * dt * dt * pa)
             force, _, _ = solve_lcp(self.start_matrix, q)
             if force.any():
-                self.A -= self.H @ force
+                subtract_product(self.A, self.H, force)
         energy = EnergyBudget()
         energy.kinetic, energy.strain = self._quadratic_energies()
         energy.initial = energy.total
@@ -95,7 +95,7 @@ class CentralDifference(ContactScheme):
             q = ops.d0 - (pu + dt * pv_pred + dt * dt * pa)
             force, _, _ = solve_lcp(self.lcp_matrix, q, guess=st.force > 0.0)
             if force.any():
-                A -= self.G @ force
+                subtract_product(A, self.G, force)
                 pa = pa - self.W @ force
             pv = pv_pred + 0.5 * dt * pa
         np.multiply(A, 0.5 * dt, out=V)

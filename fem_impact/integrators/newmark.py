@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..contact import impact_correction, regularized, solve_lcp
-from .base import Operators, StepState
+from .base import Operators, StepState, subtract_product
 from .scheme import ContactScheme
 
 
@@ -68,7 +68,7 @@ class Newmark(ContactScheme):
             q = ops.d0 - offset - (pu_pred + beta * dt * dt * pa)
             lam0, _, _ = solve_lcp(self.lcp_matrix, q, guess=st.force > 0.0)
             if lam0.any():
-                A -= self.G @ lam0
+                subtract_product(A, self.G, lam0)
                 pa = pa - self.W @ lam0
         self.U, self.U_prev = self.U_prev, self.U
         U = self.U

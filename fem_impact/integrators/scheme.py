@@ -8,7 +8,7 @@ import logging
 import numpy as np
 
 from ..contact import TINY, ImpactResult, impact_correction, regularized, solve_lcp
-from .base import EnergyBudget, Operators, StepState, owned_values
+from .base import EnergyBudget, Operators, StepState, owned_values, subtract_product
 
 log = logging.getLogger(__name__)
 
@@ -80,10 +80,10 @@ class ContactScheme:
     def _apply_corrections(self, res: ImpactResult, pv: np.ndarray) -> np.ndarray:
         """Velocity (-H lam1) and acceleration (-H lam2) corrections; returns the new P V."""
         if res.lam1.any():
-            self.V -= self.H @ res.lam1
+            subtract_product(self.V, self.H, res.lam1)
             pv = pv - self.D @ res.lam1
         if res.lam2.any():
-            self.A -= self.H @ res.lam2
+            subtract_product(self.A, self.H, res.lam2)
         return pv
 
     def _impact_loss(self, lam1: np.ndarray, pv_after: np.ndarray) -> float:
@@ -147,7 +147,7 @@ class ContactScheme:
             c = ~static.rigid_rows
             force[c] = solve_lcp(static.compliance[c][:, c], (ops.d0 - static.offset(t0) - pu)[c])[0]
             if force.any():
-                self.A -= self.H @ force
+                subtract_product(self.A, self.H, force)
                 pa = pa - self.D @ force
             pu = pu + static.offset(t0) - static.compliance @ force
         res = impact_correction(self.D, self._closed(pu, force) & self.impact_rows, np.zeros(p), pv, pv, pa,
