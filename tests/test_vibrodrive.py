@@ -126,6 +126,13 @@ def test_mesh_size_rule_and_stack_frequency_formula(tmp_path):
     assert info["h"] == pytest.approx(c_s / (10 * f1 * 5)) and info["face_nodes"] == 14
 
 
+def test_committed_mesh_is_what_the_script_writes(tmp_path):
+    """The .msh in meshes/ regenerates byte for byte from the script's defaults (same Gmsh)."""
+    info = _mesh_script().build(output=tmp_path / "vibrodrive.msh")
+    assert info["nodes"] == 1163 and info["face_nodes"] == 26
+    assert info["path"].read_bytes() == (ROOT / "meshes" / "vibrodrive.msh").read_bytes()
+
+
 def _first_longitudinal(overrides) -> float:
     from mpi4py import MPI
 
