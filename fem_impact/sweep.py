@@ -197,8 +197,9 @@ def plot_sweep(path: Path, rows: list[dict], key: str, target: Target, title: st
 
 def format_sweep(rows: list[dict]) -> str:
     """The sweep as a plain table (the sweep.csv columns, numbers to 5 significant digits)."""
-    names = [n for n in rows[0] if n != "run"]
-    shown = [[f"{row[n]:.5g}" if isinstance(row[n], float) else str(row[n]) for n in names] for row in rows]
+    names = [n for n in rows[0] if n != "run"]   # the varied key first: its values as given
+    shown = [[str(row[n]) if i == 0 or not isinstance(row[n], float) else f"{row[n]:.5g}"
+              for i, n in enumerate(names)] for row in rows]
     widths = [max(len(n), *(len(r[i]) for r in shown)) for i, n in enumerate(names)]
     lines = ["  ".join(n.rjust(w) for n, w in zip(names, widths, strict=True))]
     lines += ["  ".join(v.rjust(w) for v, w in zip(r, widths, strict=True)) for r in shown]
