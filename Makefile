@@ -46,7 +46,17 @@ benchmark: setup
 clean:
 	rm -rf $(VENV) results .pytest_cache
 
-# The figure in the README: the default case's contact force and energy budget.
+# Figures in the README: the default case's contact force and energy budget; the vibrodrive's
+# history, frequency sweep (about a minute) and a strike.
+VIBRODRIVE_FREQUENCIES := 16000,16500,17000,17168.8,17600,18000,18500
 docs: setup
 	$(VENV)/bin/fem-impact run $(CASE) -q
 	$(VENV)/bin/fem-impact plot results/impacting_bar -o docs/impacting_bar.png
+	$(VENV)/bin/fem-impact run cases/vibrodrive.yaml -q
+	$(PY) tests/test_vibrodrive.py results/vibrodrive --plot docs/vibrodrive_history.png
+	$(VENV)/bin/fem-impact sweep cases/vibrodrive.yaml --body slider --vary parameters.f=$(VIBRODRIVE_FREQUENCIES) -q
+	cp results/vibrodrive-sweep/sweep.png docs/vibrodrive_sweep.png
+	$(VENV)/bin/fem-impact run cases/vibrodrive.yaml -o results/vibrodrive-launch -q \
+	    --set solver.t_end=6.4e-4 --set output.every=5
+	$(VENV)/bin/fem-impact animate results/vibrodrive-launch --time 5.51e-4 --scale 300 --size 1024x576 \
+	    -o docs/vibrodrive.png

@@ -284,7 +284,8 @@ def _to_palette(img: np.ndarray):
 
 
 class _Writer:
-    """Frames to a GIF (Pillow, adaptive palette per frame) or an MP4 (imageio-ffmpeg).
+    """Frames to a GIF (Pillow, adaptive palette per frame), an MP4 (imageio-ffmpeg) or, for a single
+    frame, a PNG (Pillow, full colour).
 
     GIF frames are reduced to 256 colours in worker threads (Pillow releases the GIL), so
     that this overlaps with the rendering of the next frames.
@@ -296,6 +297,8 @@ class _Writer:
         self.kind = path.suffix.lower()
         self.frames: list = []
         self.mp4 = self.pool = None
+        if self.kind == ".png":
+            return
         if self.kind == ".mp4":
             try:
                 import imageio.v2 as iio
@@ -312,6 +315,9 @@ class _Writer:
             self.pool = ThreadPoolExecutor(self.workers)
 
     def add(self, img: np.ndarray) -> None:
+        if self.kind == ".png":
+            self.frames = [img]
+            return
         if self.mp4 is not None:
             self.mp4.append_data(img)
             return
@@ -321,7 +327,11 @@ class _Writer:
             busy[0].result()
 
     def close(self) -> None:
-        if self.mp4 is not None:
+        if self.kind == ".png":
+            from PIL import Image
+
+            Image.fromarray(self.frames[0]).save(self.tmp, format="PNG")
+        elif self.mp4 is not None:
             self.mp4.close()
         else:
             frames = [f.result() for f in self.frames]
@@ -343,7 +353,9 @@ class _Writer:
 
 
 def render(series: Series, out: Path, field: str, scale: float, fps: float, size=DEFAULT_SIZE,
-           progress=None) -> Path:
+           progress=None, frames=None) -> Path:
+    """Render the frames of ``series`` (all, or the indices in ``frames``) into ``out``; the camera,
+    colour range and arrow scale are those of the whole series either way."""
     pv = _import_pyvista()
     label = FIELDS[field][1]
     X = np.asarray(series.grid.points, dtype=float)
@@ -460,9 +472,10 @@ def render(series: Series, out: Path, field: str, scale: float, fps: float, size
     arrow_actor.GetProperty().SetColor(0.85, 0.1, 0.1)
     p.add_actor(arrow_actor, reset_camera=False)
     writer = _Writer(out, fps)
+    selected = list(range(nframes)) if frames is None else list(frames)
     try:
-        for k in range(nframes):
-            if k:
+        for i, k in enumerate(selected):
+            if k or i:
                 if series.dim == 1:
                     body.copy_from(body_at(k))
                 else:
@@ -474,7 +487,7 @@ def render(series: Series, out: Path, field: str, scale: float, fps: float, size
             p.render()
             writer.add(p.screenshot(return_img=True))
             if progress:
-                progress(k + 1, nframes)
+                progress(i + 1, len(selected))
         writer.close()
     except BaseException:
         writer.abort()
@@ -519,15 +532,25 @@ def add_parser(sub) -> None:
     a.add_argument("--scale", metavar="S",
                    help="displacement magnification (default: the largest displacement is 10%% of the model size)")
     a.add_argument("-o", "--output", metavar="FILE",
-                   help="animation.gif or .mp4 (default: OUTDIR/animation.gif)")
+                   help="animation.gif or .mp4 (default: OUTDIR/animation.gif), or a .png picture of one frame "
+                        "(the last one, or the one --frame or --time picks)")
+    pick = a.add_mutually_exclusive_group()
+    pick.add_argument("--frame", metavar="N", help="a PNG of stored frame N (0 the first, -1 the last; default "
+                      "-o: OUTDIR/frame.png)")
+    pick.add_argument("--time", metavar="T", help="a PNG of the stored frame nearest to time T")
     a.add_argument("--fps", default="10", help="frames per second (default 10)")
     a.add_argument("--size", default=f"{DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]}", metavar="WxH",
                    help=f"image size in pixels (default {DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]})")
 
 
 def animate(outdir, field: str = "v", scale: float | None = None, output=None, fps: float = 10.0,
-            size=DEFAULT_SIZE, progress: bool | None = None) -> tuple[Path, float, int]:
-    """Render a run's results; returns (file, scale used, frames). Raises AnimateError."""
+            size=DEFAULT_SIZE, progress: bool | None = None, frame: int | None = None,
+            when: float | None = None) -> tuple[Path, float, int]:
+    """Render a run's results; returns (file, scale used, frames written). Raises AnimateError.
+
+    A ``.png`` output (or ``frame``/``time`` given) is one picture: stored frame ``frame``
+    (negative counts from the end), the frame nearest to time ``when``, or the last frame.
+    """
     outdir = Path(outdir)
     if field not in FIELDS:
         raise AnimateError(f"--field {field}: unknown, choose one of {', '.join(FIELDS)}")
@@ -539,16 +562,31 @@ def animate(outdir, field: str = "v", scale: float | None = None, output=None, f
         raise AnimateError(f"{outdir}: no such folder")
     if not (outdir / "results.pvd").is_file():
         raise AnimateError(f"{outdir}: no results.pvd (is it a run's output folder, with output.vtk on?)")
-    out = Path(output) if output else outdir / "animation.gif"
-    if out.suffix.lower() not in (".gif", ".mp4"):
-        raise AnimateError(f"-o {out}: write a .gif or an .mp4")
+    picture = frame is not None or when is not None
+    out = Path(output) if output else outdir / ("frame.png" if picture else "animation.gif")
+    if out.suffix.lower() not in (".gif", ".mp4", ".png"):
+        raise AnimateError(f"-o {out}: write a .gif or an .mp4 (an animation) or a .png (one frame)")
+    if picture and out.suffix.lower() != ".png":
+        raise AnimateError(f"-o {out}: --frame and --time pick one frame for a picture: write a .png")
+    if when is not None and not math.isfinite(when):
+        raise AnimateError(f"--time {when}: must be a number")
     if not out.parent.is_dir():
         raise AnimateError(f"-o {out}: no folder {out.parent}")
+    if frame is not None:
+        n = len(read_pvd(outdir / "results.pvd"))
+        if not -n <= frame < n:
+            raise AnimateError(f"--frame {frame}: the run stored {n} frames (0 to {n - 1}, or -1 to -{n})")
     _import_pyvista()
     series = load_series(outdir, field, _Progress("reading", enabled=progress))
     s = scale if scale is not None else series.auto_scale()
-    render(series, out, field, s, fps, size, _Progress("rendering", enabled=progress))
-    return out, s, len(series.times)
+    selected = None
+    if out.suffix.lower() == ".png":
+        if when is not None:
+            selected = [int(np.argmin(np.abs(series.times - when)))]
+        else:
+            selected = [(frame if frame is not None else -1) % len(series.times)]
+    render(series, out, field, s, fps, size, _Progress("rendering", enabled=progress), frames=selected)
+    return out, s, len(selected) if selected is not None else len(series.times)
 
 
 def _positive(option: str, text: str) -> float:
@@ -558,6 +596,23 @@ def _positive(option: str, text: str) -> float:
         value = math.nan
     if not (math.isfinite(value) and value > 0):
         raise AnimateError(f"{option} {text}: must be a number > 0")
+    return value
+
+
+def _integer(option: str, text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise AnimateError(f"{option} {text}: must be a whole number") from None
+
+
+def _number(option: str, text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise AnimateError(f"{option} {text}: must be a number")
     return value
 
 
@@ -579,12 +634,14 @@ def main(args) -> int:
         size = parse_size(args.size)
         if args.output and Path(args.output).suffix.lower() == ".mp4":
             size = (size[0] // 16 * 16 or 16, size[1] // 16 * 16 or 16)
-        out, scale, frames = animate(args.outdir, args.field, scale, args.output, fps, size)
+        frame = None if args.frame is None else _integer("--frame", args.frame)
+        when = None if args.time is None else _number("--time", args.time)
+        out, scale, frames = animate(args.outdir, args.field, scale, args.output, fps, size, frame=frame, when=when)
     except AnimateError as err:
         print(f"fem-impact: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("fem-impact: interrupted", file=sys.stderr)
         return 130
-    print(f"wrote {out} ({frames} frames, displacement x {scale:.3g})")
+    print(f"wrote {out} ({frames} frame{'s' if frames != 1 else ''}, displacement x {scale:.3g})")
     return 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import keyword
 import math
 import operator
 import os
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import yaml
 
-from .expressions import Expression, ExpressionError, parse_expression
+from .expressions import RESERVED, Expression, ExpressionError, parse_expression
 
 SHAPES = ("bar",)
 METHODS = ("newmark", "central_difference", "modal")
@@ -151,6 +152,7 @@ class Case:
     contacts: list[Contact]
     solver: Solver
     output: Output
+    parameters: dict[str, float] = field(default_factory=dict)
     lines: dict[tuple, int] = field(default_factory=dict)
     overrides: dict[tuple, str] = field(default_factory=dict)
 
@@ -166,7 +168,7 @@ class Case:
         """
         mesh = dataclasses.asdict(self.mesh)
         mesh["file"] = None if self.mesh.file is None else str(self.mesh.file)
-        data = {"name": self.name, "mesh": mesh}
+        data = {"name": self.name, "parameters": dict(self.parameters), "mesh": mesh}
         if self.material is not None:
             data["material"] = dataclasses.asdict(self.material)
         else:
@@ -184,6 +186,19 @@ class Case:
         data["solver"] = dataclasses.asdict(self.solver)
         data["output"] = dataclasses.asdict(self.output)
         return data
+
+    def expressions(self):
+        """Every expression of the case as (key path, Expression): loads and initial fields."""
+        for which in ("displacement", "velocity"):
+            items = getattr(self.initial, which)
+            for i, item in enumerate(items):
+                key = ("initial", which) if item.body is None else ("initial", which, i, "value")
+                for comp, expr in enumerate(item.value):
+                    yield key + (comp,), expr
+        for i, load in enumerate(self.loads):
+            for name in ("force", "acceleration"):
+                for comp, expr in enumerate(getattr(load, name) or ()):
+                    yield ("loads", i, name, comp), expr
 
     def write_resolved(self, path) -> Path:
         """Write the resolved case as YAML to `path` (a folder gets ``case.resolved.yaml``)."""
@@ -229,6 +244,11 @@ _Loader.add_implicit_resolver(
                    |[-+]?\.?(?:inf|Inf|INF)|\.?(?:nan|NaN|NAN))$""", re.X),
     list("-+0123456789.iInN"))
 _Loader.add_constructor(_TAG + "int", lambda loader, node: int(loader.construct_scalar(node)))
+
+
+def yaml_value(text: str):
+    """One value typed as in a case file (YAML 1.2: ``2.5e3`` is a number); raises yaml.YAMLError."""
+    return yaml.load(text, Loader=_Loader)
 
 
 def _parse_yaml(text, file):
@@ -316,7 +336,7 @@ def _apply_override(data, option):
     if not equals or not all(segments):
         raise CaseError("--set", None, None, f"expected KEY.PATH=VALUE, got {option!r}")
     try:
-        value = yaml.load(text, Loader=_Loader)
+        value = yaml_value(text)
     except yaml.YAMLError as exc:
         raise CaseError("--set", key, None, f"cannot read the value {text!r}: "
                         f"{' '.join(str(getattr(exc, 'problem', exc)).split())}") from None
@@ -493,10 +513,11 @@ def _mapping_of(item, key=_string):
     return convert
 
 
-def _expression(*allowed):
+def _expression(allowed, parameters):
+    """Converter for an expression in the variables `allowed` and the case's `parameters`."""
     def convert(value, path):
         try:
-            return parse_expression(value, allowed)
+            return parse_expression(value, allowed, parameters)
         except ExpressionError as exc:
             raise _Invalid(path, str(exc)) from None
     return convert
@@ -538,17 +559,18 @@ def _damping(value, path):
     return Damping(**_fields(value, path, {"alpha": (_real(ge=0), 0.0), "beta": (_real(ge=0), 0.0)}))
 
 
-def _body_values(value, path):
+def _body_values(value, path, parameters):
     """An initial field: a list of component expressions, or a list of {body, value} mappings."""
+    expressions = _vector(_expression(SPACE, parameters))
     if isinstance(value, list) and all(isinstance(entry, dict) for entry in value):
-        spec = {"body": (_string, _REQUIRED), "value": (_vector(_expression(*SPACE)), _REQUIRED)}
+        spec = {"body": (_string, _REQUIRED), "value": (expressions, _REQUIRED)}
         return [BodyValue(**_fields(entry, path + (index,), spec)) for index, entry in enumerate(value)]
-    return [BodyValue(None, _vector(_expression(*SPACE))(value, path))]
+    return [BodyValue(None, expressions(value, path))]
 
 
-def _initial(value, path):
-    return Initial(**_fields(value, path, {"displacement": (_body_values, []),
-                                           "velocity": (_body_values, [])}))
+def _initial(value, path, parameters):
+    field_ = lambda v, p: _body_values(v, p, parameters)  # noqa: E731
+    return Initial(**_fields(value, path, {"displacement": (field_, []), "velocity": (field_, [])}))
 
 
 def _fix(value, path):
@@ -565,11 +587,11 @@ def _support(value, path):
     return Support(**_fields(value, path, {"nodes": (_string, _REQUIRED), "fix": (_fix, "all")}))
 
 
-def _load(value, path):
+def _load(value, path, parameters):
     f = _fields(value, path, {
         "nodes": (_string, None), "body": (_string, None),
-        "force": (_vector(_expression(*TIME)), None),
-        "acceleration": (_vector(_expression(*TIME)), None)})
+        "force": (_vector(_expression(TIME, parameters)), None),
+        "acceleration": (_vector(_expression(TIME, parameters)), None)})
     if (f["nodes"] is None) == (f["body"] is None):
         raise _Invalid(path, "give either 'nodes' (with 'force') or 'body' (with 'acceleration')")
     on, wanted, other = (("nodes", "force", "acceleration") if f["nodes"] is not None
@@ -650,15 +672,34 @@ def _output(value, path):
         "vtk": (_boolean, True)}))
 
 
+def _parameters(value, path):
+    """Named numbers for the expressions: identifiers that shadow no variable, constant or function."""
+    parameters = {}
+    for name, number in _mapping(value, path).items():
+        if not name.isidentifier() or keyword.iskeyword(name):
+            raise _Invalid(path + (name,), f"a parameter name must be an identifier (letters, digits and '_', "
+                                           f"not starting with a digit), got {name!r}")
+        if name in RESERVED:
+            raise _Invalid(path + (name,), f"'{name}' is reserved (the names {', '.join(RESERVED)} have a meaning "
+                                           "in expressions); choose another name")
+        parameters[name] = _number(number, path + (name,))
+    return parameters
+
+
 def _case(data, case_path):
     """Validate the whole case mapping (lines and overrides are added by the caller)."""
+    # The parameters first: every expression of the other sections may use them.
+    parameters = _parameters(data.get("parameters"), ("parameters",)) if isinstance(data, dict) else {}
     f = _fields(data, (), {
         "name": (_case_name, case_path.stem),
         "mesh": (lambda value, path: _mesh(value, path, case_path.parent), _REQUIRED),
         "material": (_material, None), "materials": (_mapping_of(_material), None),
-        "damping": (_damping, Damping()), "initial": (_initial, Initial()),
-        "supports": (_list(_support), []), "loads": (_list(_load), []),
-        "contacts": (_contacts, []), "solver": (_solver, _REQUIRED), "output": (_output, Output())})
+        "damping": (_damping, Damping()),
+        "initial": (lambda value, path: _initial(value, path, parameters), Initial()),
+        "supports": (_list(_support), []),
+        "loads": (_list(lambda value, path: _load(value, path, parameters)), []),
+        "contacts": (_contacts, []), "solver": (_solver, _REQUIRED), "output": (_output, Output()),
+        "parameters": (lambda value, path: parameters, {})})
     if (f["material"] is None) == (f["materials"] is None):
         raise _Invalid(("material",) if "material" in data else (),
                        "give either 'material' (for every body) or 'materials' (per body), not both")
@@ -704,4 +745,20 @@ def load_case(path, overrides=()) -> Case:
     except _Invalid as exc:
         raise _error(file, lines, options, exc.path, exc.message) from None
     case.lines, case.overrides = lines, options
+    _check_set_parameters(case)
     return case
+
+
+def _check_set_parameters(case: Case) -> None:
+    """A parameter given with --set that no expression uses is a typo, not a silent no-op."""
+    used = set()
+    for _, expr in case.expressions():
+        used |= expr.constants
+    for path in case.overrides:
+        names = [path[1]] if len(path) == 2 and path[0] == "parameters" else (
+            sorted(case.parameters) if path == ("parameters",) else [])
+        for name in names:
+            if name in case.parameters and name not in used:
+                known = ", ".join(sorted(used)) or "none"
+                raise case.error(("parameters", name), f"no expression of the case uses parameter '{name}' "
+                                                       f"(used: {known})")

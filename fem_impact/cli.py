@@ -17,7 +17,8 @@ fem-impact: dynamics of elastic structures with unilateral constraints.
 A case file (YAML) describes the mesh, material, supports, loads, contacts, solver and
 output; `fem-impact run` integrates it in time and writes into OUTDIR:
   results.pvd         ParaView time series (point data u, v, a, contact_force)
-  history.csv         per step: gaps, forces, impulses per contact, probes, energies
+  history.csv         per step: gaps, forces, impulses per contact, probes, energies,
+                      momentum of every body
   summary.json        run figures (times, unknowns, steps, max penetration, energy error)
   case.resolved.yaml  the case with every default filled in
 """
@@ -97,6 +98,31 @@ def build_parser() -> argparse.ArgumentParser:
     modes.add_argument("-q", "--quiet", action="store_true", help="do not print the table")
     modes.add_argument("-v", "--verbose", action="store_true", help="log the stages of the computation")
 
+    sweep = sub.add_parser(
+        "sweep", help="run a case once per value of one key; mean speed of a probe or body against the value",
+        description="Run CASE.yaml once per value of KEY (as with --set KEY=VALUE) and write into OUTDIR:\n"
+                    "  sweep.csv   per value: mean velocity of the probe or body over the second half of the\n"
+                    "              run (per axis), its final displacement, the total impulse of every\n"
+                    "              contact, the wall time\n"
+                    "  sweep.png   the mean velocity against the value\n"
+                    "  runNN/      each run's history.csv, summary.json, case.resolved.yaml (VTK off\n"
+                    "              unless --set output.vtk=true)",
+        epilog="examples:\n  fem-impact sweep cases/vibrodrive.yaml --vary parameters.f=16e3,17e3,18e3 --body slider\n"
+               "  fem-impact sweep cases/impacting_bar.yaml --vary initial.velocity.0=-0.5,-1,-2 --probe right",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    sweep.add_argument("case", metavar="CASE.yaml", help="the case file")
+    sweep.add_argument("--vary", required=True, metavar="KEY=v1,v2,...",
+                       help="the key to vary and its values, typed as in YAML, e.g. parameters.f=20e3,21e3")
+    target = sweep.add_mutually_exclusive_group()
+    target.add_argument("--probe", metavar="NAME", help="measure this probe (default: the case's first probe)")
+    target.add_argument("--body", metavar="NAME", help="measure this body's centre of mass (history BODY.px ...)")
+    sweep.add_argument("-o", "--output", metavar="OUTDIR",
+                       help="output folder (default: results/<case name>-sweep/); replaced only when the sweep "
+                            "completes")
+    sweep.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
+                       help="override a case-file key for every run (repeatable)")
+    sweep.add_argument("-q", "--quiet", action="store_true", help="no progress and no table")
+
     from .animate import add_parser as add_animate_parser
 
     add_animate_parser(sub)
@@ -116,6 +142,8 @@ def main(argv=None) -> int:
         return _reduction(args)
     if args.command == "modes":
         return _modes(args)
+    if args.command == "sweep":
+        return _sweep(args)
     if args.command == "animate":
         from .animate import main as animate_main
 
@@ -193,6 +221,24 @@ def _reduction(args) -> int:
             print(format_reduction(rows))
 
     return _guarded(study, "the study failed")
+
+
+def _sweep(args) -> int:
+    from .sweep import SweepError, Target, format_sweep, run_sweep
+
+    target = Target("probe", args.probe) if args.probe else Target("body", args.body) if args.body else None
+
+    def sweep():
+        try:
+            outdir, rows = run_sweep(args.case, args.vary, target, args.output, args.overrides, comm=_comm(),
+                                     progress=not args.quiet, report=None if args.quiet else print)
+        except SweepError as err:
+            raise _UsageError(str(err)) from None
+        if _comm().rank == 0 and not args.quiet:
+            print(format_sweep(rows))
+            print(f"Results in {outdir} (sweep.csv, sweep.png, one folder per run).")
+
+    return _guarded(sweep, "the sweep failed")
 
 
 def _plot(outdir: str, png) -> int:

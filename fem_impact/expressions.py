@@ -5,6 +5,7 @@ from __future__ import annotations
 import ast
 import functools
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -17,6 +18,9 @@ FUNCTIONS = {
 }
 VARIADIC = ("min", "max")
 CONSTANTS = {"pi": math.pi}
+# Names a case file's parameters may not take: the variables, the constants (with e, kept free
+# for Euler's number) and the functions.
+RESERVED = ("x", "y", "z", "t", "e", *CONSTANTS, *FUNCTIONS)
 _BINARY = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply,
            ast.Div: np.true_divide, ast.Pow: np.power}
 _UNARY = {ast.UAdd: np.positive, ast.USub: np.negative}
@@ -44,12 +48,16 @@ class Expression:
     source : str or float or int
         The expression as written (a string), or the number given.
     variables : frozenset of str
-        Names of the variables used (``pi`` excluded).
+        Names of the variables used (``pi`` and named constants excluded).
+    constants : frozenset of str
+        Names of the named constants (case-file parameters) used; their values are part of
+        the expression from parsing on.
     """
 
-    def __init__(self, source, variables, function):
+    def __init__(self, source, variables, function, constants=()):
         self.source = source
         self.variables = frozenset(variables)
+        self.constants = frozenset(constants)
         self._function = function
 
     @property
@@ -113,16 +121,18 @@ class Expression:
         return f"Expression({self.source!r})"
 
 
-def parse_expression(source, allowed=("x", "y", "z", "t")) -> Expression:
+def parse_expression(source, allowed=("x", "y", "z", "t"), constants=None) -> Expression:
     """Parse a number or an arithmetic expression string, never executing it as code.
 
     Parameters
     ----------
     source : int, float or str
-        A number, or an expression of numbers, the names in `allowed` and ``pi``,
-        ``+ - * / **`` and calls of the functions in ``FUNCTIONS``.
+        A number, or an expression of numbers, the names in `allowed`, ``pi``, the names of
+        `constants`, ``+ - * / **`` and calls of the functions in ``FUNCTIONS``.
     allowed : sequence of str
         Variable names the expression may use.
+    constants : mapping of str to float, optional
+        Named numbers (a case file's ``parameters``), replaced by their values when parsed.
 
     Returns
     -------
@@ -146,12 +156,21 @@ def parse_expression(source, allowed=("x", "y", "z", "t")) -> Expression:
         raise ExpressionError(f"invalid expression {_short(text)}: {getattr(exc, 'msg', exc)}") from None
     except (RecursionError, MemoryError):
         raise ExpressionError(f"expression {_short(text)} is too deeply nested") from None
-    names = set()
+    scope = _Scope(allowed, dict(constants or {}), set(), set())
     try:
-        function = _build(tree.body, text, allowed, names)
+        function = _build(tree.body, text, scope)
     except RecursionError:
         raise ExpressionError(f"expression {_short(text)} is too deeply nested") from None
-    return Expression(source, names, function)
+    return Expression(source, scope.names, function, scope.used)
+
+
+class _Scope(NamedTuple):
+    """What a name may mean while building: variables, named constants; and what was used."""
+
+    allowed: tuple
+    constants: dict
+    names: set      # variables used
+    used: set       # named constants used
 
 
 def _short(text, limit=60):
@@ -167,8 +186,8 @@ def _float(number):
         raise ExpressionError(f"number too large: {number}") from None
 
 
-def _build(node, text, allowed, names):
-    """Return a closure ``env -> value`` for a whitelisted AST node, collecting variable names."""
+def _build(node, text, scope):
+    """Return a closure ``env -> value`` for a whitelisted AST node, collecting the names used."""
     if isinstance(node, ast.Constant) and type(node.value) in (int, float):
         value = _float(node.value)
         return lambda env: value
@@ -178,25 +197,29 @@ def _build(node, text, allowed, names):
         if node.id in CONSTANTS:
             value = CONSTANTS[node.id]
             return lambda env: value
-        if node.id not in allowed:
-            raise ExpressionError(f"'{node.id}' is not an allowed name "
-                                  f"(allowed: {', '.join(allowed + tuple(CONSTANTS))})")
-        names.add(node.id)
+        if node.id in scope.constants:
+            value = _float(scope.constants[node.id])
+            scope.used.add(node.id)
+            return lambda env: value
+        if node.id not in scope.allowed:
+            known = scope.allowed + tuple(CONSTANTS) + tuple(scope.constants)
+            raise ExpressionError(f"'{node.id}' is not an allowed name (allowed: {', '.join(known)})")
+        scope.names.add(node.id)
         return lambda env: env[node.id]
     if isinstance(node, ast.BinOp) and type(node.op) in _BINARY:
         op = _BINARY[type(node.op)]
-        left, right = _build(node.left, text, allowed, names), _build(node.right, text, allowed, names)
+        left, right = _build(node.left, text, scope), _build(node.right, text, scope)
         return lambda env: op(left(env), right(env))
     if isinstance(node, ast.UnaryOp) and type(node.op) in _UNARY:
-        op, operand = _UNARY[type(node.op)], _build(node.operand, text, allowed, names)
+        op, operand = _UNARY[type(node.op)], _build(node.operand, text, scope)
         return lambda env: op(operand(env))
     if isinstance(node, ast.Call):
-        return _build_call(node, text, allowed, names)
+        return _build_call(node, text, scope)
     kind = _KINDS.get(type(node), type(node).__name__)
     raise ExpressionError(f"{kind} is not allowed: {_short(ast.get_source_segment(text, node))}")
 
 
-def _build_call(node, text, allowed, names):
+def _build_call(node, text, scope):
     """Return a closure for a call of a whitelisted function with positional arguments."""
     name = node.func.id if isinstance(node.func, ast.Name) else None
     if name not in FUNCTIONS:
@@ -209,7 +232,7 @@ def _build_call(node, text, allowed, names):
         wanted = "at least 2 arguments" if variadic else "exactly 1 argument"
         raise ExpressionError(f"{name}() takes {wanted}, got {count}")
     function = FUNCTIONS[name]
-    args = [_build(arg, text, allowed, names) for arg in node.args]
+    args = [_build(arg, text, scope) for arg in node.args]
     if variadic:
         return lambda env: functools.reduce(function, [arg(env) for arg in args])
     (arg,) = args

@@ -87,6 +87,9 @@ class Model:
     node_coords: np.ndarray    # local node coordinates (owned, then ghosts) x 3
     n_owned_nodes: int
     first_node: int
+    # Per body, m_b (owned entries, n_local x dim): column c holds int_body rho phi_j e_c, so that
+    # m_b[:, c] . V is the body's momentum along c and its column sum the body's mass.
+    momentum_rows: dict[str, np.ndarray] = field(default_factory=dict)
     massless: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # owned dofs without mass
 
     @property
@@ -189,8 +192,52 @@ def build_model(case: Case, meshdata: MeshData) -> Model:
     _initial_field(case, "velocity", meshdata, V, bs, coords[:n_owned], V0)
     for vec in (U0, V0):
         vec.array[fixed] = 0.0
+    momentum = _momentum_rows(meshdata, V, materials, dim, dxm)
     log.info("model: %d dofs, %s mass", K.getSize()[0], case.solver.mass)
-    return Model(meshdata, V, bs, M, K, C, fixed, load, U0, V0, coords, n_owned, first, massless)
+    if case.solver.mass == "redistributed":
+        momentum = _redistributed_momentum_rows(momentum, M, fixed)
+    return Model(meshdata, V, bs, M, K, C, fixed, load, U0, V0, coords, n_owned, first, momentum, massless)
+
+
+def _momentum_rows(meshdata: MeshData, V, materials, dim: int, dxm) -> dict[str, np.ndarray]:
+    """Per body the rows m_b = 1_b^T M of its material alone, assembled once (``int rho phi_j``).
+
+    Assembled over the body's cells, so that a node shared with another body counts its share of
+    each; the supports do not enter (a held dof has V = 0), and a lumped mass has the same row sums.
+    """
+    w = ufl.TestFunction(V)
+    rows = {}
+    for body, tag in meshdata.bodies.items():
+        mat = materials[body]
+        measure = dxm if meshdata.cell_tags is None else dxm(tag)
+        section = mat.area if dim < 3 else 1.0
+        # rho and the section scale the assembled vector, so that the form (and its compiled
+        # kernel, cached on disk) does not depend on the material.
+        columns = []
+        for comp in range(dim):
+            unit = ufl.as_vector([1.0 if j == comp else 0.0 for j in range(dim)])
+            columns.append(mat.rho * section * dx.assemble_vector(ufl.inner(unit, w) * measure).array_r)
+        rows[body] = np.column_stack(columns)
+    return rows
+
+
+def _redistributed_momentum_rows(rows: dict[str, np.ndarray], M: PETSc.Mat,
+                                 fixed: np.ndarray) -> dict[str, np.ndarray]:
+    """The momentum rows of the redistributed mass: ``1_b^T M`` with ``1_b`` the body's dofs (those
+    with a share in the assembled rows), so that massless contact nodes carry no momentum and
+    their neighbours carry the mass they took over. (A node two bodies share counts in both.)"""
+    indicator, row = M.createVecs()
+    out = {}
+    for body, m_b in rows.items():
+        columns = []
+        for comp in range(m_b.shape[1]):
+            indicator.array[:] = m_b[:, comp] > 0.0
+            M.mult(indicator, row)
+            column = row.array_r.copy()
+            column[fixed] = 0.0   # held dofs have a unit placeholder mass and V = 0
+            columns.append(column)
+        out[body] = np.column_stack(columns)
+    return out
 
 
 def _materials(case: Case, meshdata: MeshData) -> dict[str, Material]:

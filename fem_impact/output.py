@@ -38,6 +38,18 @@ class NodalFields:
         return {"u": state.U, "v": state.V, "a": state.A,
                 "contact_force": -(self.cons.P_local @ state.force)}
 
+    def velocity_functionals(self, rows: np.ndarray, comm: MPI.Comm):
+        """A reader of ``rows^T v`` at each step, for a few fixed rows (owned entries, n_local x k):
+        k dot products and one reduction per step."""
+        rows = np.ascontiguousarray(rows.T)
+
+        def read(state: StepState) -> np.ndarray:
+            values = rows @ state.V
+            if comm.size > 1:
+                comm.Allreduce(MPI.IN_PLACE, values, op=MPI.SUM)
+            return values
+        return read
+
 
 @dataclass
 class Probes:
@@ -60,6 +72,25 @@ class Probes:
 
     def columns(self) -> list[str]:
         return [f"{name}.{q}{AXES[c]}" for name in self.names for q in "uv" for c in range(self.dim)]
+
+
+class BodyMomenta:
+    """Momentum of every body per component, ``p_b = m_b . V`` with ``m_b = 1_b^T M`` built once
+    (``Model.momentum_rows``): columns ``BODY.px`` (``BODY.py``, ``BODY.pz``)."""
+
+    def __init__(self, model: Model, fields):
+        self.dim = model.meshdata.dim
+        self.names = list(model.momentum_rows)
+        self.mass = {name: float(model.comm.allreduce(rows[:, 0].sum())) for name, rows in model.momentum_rows.items()}
+        rows = (np.column_stack([model.momentum_rows[name] for name in self.names]) if self.names
+                else np.zeros((model.U0.getLocalSize(), 0)))
+        self.read = fields.velocity_functionals(rows, model.comm)
+
+    def values(self, state: StepState) -> np.ndarray:
+        return self.read(state) if self.names else np.zeros(0)
+
+    def columns(self) -> list[str]:
+        return [f"{name}.p{AXES[c]}" for name in self.names for c in range(self.dim)]
 
 
 def find_probes(case, model: Model) -> Probes:
@@ -88,14 +119,17 @@ class HistoryWriter:
     """``history.csv``: one row for t = 0 and one per step (INTERFACE.md)."""
 
     def __init__(self, path: Path, cons: Constraints, probes: Probes, comm: MPI.Comm, fields,
-                 flush_every: int = 2000):
+                 flush_every: int = 2000, momenta: BodyMomenta | None = None):
         self.cons, self.probes, self.comm, self.fields = cons, probes, comm, fields
+        self.momenta = momenta
         self.rows: list[list[float]] = []
         self.flush_every = flush_every
         self.columns = ["t"]
         for c in cons.contacts:
             self.columns += [f"{c.name}.gap", f"{c.name}.force", f"{c.name}.impulse"]
-        self.columns += probes.columns() + list(ENERGY_COLUMNS)
+        # Body momenta come last, after the energies: columns added since INTERFACE.md keep the
+        # positions of the earlier ones.
+        self.columns += probes.columns() + list(ENERGY_COLUMNS) + (momenta.columns() if momenta else [])
         self._file = open(path, "w", newline="") if comm.rank == 0 else None
         if self._file:
             self._csv = csv.writer(self._file)
@@ -109,6 +143,8 @@ class HistoryWriter:
         row += self.probes.values(state, self.comm, self.fields).tolist() if self.probes.names else []
         e = state.energy
         row += [e.kinetic, e.strain, e.external_work, e.damping_loss, e.impact_loss, e.contact_loss, e.error]
+        if self.momenta is not None:
+            row += self.momenta.values(state).tolist()
         if self._file:
             self.rows.append(row)
             if len(self.rows) >= self.flush_every:

@@ -174,6 +174,25 @@ class ReducedFields:
         u, v = self._parts(state, rows)
         return {"u": u, "v": v, "a": self.Y1 @ state.A, "contact_force": -(self.cons.P_local @ state.force)}
 
+    def velocity_functionals(self, rows: np.ndarray, comm: MPI.Comm):
+        """A reader of ``rows^T v`` at each step for a few fixed rows (owned entries, n_local x k),
+        e.g. body momenta: the rows are projected on the modes and the static columns once, so a
+        step costs k x n1 operations on replicated data and no reduction."""
+        rows_Y = _allsum(comm, rows.T @ self.Y1)
+        rows_R = _allsum(comm, rows.T @ self.XR) if self.static is not None else None
+        rows_P = _allsum(comm, rows.T @ self.XP) if self.static is not None else None
+
+        def static(t: float, force: np.ndarray) -> np.ndarray:
+            return rows_R @ self.static.coefficients(t) - rows_P @ force
+
+        def read(state: StepState) -> np.ndarray:
+            values = rows_Y @ state.V
+            if self.static is not None and self._previous is not None and self._previous[0] < state.t:
+                t0, f0 = self._previous
+                values = values + (static(state.t, state.force) - static(t0, f0)) / (state.t - t0)
+            return values
+        return read
+
     def write(self, state: StepState) -> None:
         """Observer hook, registered last: remembers the step for the next velocity difference."""
         self._previous = (state.t, state.force.copy())

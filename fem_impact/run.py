@@ -94,8 +94,12 @@ def staged_directory(outdir: Path, comm: MPI.Comm):
     comm.barrier()
 
 
-def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, progress: bool = True) -> dict:
-    """Run a case file end to end; returns the summary (also written to ``summary.json``)."""
+def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, progress=True) -> dict:
+    """Run a case file end to end; returns the summary (also written to ``summary.json``).
+
+    ``progress``: True for the time loop's progress bar (on a terminal), False for none, or a
+    callable ``(step, total)`` of the caller's own (e.g. an ``output.Progress`` with a label).
+    """
     t_start = time.perf_counter()
     case = load_case(path, overrides)
     outdir = Path(outdir) if outdir is not None else default_outdir(case)
@@ -106,7 +110,7 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
     from .integrators import integrate, steps_for
     from .mesh import build_mesh
     from .model import build_model
-    from .output import HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
+    from .output import BodyMomenta, HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
 
     solver = case.solver
     if solver.method not in MODELS:
@@ -126,7 +130,8 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
 
     with staged_directory(outdir, comm) as stage:
         fields = system.fields
-        history = HistoryWriter(stage / "history.csv", cons, probes, comm, fields)
+        momenta = BodyMomenta(model, fields)
+        history = HistoryWriter(stage / "history.csv", cons, probes, comm, fields, momenta=momenta)
         stats = RunStatistics(cons)
         observers = [history, stats]
         vtk = None
@@ -138,7 +143,7 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
             if hasattr(fields, "write"):   # the reduced model's fields remember the previous step
                 observers.append(fields)
             final = integrate(integrator, system.U0, system.V0, solver.t_end, observers,
-                              progress=Progress(comm) if progress else None)
+                              progress=progress if callable(progress) else Progress(comm) if progress else None)
         finally:
             history.close()
             if vtk is not None:
@@ -167,6 +172,7 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
             "impact_loss": final.energy.impact_loss,
             "contact_loss": final.energy.contact_loss,
             "total_impulse": stats.total_impulse,
+            "body_mass": momenta.mass,
             "vtk_frames": vtk.frames if vtk else 0,
             "fem_impact_version": __version__,
         }

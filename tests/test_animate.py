@@ -116,6 +116,26 @@ def test_the_pieces_of_a_two_rank_run_join_into_the_serial_mesh(strip, tmp_path)
     assert np.allclose(a.u[:, ka], b.u[:, kb], atol=1e-6) and np.allclose(a.scalar[:, ka], b.scalar[:, kb], atol=1e-6)
 
 
+def test_png_of_one_frame(strip, tmp_path):
+    """-o FILE.png writes one frame (the last by default), --frame N and --time T pick another; the
+    picture is the animation's frame (same camera, colours and arrows)."""
+    gif, last, third, near = (tmp_path / name for name in ("all.gif", "last.png", "third.png", "near.png"))
+    common = ("--size", "320x192")
+    for args in (("-o", gif), ("-o", last), ("--frame", "2", "-o", third), ("--time", "0.19", "-o", near)):
+        proc = run_cli("animate", str(strip), *map(str, args), *common)
+        assert proc.returncode == 0, proc.stderr
+        assert f"wrote {args[-1]} ({11 if args[-1] == gif else 1} frame" in proc.stdout
+    frames = gif_frames(gif)
+    pictures = {p: np.asarray(Image.open(p).convert("RGB")).astype(int) for p in (last, third, near)}
+    assert all(Image.open(p).format == "PNG" and img.shape == (192, 320, 3) for p, img in pictures.items())
+    # The GIF's palette (256 colours) differs slightly from the PNG's full colour: compare loosely.
+    closest = lambda img: int(np.argmin([np.abs(f - img).mean() for f in frames]))  # noqa: E731
+    assert closest(pictures[last]) == 10 and closest(pictures[third]) == 2
+    assert closest(pictures[near]) == 5          # frames every 2 steps of 0.02: t = 0.2 is frame 5
+    proc = run_cli("animate", str(strip), "--frame", "-1", *common)
+    assert proc.returncode == 0 and (strip / "frame.png").is_file(), proc.stderr
+
+
 def test_mp4(strip, tmp_path):
     pytest.importorskip("imageio_ffmpeg", reason="imageio-ffmpeg is not installed: MP4 is not available")
     import imageio.v2 as iio
@@ -134,7 +154,11 @@ def test_mp4(strip, tmp_path):
     (["{tmp}"], "no results.pvd"),
     (["{tmp}/nowhere"], "no such folder"),
     (["{run}", "--field", "w"], "--field w: unknown, choose one of u, v, a, contact"),
-    (["{run}", "-o", "{tmp}/a.png"], "write a .gif or an .mp4"),
+    (["{run}", "-o", "{tmp}/a.jpg"], "write a .gif or an .mp4 (an animation) or a .png (one frame)"),
+    (["{run}", "--frame", "2", "-o", "{tmp}/a.gif"], "--frame and --time pick one frame for a picture"),
+    (["{run}", "--frame", "11"], "--frame 11: the run stored 11 frames"),
+    (["{run}", "--frame", "last"], "--frame last: must be a whole number"),
+    (["{run}", "--time", "soon"], "--time soon: must be a number"),
     (["{run}", "--scale", "-1"], "--scale -1: must be a number > 0"),
     (["{run}", "--scale", "big"], "--scale big: must be a number > 0"),
     (["{run}", "--size", "12"], "--size 12: give WIDTHxHEIGHT"),

@@ -143,6 +143,16 @@ BAD = [
     Bad("gmsh-body", (PAIR_MESH, (MATERIAL, "materials:\n  bar_a: {E: 1.0, rho: 1.0}\n"
                                             "  bar_c: {E: 1.0, rho: 1.0}\n")),
         "materials.bar_c", "bar_c:", ("no body 'bar_c'", "bodies: bar_a, bar_b")),
+    # parameters: reserved names, unknown names in expressions, a --set parameter nothing uses
+    Bad("param-reserved", (before_output("parameters: {t: 1.0}"),), "parameters.t", "parameters:",
+        ("'t' is reserved",)),
+    Bad("param-not-a-number", (before_output("parameters: {F0: strong}"),), "parameters.F0", "parameters:",
+        ("expected a number", "'strong'")),
+    Bad("param-unknown-name", (before_output('parameters: {F0: 1.0}\nloads: [{nodes: right, force: ["G0*t"]}]'),),
+        "loads[0].force[0]", "loads:", ("'G0' is not an allowed name", "F0")),
+    Bad("param-set-unused", (), "parameters.freq", None, ("no expression of the case uses parameter 'freq'",
+                                                         "--set parameters.freq=1"),
+        args=("--set", "parameters.freq=1")),
     # a missing mesh file
     Bad("mesh-missing", ((BUILTIN_MESH, "  file: meshes/missing.msh\n"),), "mesh.file", "file:",
         ("mesh file not found", "missing.msh")),

@@ -329,3 +329,73 @@ def test_error_from_later_stage_names_override(tmp_path):
     case = load_case(write(tmp_path, CONTACT), ["contacts.0.nodes=right"])
     err = case.error(("contacts", 0, "nodes"), "unknown node group 'right'")
     assert err.line is None and "(from --set contacts.0.nodes=right)" in str(err)
+
+
+# --- parameters ---------------------------------------------------------------------------
+
+PARAMETERS = BASE + """\
+parameters: {f: 2000.0, F0: 5.0, v0: -1}
+initial:
+  velocity: ["v0*x"]
+loads:
+  - {nodes: right, force: ["F0*sin(2*pi*f*t)", 0]}
+"""
+
+
+def test_parameters_in_expressions(tmp_path):
+    case = load_case(write(tmp_path, PARAMETERS))
+    assert case.parameters == {"f": 2000.0, "F0": 5.0, "v0": -1.0}
+    force = case.loads[0].force[0]
+    assert force.at_time(1.0 / 8000.0) == pytest.approx(5.0) and force.constants == {"F0", "f"}
+    assert case.initial.velocity[0].value[0](x=np.array([0.5])) == pytest.approx([-0.5])
+
+
+def test_parameters_overridden_with_set_and_written_resolved(tmp_path):
+    path = write(tmp_path, PARAMETERS)
+    case = load_case(path, ["parameters.f=2500", "parameters.F0=1e1"])
+    assert case.loads[0].force[0].at_time(1.0 / 10000.0) == pytest.approx(10.0)   # sin(2 pi 2500 / 10000)
+    resolved = yaml.safe_load(case.write_resolved(tmp_path / "resolved.yaml").read_text())
+    assert resolved["parameters"] == {"f": 2500.0, "F0": 10.0, "v0": -1.0}
+    assert resolved["loads"][0]["force"][0] == "F0*sin(2*pi*f*t)"    # as written, with the values beside
+    again = load_case(tmp_path / "resolved.yaml")
+    assert again.loads[0].force[0].at_time(1.0 / 10000.0) == pytest.approx(10.0)
+    # a case without a parameters section takes one from --set
+    plain = load_case(write(tmp_path, BASE + 'loads: [{nodes: right, force: ["F0"]}]\n', "plain.yaml"),
+                      ["parameters.F0=3"])
+    assert plain.loads[0].force[0]() == 3.0
+
+
+@pytest.mark.parametrize("parameters, key, message", [
+    ("{t: 1.0}", "parameters.t", "'t' is reserved"),
+    ("{x: 1.0}", "parameters.x", "'x' is reserved"),
+    ("{pi: 3.0}", "parameters.pi", "'pi' is reserved"),
+    ("{e: 2.7}", "parameters.e", "'e' is reserved"),
+    ("{sin: 1.0}", "parameters.sin", "'sin' is reserved"),
+    ("{2f: 1.0}", "parameters.2f", "must be an identifier"),
+    ("{f-0: 1.0}", "parameters.f-0", "must be an identifier"),
+    ("{lambda: 1.0}", "parameters.lambda", "must be an identifier"),
+    ("{f: fast}", "parameters.f", "expected a number, got 'fast'"),
+    ("{f: [1, 2]}", "parameters.f", "expected a number, got a list"),
+    ("{f: .inf}", "parameters.f", "expected a finite number"),
+    ("{f: true}", "parameters.f", "expected a number, got True"),
+    ("[1, 2]", "parameters", "expected a mapping"),
+])
+def test_bad_parameters(tmp_path, parameters, key, message):
+    err = error_of(tmp_path, BASE + f"parameters: {parameters}\n")
+    assert err.key == key and err.line == 9 and message in err.message, str(err)
+
+
+def test_unknown_name_in_an_expression_names_file_key_and_line(tmp_path):
+    err = error_of(tmp_path, PARAMETERS.replace("F0*sin", "G0*sin"))
+    assert (err.key, err.line) == ("loads[0].force[0]", 13)
+    assert "'G0' is not an allowed name (allowed: t, pi, f, F0, v0)" in err.message
+
+
+def test_a_parameter_set_on_the_command_line_must_be_used(tmp_path):
+    path = write(tmp_path, PARAMETERS)
+    err = error_of(tmp_path, PARAMETERS, ["parameters.freq=2500"])
+    assert err.key == "parameters.freq" and "no expression of the case uses parameter 'freq'" in str(err)
+    assert "(used: F0, f, v0)" in str(err) and "--set parameters.freq=2500" in str(err)
+    # defined in the file and unused is allowed (documentation), and so is a new one that is used
+    load_case(write(tmp_path, PARAMETERS.replace("{f: 2000.0,", "{f: 2000.0, spare: 1,")))
+    load_case(path, ["parameters.g=9.81", "loads.0.force=[\"F0\", \"-g\"]"])

@@ -22,5 +22,5 @@ def test_case_runs(tmp_path, path):
 
 
 def test_there_are_cases():
-    assert {"impacting_bar", "impacting_bar_steel", "signorini_bar", "two_bars", "beam_stop"} <= {
-        p.stem for p in CASE_FILES}
+    assert {"impacting_bar", "impacting_bar_steel", "signorini_bar", "two_bars", "beam_stop", "vibroconverter_free",
+            "vibroconverter_forced", "vibrodrive"} <= {p.stem for p in CASE_FILES}

@@ -125,3 +125,16 @@ def test_malicious_expression_does_not_run(tmp_path, monkeypatch):
         with pytest.raises(ExpressionError):
             parse_expression(source).evaluate(x=0.0, y=0.0, z=0.0, t=0.0)
     assert not marker.exists()
+
+
+def test_named_constants_are_numbers_from_parsing_on():
+    """Named constants (a case file's parameters) become numbers when parsed: they are not
+    variables, the fast time path sees them, and the names used are reported."""
+    expr = parse_expression("F0*sin(2*pi*f*t)", allowed=("t",), constants={"F0": 5.0, "f": 2000.0, "unused": 1.0})
+    assert expr.variables == {"t"} and expr.constants == {"F0", "f"}
+    assert expr.at_time(1.0 / 8000.0) == pytest.approx(5.0)       # sin(pi/2)
+    assert expr(t=np.array([0.0, 1.0 / 8000.0])) == pytest.approx([0.0, 5.0])
+    constant = parse_expression("2*F0", allowed=("t",), constants={"F0": 5.0})
+    assert constant.is_constant and constant() == 10.0
+    with pytest.raises(ExpressionError, match=r"'g' is not an allowed name \(allowed: t, pi, F0\)"):
+        parse_expression("g*t", allowed=("t",), constants={"F0": 5.0})

@@ -125,6 +125,9 @@ def test_mass_redistribution_removes_the_contact_mass_and_keeps_the_total(tmp_pa
     assert summary["max_energy_error"] < 1e-9 * e0
     assert h["impact_loss"][-1] == 0.0                   # nothing for Carnot to correct
     assert (h["kinetic"] + h["strain"])[-1] > e0 * (1 - 1e-4)   # the bar leaves with all its energy
+    # Momentum from the redistributed mass: m v0 = -1 before the wall, the massless node carries none.
+    assert summary["body_mass"]["bar"] == pytest.approx(1.0, rel=1e-12)
+    np.testing.assert_allclose(h["bar_px"][h["t"] < 0.1], -1.0, rtol=1e-12)
 
 
 def test_mass_redistribution_starts_the_massless_node_in_equilibrium(tmp_path):

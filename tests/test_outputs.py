@@ -14,7 +14,8 @@ from fem_impact.case import load_case
 SUMMARY_KEYS = {"wall_time_s", "loop_time_s", "steps", "dofs", "modes", "max_penetration", "max_energy_error",
                 "fem_impact_version"}
 HISTORY_COLUMNS = ["t", "wall.gap", "wall.force", "wall.impulse", "left.ux", "left.vx", "right.ux", "right.vx",
-                   "kinetic", "strain", "external_work", "damping_loss", "impact_loss", "contact_loss", "energy_error"]
+                   "kinetic", "strain", "external_work", "damping_loss", "impact_loss", "contact_loss", "energy_error",
+                   "bar.px"]
 
 
 def read_vtu(path):

@@ -115,6 +115,18 @@ def test_momentum_is_conserved_and_transferred(base):
     assert v_b == pytest.approx(V0, rel=0.01)
 
 
+def test_body_momenta_balance_the_impulses_exactly(base):
+    """History columns BAR.px = 1_b^T M V: the total momentum stays m V0 and bar_b's is the sum of the
+    impulses (``normal`` +1, from bar_a to bar_b) at every step, to round-off (history.csv holds 12
+    significant digits) - the discrete scheme transfers exactly the impulses S_N it reports.
+    summary.json has each body's mass (rho A L = 1)."""
+    summary, h = base
+    assert summary["body_mass"] == pytest.approx({"bar_a": MASS, "bar_b": MASS}, rel=1e-12)
+    assert h["bar_a_px"] + h["bar_b_px"] == pytest.approx(np.full(len(h), MASS * V0), abs=1e-11)
+    assert h["bar_b_px"] == pytest.approx(np.cumsum(h["joint_impulse"]), abs=1e-11)
+    assert h["bar_b_px"][-1] == pytest.approx(MASS * V0, rel=0.01)
+
+
 def test_interface_force_and_duration(base):
     _, h = base
     t, f = h["t"], h["joint_force"]
