@@ -265,7 +265,7 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
         static = StaticCorrection(
             compliance=np.where(np.outer(rigid_rows, rigid_rows), 0.0, compliance),
             rigid_rows=rigid_rows,
-            load_offsets=_allsum(comm, P_dense.T @ XR).reshape(cons.p, -1),
+            load_offsets=_allsum(comm, P_dense.T @ XR).reshape(cons.p, XR.shape[1]),
             load_gram=_allsum(comm, np.column_stack(R_cols).T @ XR),
             functions=[f for f, _ in load.varying],
         )
@@ -287,11 +287,11 @@ def prepare_reduced(case: Case, model: Model, cons: Constraints) -> tuple[Reduce
         available = free_dof_count(model)
         cap = max(1, min(available - 1, AUTO_LIMIT))
         n_try = min(cap, 32)
-        f_scene = 1.0 / (2.0 * case.output.every * solver.dt)
+        f_scene, scene_why = scene_frequency(case, model)
         while True:
             modes = _modes(model, n_try, scene, reused)
             columns = _flexibility(model, cons, modes, scene, reused)
-            n1, reason = choose_mode_count(modes, cons, columns, solver.tolerance, f_scene)
+            n1, reason = choose_mode_count(modes, cons, columns, solver.tolerance, f_scene, scene_why)
             if n1 is not None:
                 break
             if n_try >= cap:
@@ -355,11 +355,48 @@ def _flexibility(model: Model, cons: Constraints, modes: Modes, scene: str, reus
     return result
 
 
+#: Kept modes must reach this many times the highest frequency of the loads (resonance and the
+#: response just above it need the modes around and above the drive).
+LOAD_BAND_FACTOR = 2.0
+#: The loads' band: the frequency below which this fraction of their spectral energy lies.
+LOAD_BAND_ENERGY = 0.99
+
+
+def scene_frequency(case: Case, model: Model) -> tuple[float, str]:
+    """The highest frequency the scene needs the kept modes to reach, and why.
+
+    Half the output sampling rate (what the output resolves), and ``LOAD_BAND_FACTOR`` times
+    the band of the time-dependent loads: their time functions sampled at dt over the run
+    (at most 2^18 samples), the frequency below which ``LOAD_BAND_ENERGY`` of their spectral
+    energy (mean removed, Hann window) lies.
+    """
+    solver = case.solver
+    f_output = 1.0 / (2.0 * case.output.every * solver.dt)
+    f_load, source = 0.0, None
+    n = int(min(2**18, max(16, np.ceil(solver.t_end / solver.dt) + 1)))
+    t = np.arange(n) * solver.dt
+    for f, _ in model.load.varying:
+        with np.errstate(all="ignore"):
+            values = np.broadcast_to(np.asarray(f.evaluate(t=t), dtype=float), t.shape)
+        if not np.all(np.isfinite(values)):
+            continue   # a load that overflows stops the run with its own message
+        spectrum = np.abs(np.fft.rfft((values - values.mean()) * np.hanning(n))) ** 2
+        if spectrum.sum() <= 0.0:
+            continue
+        band = np.fft.rfftfreq(n, solver.dt)[np.searchsorted(np.cumsum(spectrum) / spectrum.sum(), LOAD_BAND_ENERGY)]
+        if band > f_load:
+            f_load, source = band, f.source
+    if LOAD_BAND_FACTOR * f_load > f_output:
+        return LOAD_BAND_FACTOR * f_load, (f"{LOAD_BAND_FACTOR:g} x the band of the load '{source}' "
+                                           f"({f_load:.4g} Hz)")
+    return f_output, "half the output rate"
+
+
 def choose_mode_count(modes: Modes, cons: Constraints, columns: np.ndarray, tolerance: float,
-                      f_scene: float) -> tuple[int | None, str]:
+                      f_scene: float, scene_why: str = "half the output rate") -> tuple[int | None, str]:
     """The smallest n1 (all rigid modes included) whose neglected flexibility at every contact
     row, ``(P S_k P^T)_jj / (P K^+ P^T)_jj``, is at most ``tolerance`` and whose cut-off frequency
-    reaches ``f_scene`` (what the output resolves: half the output sampling rate).
+    reaches ``f_scene`` (``scene_frequency``: what the output resolves, what the loads drive).
 
     Returns (n1, why) or (None, what falls short with all of ``modes``).
     """
@@ -378,10 +415,11 @@ def choose_mode_count(modes: Modes, cons: Constraints, columns: np.ndarray, tole
     ok = (worst <= tolerance) & (freq >= f_scene) & (np.arange(1, modes.n + 1) >= max(n_rigid, 1))
     if not ok.any():
         return None, (f"with {modes.n} modes the neglected flexibility is {worst[-1]:.3g} (tolerance "
-                      f"{tolerance:g}) and the cut-off {freq[-1]:.4g} Hz (output resolves {f_scene:.4g} Hz)")
+                      f"{tolerance:g}) and the cut-off {freq[-1]:.4g} Hz (the scene needs {f_scene:.4g} Hz: "
+                      f"{scene_why})")
     n1 = int(np.argmax(ok)) + 1
     first_flex = int(np.argmax(worst <= tolerance)) + 1 if (worst <= tolerance).any() else modes.n
     binding = "neglected flexibility" if first_flex >= n1 else "cut-off frequency"
     return n1, (f"smallest count with neglected flexibility {worst[n1 - 1]:.3g} <= {tolerance:g} at every contact "
-                f"row and cut-off {freq[n1 - 1]:.4g} Hz >= {f_scene:.4g} Hz (half the output rate); "
+                f"row and cut-off {freq[n1 - 1]:.4g} Hz >= {f_scene:.4g} Hz ({scene_why}); "
                 f"{binding} decided")

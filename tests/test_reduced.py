@@ -152,3 +152,17 @@ def test_truncation_error_does_not_shrink_with_the_time_step(tmp_path):
     assert errors[0.002, False] > 0.04
     assert errors[0.0005, False] == pytest.approx(errors[0.002, False], rel=0.05)
     assert errors[0.002, True] < 0.005 and errors[0.0005, True] < 0.005
+
+
+def test_modes_auto_reaches_twice_the_drive_frequency(tmp_path):
+    """Clamped-free rod (c = L = 1): modes at (2k - 1)/4 Hz. The output (every 10 steps of 0.01 s)
+    resolves 5 Hz, which 11 modes reach (5.25 Hz); driven at 3 Hz, auto keeps modes up to at
+    least twice the drive, 6 Hz (13 modes: 6.25 Hz), and says that the load decided."""
+    common = ["supports=[{nodes: right, fix: [x]}]", "initial.velocity=[0.0]", "contacts=[]", "mesh.cells=100",
+              "solver.method=modal", "solver.modes=auto", "solver.tolerance=0.5", "solver.dt=0.01",
+              "solver.t_end=4", "output.every=10", "output.vtk=false"]
+    quiet, _ = run_case_file(BAR, tmp_path / "quiet", *common, "loads=[{nodes: left, force: [1.0]}]")
+    assert quiet["modes"] == 11 and "output rate" in quiet["modes_reason"]
+    driven, _ = run_case_file(BAR, tmp_path / "driven", *common, "loads=[{nodes: left, force: ['sin(2*pi*3*t)']}]")
+    assert 6.0 <= driven["cutoff_hz"] < 8.0
+    assert driven["modes"] >= 13 and "sin(2*pi*3*t)" in driven["modes_reason"]
