@@ -7,6 +7,7 @@ import csv
 import json
 import math
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -74,7 +75,9 @@ def _json_default(value):
 
 def save_figure(fig, path: Path) -> Path:
     tmp = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with warnings.catch_warnings():   # (a blown-up level's huge error overflows the log axis)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        fig.savefig(tmp, dpi=110)
     os.replace(tmp, path)
     return path
 

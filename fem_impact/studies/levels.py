@@ -30,6 +30,7 @@ import sys
 import tempfile
 import threading
 import time
+import warnings
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -247,7 +248,9 @@ def _run_in_process(case_path, todo, root, prints, cases, jobs, allow_failure, p
         for lv in todo:
             folder = root / lv.name
             try:
-                summary = run_case(case_path, folder, list(lv.overrides), comm=MPI.COMM_SELF, progress=False)
+                with warnings.catch_warnings():   # (overflow on the way to a blow-up: the run reports it)
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    summary = run_case(case_path, folder, list(lv.overrides), comm=MPI.COMM_SELF, progress=False)
                 outcome = Outcome(lv, "ok", "", summary, folder)
             except SimulationError as err:
                 outcome = Outcome(lv, "failed", _one_line(str(err)), None, folder)
