@@ -250,8 +250,9 @@ def _run_in_process(case_path, todo, root, prints, cases, jobs, allow_failure, p
             try:
                 with warnings.catch_warnings():   # (overflow on the way to a blow-up: the run reports it)
                     warnings.simplefilter("ignore", RuntimeWarning)
-                    summary = run_case(case_path, folder, list(lv.overrides), comm=MPI.COMM_SELF, progress=False)
-                outcome = Outcome(lv, "ok", "", summary, folder)
+                    run_case(case_path, folder, list(lv.overrides), comm=MPI.COMM_SELF, progress=False)
+                # (the summary as written, as a resumed or parallel level reads it)
+                outcome = Outcome(lv, "ok", "", json.loads((folder / "summary.json").read_text()), folder)
             except SimulationError as err:
                 outcome = Outcome(lv, "failed", _one_line(str(err)), None, folder)
             except CaseError as err:

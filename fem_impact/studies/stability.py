@@ -251,12 +251,12 @@ def stability_study(case_path, methods=None, courants=None, restitutions=None, l
 
 def format_stability(result: dict) -> str:
     lines = [f"stability; errors against the {result['reference']}, tolerance {result['tolerance']:g}",
-             f"{'method':<20}{'sweep':<12}{'value':>7}{'steps':>8}{'impacts':>8}{'displ.':>9}{'force':>9}"
-             f"{'osc.':>8}{'energy':>9}  outcome"]
+             f"{'method':<20}{'sweep':<12}{'value':>7}{'steps':>8}{'impacts':>8}{'displ.':>10}{'force':>10}"
+             f"{'osc.':>10}{'energy':>10}  outcome"]
     for r in result["rows"]:
         line = (f"{r['method']:<20}{r['sweep']:<12}{fmt(r['value'], '.3g'):>7}{fmt(r['steps'], 'd'):>8}"
-                f"{fmt(r.get('impacts'), 'd'):>8}{fmt(r['err_displacement']):>9}{fmt(r['err_force']):>9}"
-                f"{fmt(r['force_oscillation'], '.2g'):>8}{fmt(r['err_energy']):>9}  {r['outcome']}")
+                f"{fmt(r.get('impacts'), 'd'):>8}{fmt(r['err_displacement']):>10}{fmt(r['err_force']):>10}"
+                f"{fmt(r['force_oscillation'], '.2g'):>10}{fmt(r['err_energy']):>10}  {r['outcome']}")
         if r["reason"]:
             line += f": {r['reason']}"
         lines.append(line)
