@@ -97,7 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
     modes.add_argument("-q", "--quiet", action="store_true", help="do not print the table")
     modes.add_argument("-v", "--verbose", action="store_true", help="log the stages of the computation")
 
-    _add_study_parser(sub)
+    parser.study_parser = _add_study_parser(sub)
 
     from .animate import add_parser as add_animate_parser
 
@@ -128,7 +128,7 @@ examples:
 """
 
 
-def _add_study_parser(sub) -> None:
+def _add_study_parser(sub) -> argparse.ArgumentParser:
     from .studies.methods import describe_methods
 
     study = sub.add_parser(
@@ -194,6 +194,7 @@ def _add_study_parser(sub) -> None:
     stab.add_argument("--restitution", metavar="E1,E2,...", help="restitution coefficients (default 0,0.5,1)")
     stab.add_argument("--length", metavar="K1,K2,...", help="run lengths in multiples of t_end (default 1,4)")
     stab.add_argument("--tolerance", metavar="TOL", help="largest relative error of an accurate run (default 0.05)")
+    return study
 
 
 def main(argv=None) -> int:
@@ -292,7 +293,7 @@ def _reduction(args) -> int:
 
 def _study(args, parser) -> int:
     if args.study is None:
-        parser.parse_args(["study", "--help"])
+        parser.study_parser.print_help()
         return 2
     from .studies import common
     from .studies.levels import StudyStopped

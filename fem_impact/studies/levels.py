@@ -12,7 +12,8 @@
 - Failures: a run that raises SimulationError (blow-up, NaN) is a failed level with its message
   as the reason; without ``allow_failure`` the study stops (StudyStopped) once it is recorded.
   A run that refuses its input when it starts (CaseError, e.g. a method this version does not
-  run) is a skipped level. The run itself never writes a partial folder (run.staged_directory).
+  run) is a skipped level; a run that crashes (any other error) is a failed level with the error
+  as the reason (and, in this process, its traceback logged as a warning). The run itself never writes a partial folder (run.staged_directory).
 - Modes and static solves go to a cache private to the study run and deleted after it, so that
   the reduced model's timings include them (as on a first run of a scene).
 """
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import re
 import shutil
@@ -39,6 +41,8 @@ import numpy as np
 
 from ..case import CaseError, load_case
 from ..plots import read_history
+
+log = logging.getLogger(__name__)
 
 LEVEL_FILE = "level.json"
 PACKAGE = Path(__file__).resolve().parents[1]
@@ -257,6 +261,10 @@ def _run_in_process(case_path, todo, root, prints, cases, jobs, allow_failure, p
                 outcome = Outcome(lv, "failed", _one_line(str(err)), None, folder)
             except CaseError as err:
                 outcome = Outcome(lv, "skipped", _one_line(str(err)), None, folder)
+            except Exception as err:   # a crash of the run: recorded like a failure (as a process's would be)
+                log.warning("level %s crashed", lv.label, exc_info=True)
+                outcome = Outcome(lv, "failed", _one_line(f"the run crashed: {type(err).__name__}: {err}"), None,
+                                  folder)
             _finish(outcome, prints, progress, outcomes, allow_failure)
     finally:
         if saved is None:

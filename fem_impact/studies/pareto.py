@@ -178,6 +178,13 @@ def pareto_front(rows, measure_name: str, time_key: str) -> list[int]:
     return front
 
 
+def _short(row) -> str:
+    """A rung's label on the chart: cells, dt or n1."""
+    if row["knob"] == "dt":
+        return f"dt {row['resolution']:.3g}"
+    return f"{'n1' if row['knob'] == 'modes' else 'cells'} {row['resolution']}"
+
+
 def _finite(v) -> bool:
     return isinstance(v, (int, float)) and math.isfinite(v)
 
@@ -216,11 +223,15 @@ def _plot(path: Path, rows, fronts, time_key, label, name, jobs) -> Path:
     for ax, m in zip(axes.ravel(), PANELS, strict=True):
         drawn = False
         for method in methods:
-            pts = sorted((r[time_key], r[m]) for r in rows
-                         if r["method"] == method and r["status"] == "ok" and _finite(r[m]) and r[m] > 0)
+            # In ladder order (coarse to fine), so that a line follows its method's refinement.
+            pts = [(r[time_key], r[m], _short(r)) for r in rows
+                   if r["method"] == method and r["status"] == "ok" and _finite(r[m]) and r[m] > 0]
             if pts:
-                x, y = zip(*pts, strict=True)
+                x, y, names = zip(*pts, strict=True)
                 ax.loglog(x, y, "o-", color=colors[method], label=method, ms=4)
+                for i in {0, len(pts) - 1}:
+                    ax.annotate(names[i], (x[i], y[i]), textcoords="offset points", xytext=(4, 3), fontsize=6,
+                                color=colors[method])
                 drawn = True
         front = [(rows[i][time_key], rows[i][m]) for i in fronts[m] if rows[i][m] > 0]
         if front:
