@@ -13,7 +13,8 @@
   as the reason; without ``allow_failure`` the study stops (StudyStopped) once it is recorded.
   A run that refuses its input when it starts (CaseError, e.g. a method this version does not
   run) is a skipped level; a run that crashes (any other error) is a failed level with the error
-  as the reason (and, in this process, its traceback logged as a warning). The run itself never writes a partial folder (run.staged_directory).
+  as the reason (and, in this process, its traceback logged as a warning). The run itself never
+  writes a partial folder (run.staged_directory).
 - Modes and static solves go to a cache private to the study run and deleted after it, so that
   the reduced model's timings include them (as on a first run of a scene).
 """
