@@ -12,7 +12,7 @@ APT_PACKAGES := python3-dolfinx-real python3-petsc4py-real python3-slepc4py-real
                 libopenblas0-pthread \
                 paraview xvfb xauth libegl1 libgl1-mesa-dri
 
-.PHONY: setup system-packages run test test-all benchmark docs clean
+.PHONY: setup system-packages run test test-all benchmark docs study-charts clean
 
 setup: system-packages $(VENV)/.installed
 
@@ -50,3 +50,11 @@ clean:
 docs: setup
 	$(VENV)/bin/fem-impact run $(CASE) -q
 	$(VENV)/bin/fem-impact plot results/impacting_bar -o docs/impacting_bar.png
+
+# The speed-accuracy charts and stability maps of B2a and the free vibroconverter, redrawn into
+# docs/ by the study commands (about 5 minutes on 2 cores; completed levels are reused).
+STUDY_CASES := impacting_bar vibroconverter_free
+study-charts: setup
+	for c in $(STUDY_CASES); do for s in pareto stability; do \
+	  $(VENV)/bin/fem-impact study $$s cases/$$c.yaml -o results/$$c-$$s -q && \
+	  cp results/$$c-$$s/$$s.png docs/$$c-$$s.png || exit 1; done; done
