@@ -394,3 +394,15 @@ def test_chattering_and_classification():
     assert classify("failed", "blew up: energy 1e9 exceeds 10", base, 0.05) == (
         "failed", "blew up: energy 1e9 exceeds 10", "blow-up")
     assert classify("skipped", "x", base, 0.05)[0] == "skipped"
+
+
+def test_reduction_command_still_works(tmp_path):
+    """`fem-impact reduction` moved into fem_impact/studies/reduction.py unchanged."""
+    from fem_impact.studies import format_reduction, reduction_table  # noqa: F401  (still importable)
+
+    proc = run_cli("reduction", str(BAR), "--modes", "5", "-o", str(tmp_path / "red"),
+                   *sets("mesh.cells=50", "solver.dt=0.01", "solver.t_end=2.5"))
+    assert proc.returncode == 0, proc.stderr
+    assert "modal        5     yes" in proc.stdout
+    rows = read_csv(tmp_path / "red" / "reduction.csv")
+    assert [r["model"] for r in rows] == ["full", "modal", "modal"]

@@ -5,6 +5,7 @@ stability map, and the reduction table (reduced against the full model).
 - ``levels``: running levels (one run each, in its own folder) in-process or in parallel
   processes, with progress, resume and failure handling;
 - ``convergence``, ``pareto``, ``stability``: the three ``fem-impact study`` commands;
+- ``common``, ``resolution``: what they share (files, error rows, order fits; c, h, Courant number);
 - ``reduction``: ``fem-impact reduction``.
 """
 
