@@ -125,11 +125,11 @@ def run_reference(outcome: Outcome, case_path, label: str) -> RunReference:
     return RunReference(outcome.history(), case.output.probes, [c.name for c in case.contacts], label)
 
 
-def measure(outcome: Outcome, reference) -> dict:
+def measure(outcome: Outcome, reference, history=None) -> dict:
     """Error measures of a finished level against ``reference`` (NaN for a level that did not finish)."""
     if not outcome.ok:
         return {**dict.fromkeys(ERROR_MEASURES, math.nan), "energy_growth": math.nan}
-    h = outcome.history()
+    h = outcome.history() if history is None else history
     return {**errors(h, reference), "energy_growth": energy_growth(h)}
 
 

@@ -243,7 +243,7 @@ def _plot(path: Path, rows, fronts, time_key, label, name, jobs) -> Path:
         ax.set_ylabel("relative error")
         ax.grid(True, which="both", alpha=0.3)
         if drawn:
-            ax.legend(fontsize=7)
+            ax.legend(fontsize=7, framealpha=0.6)
         else:
             ax.text(0.5, 0.5, "no contact in this case" if m != "err_displacement" else "no data",
                     ha="center", va="center", transform=ax.transAxes)

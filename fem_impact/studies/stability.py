@@ -218,13 +218,13 @@ def stability_study(case_path, methods=None, courants=None, restitutions=None, l
     for method, sweep, value, name, e, k in plan:
         o = by_name[name]
         ref = exact_reference(case_path, o.level.overrides) if exact else references[e]
-        m = measure(o, ref)
+        h = o.history() if o.ok else None
+        m = measure(o, ref, h)
         row = {"method": method, "sweep": sweep, "value": value, "level": name, **level_row(o, case_path, jobs), **m,
                "restitution": e, "length": k, "reference": ref.label}
         case = load_case(case_path, o.level.overrides)
         names = [c.name for c in case.contacts]
         if o.ok:
-            h = o.history()
             m["chatter_to_end"], m["chatter_switches"] = chattering(h, names)
             m["penetration"] = (o.summary["max_penetration"] or 0.0) / ref.length_scale
             row["impacts"] = impacts(h, names)
