@@ -145,9 +145,9 @@ def _add_study_parser(sub) -> argparse.ArgumentParser:
                             "timings include each process's imports and the runs share the cores)")
         p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
                        help="override a case-file key for every level (repeatable)")
-        if failures:
-            p.add_argument("--allow-failure", action="store_true",
-                           help="record a level that blows up as failed and go on (default: stop, status 3)")
+        p.add_argument("--allow-failure", action="store_true",
+                       help="record a level that blows up as failed and go on (default: stop, status 3)"
+                       if failures else "(always on here: the stability study records failures)")
         p.add_argument("-q", "--quiet", action="store_true", help="no progress lines and no table")
 
     conv = kinds.add_parser(
