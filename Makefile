@@ -12,7 +12,7 @@ APT_PACKAGES := python3-dolfinx-real python3-petsc4py-real python3-slepc4py-real
                 libopenblas0-pthread \
                 paraview xvfb xauth libegl1 libgl1-mesa-dri
 
-.PHONY: setup system-packages run test test-all benchmark docs clean
+.PHONY: setup system-packages run test test-all benchmark docs study-charts clean
 
 setup: system-packages $(VENV)/.installed
 
@@ -60,3 +60,11 @@ docs: setup
 	    --set solver.t_end=6.4e-4 --set output.every=5
 	$(VENV)/bin/fem-impact animate results/vibrodrive-launch --time 5.51e-4 --scale 300 --size 1024x576 \
 	    -o docs/vibrodrive.png
+
+# The speed-accuracy charts and stability maps of B2a and the free vibroconverter, redrawn into
+# docs/ by the study commands (about 5 minutes on 2 cores; completed levels are reused).
+STUDY_CASES := impacting_bar vibroconverter_free
+study-charts: setup
+	for c in $(STUDY_CASES); do for s in pareto stability; do \
+	  $(VENV)/bin/fem-impact study $$s cases/$$c.yaml -o results/$$c-$$s -q && \
+	  cp results/$$c-$$s/$$s.png docs/$$c-$$s.png || exit 1; done; done

@@ -155,6 +155,7 @@ class Case:
     parameters: dict[str, float] = field(default_factory=dict)
     lines: dict[tuple, int] = field(default_factory=dict)
     overrides: dict[tuple, str] = field(default_factory=dict)
+    reference: str | None = None   # name of a known exact solution (fem_impact.references)
 
     def error(self, key_path, message) -> CaseError:
         """Build a CaseError for `key_path` (e.g. ``("contacts", 0, "nodes")``) with its line."""
@@ -168,7 +169,7 @@ class Case:
         """
         mesh = dataclasses.asdict(self.mesh)
         mesh["file"] = None if self.mesh.file is None else str(self.mesh.file)
-        data = {"name": self.name, "parameters": dict(self.parameters), "mesh": mesh}
+        data = {"name": self.name, "parameters": dict(self.parameters), "reference": self.reference, "mesh": mesh}
         if self.material is not None:
             data["material"] = dataclasses.asdict(self.material)
         else:
@@ -686,6 +687,16 @@ def _parameters(value, path):
     return parameters
 
 
+def _reference(value, path):
+    """The name of a known exact solution; the solutions live in fem_impact.references."""
+    from .references import REFERENCES  # (numpy only; imported here to avoid an import cycle)
+
+    if not isinstance(value, str) or value not in REFERENCES:
+        raise _Invalid(path, f"unknown reference {_show(value)}; known references: "
+                             + ", ".join(f"{name} ({REFERENCES[name].title})" for name in REFERENCES))
+    return value
+
+
 def _case(data, case_path):
     """Validate the whole case mapping (lines and overrides are added by the caller)."""
     # The parameters first: every expression of the other sections may use them.
@@ -699,7 +710,7 @@ def _case(data, case_path):
         "supports": (_list(_support), []),
         "loads": (_list(lambda value, path: _load(value, path, parameters)), []),
         "contacts": (_contacts, []), "solver": (_solver, _REQUIRED), "output": (_output, Output()),
-        "parameters": (lambda value, path: parameters, {})})
+        "parameters": (lambda value, path: parameters, {}), "reference": (_reference, None)})
     if (f["material"] is None) == (f["materials"] is None):
         raise _Invalid(("material",) if "material" in data else (),
                        "give either 'material' (for every body) or 'materials' (per body), not both")

@@ -122,11 +122,104 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
                        help="override a case-file key for every run (repeatable)")
     sweep.add_argument("-q", "--quiet", action="store_true", help="no progress and no table")
+    parser.study_parser = _add_study_parser(sub)
 
     from .animate import add_parser as add_animate_parser
 
     add_animate_parser(sub)
     return parser
+
+
+STUDY_DESCRIPTION = """\
+Run a case many times and compare. Each study writes into OUTDIR (default
+results/<case name>-<study>/): levels/ (one run per level, kept: a rerun resumes and skips the
+finished ones), a CSV, a PNG and study.json. Errors are measured against the case's exact
+solution when it declares one (`reference: b1 | b2 | bar_mode`), else against the finest level
+(convergence) or a finer reference run (pareto, stability). A level that blows up
+(SimulationError) stops the study with status 3, or is recorded as failed with its message
+(--allow-failure; the stability study always records them).
+
+methods (--method, --methods):
+"""
+
+STUDY_EXAMPLES = """\
+examples:
+  fem-impact study convergence cases/impacting_bar.yaml --vary mesh.cells=50,100,200,400
+  fem-impact study convergence cases/signorini_bar.yaml --vary mesh.cells=20,40,80,160 --courant 0.5
+  fem-impact study convergence cases/impacting_bar.yaml --vary solver.dt=0.004,0.002,0.001 --against finest
+  fem-impact study pareto cases/impacting_bar.yaml
+  fem-impact study pareto cases/vibroconverter_free.yaml --methods trapezoidal,modal-static
+  fem-impact study stability cases/signorini_bar.yaml -j 2
+"""
+
+
+def _add_study_parser(sub) -> argparse.ArgumentParser:
+    from .studies.methods import describe_methods
+
+    study = sub.add_parser(
+        "study", help="convergence orders, the speed-accuracy chart, the stability map",
+        description=STUDY_DESCRIPTION + describe_methods(), epilog=STUDY_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    kinds = study.add_subparsers(dest="study", metavar="STUDY")
+
+    def common(p, jobs_default: str, failures: bool = True):
+        p.add_argument("case", metavar="CASE.yaml", help="the case file")
+        p.add_argument("-o", "--output", metavar="OUTDIR", help="default: results/<case name>-<study>/")
+        p.add_argument("-j", "--jobs", default=jobs_default, metavar="N",
+                       help=f"levels run at once, in separate processes (default {jobs_default}; with N > 1 the "
+                            "timings include each process's imports and the runs share the cores)")
+        p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
+                       help="override a case-file key for every level (repeatable)")
+        p.add_argument("--allow-failure", action="store_true",
+                       help="record a level that blows up as failed and go on (default: stop, status 3)"
+                       if failures else "(always on here: the stability study records failures)")
+        p.add_argument("-q", "--quiet", action="store_true", help="no progress lines and no table")
+
+    conv = kinds.add_parser(
+        "convergence", help="errors and fitted orders under refinement (convergence.csv, convergence.png)",
+        description="Run the case at the levels of --vary, measure the errors against the case's exact solution "
+                    "(reference:) or the finest level, fit the orders (log-log slopes). When the mesh varies the "
+                    "time step follows it at a fixed Courant number c dt / h: the case's own, or --courant.",
+        epilog=STUDY_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    common(conv, "1")
+    conv.add_argument("--vary", action="append", default=[], metavar="KEY=V1,V2,...",
+                      help="the levels, e.g. mesh.cells=50,100,200,400 or solver.dt=0.004,0.002,0.001; two --vary "
+                           "options are taken level by level together")
+    conv.add_argument("--courant", metavar="C", help="Courant number c dt / h of every level (dt follows h)")
+    conv.add_argument("--dt", metavar="DT", help="the same time step for every level")
+    conv.add_argument("--method", metavar="NAME", help="the method (default trapezoidal; see fem-impact study -h)")
+    conv.add_argument("--against", choices=("exact", "finest"),
+                      help="the reference: the case's exact solution (default when it declares one) or the finest "
+                           "level")
+
+    pareto = kinds.add_parser(
+        "pareto", help="error against wall time for every method (pareto.csv, pareto.png)",
+        description="For every method a ladder of resolutions (mesh cells at a fixed Courant number on the "
+                    "built-in bar, the time step on a mesh file, kept modes for the modal methods); errors against "
+                    "the exact solution or a finer trapezoidal run; times measured in this run, on this machine.",
+        epilog=STUDY_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    common(pareto, "1")
+    pareto.add_argument("--methods", metavar="A,B,...", help="methods to compare (default: all available)")
+    pareto.add_argument("--courant", metavar="C", help="Courant number of the full-model ladders (default: the "
+                                                       "case's)")
+    pareto.add_argument("--levels", metavar="N", help="rungs per ladder (default 5)")
+    pareto.add_argument("--time", choices=("wall", "loop"), default="wall",
+                        help="x axis: the whole run (setup + loop, default) or the time loop alone")
+
+    stab = kinds.add_parser(
+        "stability", help="outcome map over time step, restitution and run length (stability.csv, stability.png)",
+        description="For every method sweep the Courant number (at the case's restitution and length), the "
+                    "restitution (at the case's Courant number) and the run length (multiples of t_end); classify "
+                    "each run: accurate, inaccurate (an error above --tolerance, an oscillating contact force) or "
+                    "failed (blow-up or NaN, energy growth, penetration, chattering to the end), with the reason.",
+        epilog=STUDY_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    common(stab, "1", failures=False)
+    stab.add_argument("--methods", metavar="A,B,...", help="methods to sweep (default: all available)")
+    stab.add_argument("--courant", metavar="C1,C2,...", help="Courant numbers (default 0.1,0.25,0.5,1,2,4)")
+    stab.add_argument("--restitution", metavar="E1,E2,...", help="restitution coefficients (default 0,0.5,1)")
+    stab.add_argument("--length", metavar="K1,K2,...", help="run lengths in multiples of t_end (default 1,4)")
+    stab.add_argument("--tolerance", metavar="TOL", help="largest relative error of an accurate run (default 0.05)")
+    return study
 
 
 def main(argv=None) -> int:
@@ -140,6 +233,8 @@ def main(argv=None) -> int:
         return _plot(args.outdir, args.output)
     if args.command == "reduction":
         return _reduction(args)
+    if args.command == "study":
+        return _study(args, parser)
     if args.command == "modes":
         return _modes(args)
     if args.command == "sweep":
@@ -239,6 +334,83 @@ def _sweep(args) -> int:
             print(f"Results in {outdir} (sweep.csv, sweep.png, one folder per run).")
 
     return _guarded(sweep, "the sweep failed")
+
+
+def _study(args, parser) -> int:
+    if args.study is None:
+        parser.study_parser.print_help()
+        return 2
+    from .studies import common
+    from .studies.levels import StudyStopped
+    from .studies.methods import UnknownMethod
+
+    def study():
+        try:
+            _run_study(args)
+        except (common.StudyInputError, UnknownMethod) as err:
+            raise _UsageError(str(err)) from None
+
+    try:
+        return _guarded(study, "the study failed")
+    except StudyStopped as err:
+        outdir = err.outcome.folder.parent.parent
+        return _fail(_comm(), f"the study stopped: {err} (completed levels are kept in {outdir / 'levels'}: a rerun "
+                              "resumes; --allow-failure records failed levels and goes on)", 3)
+
+
+def _numbers(option: str, text, kind=float, single=False):
+    """A number or a comma-separated list from an option (None when not given); bad text -> usage error."""
+    from .studies.common import StudyInputError
+
+    if text is None:
+        return None
+    try:
+        values = [kind(v) for v in str(text).split(",")]
+    except ValueError:
+        what = "a whole number" if kind is int else "a number"
+        raise StudyInputError(f"{option} {text}: expected {what}{'' if single else ' or a comma-separated list'}") \
+            from None
+    if single and len(values) != 1:
+        raise StudyInputError(f"{option} {text}: expected one value")
+    return values[0] if single else values
+
+
+def _run_study(args) -> None:
+    from .studies.common import StudyInputError
+
+    jobs = _numbers("-j", args.jobs, int, single=True)
+    if jobs < 1:
+        raise StudyInputError(f"-j {jobs}: give at least 1")
+    quiet = args.quiet
+    if args.study == "convergence":
+        from .studies.convergence import convergence_study, format_convergence
+
+        result = convergence_study(
+            args.case, args.vary, courant=_numbers("--courant", args.courant, single=True),
+            dt=_numbers("--dt", args.dt, single=True), method=args.method, overrides=args.overrides,
+            against=args.against, outdir=args.output, jobs=jobs, allow_failure=args.allow_failure, quiet=quiet)
+        if not quiet:
+            print(format_convergence(result))
+    elif args.study == "pareto":
+        from .studies.pareto import format_pareto, pareto_study
+
+        levels = _numbers("--levels", args.levels, int, single=True)
+        result = pareto_study(
+            args.case, methods=args.methods, courant=_numbers("--courant", args.courant, single=True),
+            rungs=levels, time_axis=args.time, overrides=args.overrides, outdir=args.output, jobs=jobs,
+            allow_failure=args.allow_failure, quiet=quiet)
+        if not quiet:
+            print(format_pareto(result))
+    else:
+        from .studies.stability import format_stability, stability_study
+
+        result = stability_study(
+            args.case, methods=args.methods, courants=_numbers("--courant", args.courant),
+            restitutions=_numbers("--restitution", args.restitution), lengths=_numbers("--length", args.length),
+            tolerance=_numbers("--tolerance", args.tolerance, single=True), overrides=args.overrides,
+            outdir=args.output, jobs=jobs, quiet=quiet)
+        if not quiet:
+            print(format_stability(result))
 
 
 def _plot(outdir: str, png) -> int:

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from .plots import read_history
-from .run import run_case, staged_directory
+from ..plots import read_history
+from ..run import run_case, staged_directory
 
 log = logging.getLogger(__name__)
 

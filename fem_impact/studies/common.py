@@ -1,0 +1,139 @@
+"""What the three studies share: input errors, the output folder, atomic CSV/JSON/PNG writing,
+the per-level figures (resolution, times, errors) and the log-log fit of an order."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..case import load_case
+from ..references import ERROR_MEASURES, RunReference, energy_growth, errors, from_case
+from . import resolution
+from .levels import Outcome
+
+MEASURE_LABELS = {
+    "err_displacement": "displacement (RMS in time)",
+    "err_impulse": "contact impulse (total)",
+    "err_force": "contact force (mean over the contact phases)",
+    "force_oscillation": "contact-force oscillation (RMS over the contact phases)",
+    "err_energy": "energy (max deviation)",
+}
+
+
+class StudyInputError(ValueError):
+    """Bad study options (reported like bad input: one line, status 2, nothing written)."""
+
+
+def default_outdir(case_path, study: str) -> Path:
+    name = load_case(case_path).name
+    return Path.cwd() / "results" / f"{name}-{study}"
+
+
+def check_outdir(outdir: Path) -> None:
+    if outdir.exists() and not outdir.is_dir():
+        raise StudyInputError(f"{outdir}: the output path exists and is not a folder")
+
+
+def write_csv(path: Path, columns, rows) -> Path:
+    """Write rows (dicts) atomically; floats with 6 significant digits, None and NaN as empty."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(columns), extrasaction="ignore")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: _cell(v) for k, v in row.items()})
+    os.replace(tmp, path)
+    return path
+
+
+def _cell(value):
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return ""
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return value
+
+
+def write_json(path: Path, data) -> Path:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    return str(value)
+
+
+def save_figure(fig, path: Path) -> Path:
+    tmp = path.with_name(f".{path.stem}.tmp.png")
+    with warnings.catch_warnings():   # (a blown-up level's huge error overflows the log axis)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        fig.savefig(tmp, dpi=110)
+    os.replace(tmp, path)
+    return path
+
+
+def pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def fit_order(x, err) -> float:
+    """Least-squares slope of log(err) against log(x) over the finite positive errors (NaN if < 2)."""
+    x, err = np.asarray(x, dtype=float), np.asarray(err, dtype=float)
+    keep = np.isfinite(err) & (err > 0) & np.isfinite(x) & (x > 0)
+    if keep.sum() < 2 or np.ptp(np.log(x[keep])) == 0:
+        return math.nan
+    return float(np.polyfit(np.log(x[keep]), np.log(err[keep]), 1)[0])
+
+
+def level_row(outcome: Outcome, case_path, jobs: int) -> dict:
+    """The figures every study tabulates for a level: resolution, work and times."""
+    case = load_case(case_path, outcome.level.overrides)
+    h, c = resolution.mesh_size(case), resolution.wave_speed(case)
+    s = outcome.summary or {}
+    return {
+        "status": outcome.status, "reason": outcome.reason,
+        "h": h, "dt": case.solver.dt, "courant": c * case.solver.dt / h,
+        "unknowns": s.get("dofs"), "steps": s.get("steps"), "modes": s.get("modes"),
+        "setup_time_s": s.get("setup_time_s"), "loop_time_s": s.get("loop_time_s"),
+        "wall_time_s": s.get("wall_time_s"), "max_penetration": s.get("max_penetration"),
+        "jobs": jobs,
+    }
+
+
+def exact_reference(case_path, overrides):
+    """The case's declared reference for a level's case (None without one); CaseError if it does not fit."""
+    return from_case(load_case(case_path, overrides))
+
+
+def run_reference(outcome: Outcome, case_path, label: str) -> RunReference:
+    case = load_case(case_path, outcome.level.overrides)
+    return RunReference(outcome.history(), case.output.probes, [c.name for c in case.contacts], label)
+
+
+def measure(outcome: Outcome, reference, history=None) -> dict:
+    """Error measures of a finished level against ``reference`` (NaN for a level that did not finish)."""
+    if not outcome.ok:
+        return {**dict.fromkeys(ERROR_MEASURES, math.nan), "energy_growth": math.nan}
+    h = outcome.history() if history is None else history
+    return {**errors(h, reference), "energy_growth": energy_growth(h)}
+
+
+def fmt(value, spec=".3g") -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return format(value, spec)

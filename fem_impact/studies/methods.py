@@ -1,0 +1,119 @@
+"""The integration methods the studies compare, by name: the case-file overrides that select each,
+what it is, its stability limit and the resolution knob its Pareto ladder turns.
+
+A method is *available* when the case loads with its overrides: a key or value this version does
+not know (a CaseError) means the method has not landed yet, and studies skip it with a note. (A
+run that still refuses it when it starts, e.g. a method name the case accepts but no model runs
+yet, is recorded as a skipped level with the run's message.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..case import CaseError, load_case
+
+
+@dataclass(frozen=True)
+class Method:
+    """One integration method of a study.
+
+    Attributes
+    ----------
+    name : str
+        The name used on the command line (``--methods``) and in the CSV files.
+    overrides : tuple of str
+        ``--set`` options selecting it (on top of the case as written).
+    description : str
+        One line: what it is.
+    stability : str
+        Its stability limit, in words.
+    knob : str
+        What its Pareto ladder refines: ``"mesh"`` (mesh cells at a fixed Courant number on the
+        built-in bar, the time step on a mesh file) or ``"modes"`` (kept modes n1).
+    max_courant : float or None
+        Courant number ``c dt / h`` above which it is known to be unstable (None: no limit);
+        the Pareto ladder keeps below it, the stability sweep does not.
+    """
+
+    name: str
+    overrides: tuple[str, ...]
+    description: str
+    stability: str
+    knob: str = "mesh"
+    max_courant: float | None = None
+
+
+# Newmark with gamma = 0.6 and the beta of the widest stability, (gamma + 1/2)^2 / 4 = 0.3025.
+_DAMPED = ("solver.gamma=0.6", "solver.beta=0.3025")
+# The modal methods keep 20 modes unless a ladder sets solver.modes (`modes: auto` would follow the
+# time step through the output rate, which the stability sweep varies).
+_MODAL = ("solver.method=modal", "solver.modes=20")
+
+METHODS: dict[str, Method] = {m.name: m for m in (
+    Method("trapezoidal", (),
+           "Newmark trapezoidal (beta 1/4, gamma 1/2), position-level multipliers and Carnot's velocity "
+           "correction (the paper's method, the default)",
+           "unconditionally stable; second order without contact"),
+    Method("position-only", ("solver.impact_correction=false",),
+           "Newmark trapezoidal with position-level multipliers only (no velocity correction)",
+           "unconditionally stable without contact; the contact force oscillates"),
+    Method("damped-newmark", _DAMPED,
+           "Newmark with numerical damping: gamma 0.6, beta 0.3025, Carnot correction",
+           "unconditionally stable (2 beta >= gamma >= 1/2); first order"),
+    Method("central-difference", ("solver.method=central_difference", "solver.mass=lumped"),
+           "explicit central difference, lumped mass, forward-increment Lagrange multipliers",
+           "conditionally stable: c dt / h <= 1 (1D, lumped mass)", max_courant=1.0),
+    Method("mass-redistribution", ("solver.mass=redistributed",),
+           "Newmark trapezoidal with no mass on the contact nodes (Khenous, Laborde & Renard 2008)",
+           "unconditionally stable; no contact-force oscillation"),
+    Method("modal-static", (*_MODAL, "solver.static_correction=true"),
+           "reduced model: n1 modes plus the static correction of the truncated ones (trapezoidal rule)",
+           "unconditionally stable; converges to the full model as n1 grows", knob="modes"),
+    Method("modal-truncated", (*_MODAL, "solver.static_correction=false"),
+           "reduced model: n1 modes, plain truncation (trapezoidal rule)",
+           "unconditionally stable; the contact compliance is wrong whatever dt", knob="modes"),
+)}
+
+DEFAULT_METHOD = "trapezoidal"
+
+
+class UnknownMethod(ValueError):
+    """A method name that is not in the registry."""
+
+
+def get(name: str) -> Method:
+    try:
+        return METHODS[name]
+    except KeyError:
+        raise UnknownMethod(f"unknown method '{name}' (known: {', '.join(METHODS)})") from None
+
+
+def parse_methods(text: str | None) -> list[Method]:
+    """``"a,b"`` -> the methods, in registry order when None (all of them)."""
+    if text is None:
+        return list(METHODS.values())
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise UnknownMethod(f"no method named in {text!r} (known: {', '.join(METHODS)})")
+    return [get(n) for n in dict.fromkeys(names)]
+
+
+def availability(method: Method | str, case_path, overrides=()) -> str | None:
+    """None when ``method`` runs on the case in this version, else why not (one line)."""
+    method = get(method) if isinstance(method, str) else method
+    try:
+        load_case(case_path, [*overrides, *method.overrides])
+    except CaseError as err:
+        return f"not available in this version ({err.key}: {err.message})" if err.key else str(err)
+    return None
+
+
+def available(name: str, case_path) -> bool:
+    """Whether the method ``name`` runs on the case (for tests: skip until a method lands)."""
+    return availability(name, case_path) is None
+
+
+def describe_methods() -> str:
+    """The registry as text, for --help."""
+    return "\n".join(f"  {m.name:<20} {m.description}; {m.stability}" for m in METHODS.values())
