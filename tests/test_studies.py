@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -399,12 +400,12 @@ def test_chattering_and_classification():
 
 
 def test_reduction_command_still_works(tmp_path):
-    """`fem-impact reduction` moved into fem_impact/studies/reduction.py unchanged."""
+    """`fem-impact reduction` lives in fem_impact/studies/reduction.py, importable as before."""
     from fem_impact.studies import format_reduction, reduction_table  # noqa: F401  (still importable)
 
     proc = run_cli("reduction", str(BAR), "--modes", "5", "-o", str(tmp_path / "red"),
                    *sets("mesh.cells=50", "solver.dt=0.01", "solver.t_end=2.5"))
     assert proc.returncode == 0, proc.stderr
-    assert "modal        5     yes" in proc.stdout
+    assert re.search(r"modal\s+5\s+yes", proc.stdout)
     rows = read_csv(tmp_path / "red" / "reduction.csv")
     assert [r["model"] for r in rows] == ["full", "modal", "modal"]
