@@ -146,32 +146,50 @@ class StaticCorrection:
 
 
 class ReducedFields:
-    """Physical fields from the modal state: ``u = Y1 Z + X_R c(t) - X_P F`` (+ velocities)."""
+    """Physical fields from the modal state: ``u = Y1 Z + X_R c(t) - X_P F`` (+ velocities).
+
+    The static part is massless: its velocity is its change over the last step divided by dt.
+    Probes read the same few rows every step, so their rows of Y1, X_R and X_P are cut out once
+    and the static part of the previous step is kept, not recomputed.
+    """
 
     def __init__(self, Y1: np.ndarray, XR: np.ndarray | None, XP: np.ndarray | None, static, cons: Constraints, dt):
         self.Y1, self.XR, self.XP, self.static, self.cons, self.dt = Y1, XR, XP, static, cons, dt
         self._previous = None   # (t, force) of the previous step, for the static part's velocity
+        self._blocks: dict[bytes, tuple] = {}     # rows -> (Y1, X_R, X_P rows, [step, t, static part])
 
-    def _static(self, rows, t: float, force: np.ndarray) -> np.ndarray:
-        if self.static is None:
-            return 0.0
-        return self.XR[rows] @ self.static.coefficients(t) - self.XP[rows] @ force
+    def _block(self, rows):
+        if isinstance(rows, slice):
+            return self.Y1, self.XR, self.XP, None
+        key = rows.tobytes()
+        if key not in self._blocks:
+            static = self.static is not None
+            self._blocks[key] = (self.Y1[rows], self.XR[rows] if static else None, self.XP[rows] if static else None,
+                                 [None, None, None])
+        return self._blocks[key]
 
     def _parts(self, state: StepState, rows):
-        u = self.Y1[rows] @ state.U + self._static(rows, state.t, state.force)
-        v = self.Y1[rows] @ state.V
-        if self.static is not None and self._previous is not None and self._previous[0] < state.t:
-            t0, f0 = self._previous
-            v = v + (self._static(rows, state.t, state.force) - self._static(rows, t0, f0)) / (state.t - t0)
+        Y, XR, XP, last = self._block(rows)
+        u = Y @ state.U
+        v = Y @ state.V
+        if self.static is None:
+            return u, v
+        now = XR @ self.static.coefficients(state.t) - XP @ state.force
+        u = u + now
+        previous = self._previous
+        if previous is not None and previous[0] < state.t:
+            t0, f0 = previous
+            before = last[2] if last is not None and last[1] == t0 else XR @ self.static.coefficients(t0) - XP @ f0
+            v = v + (now - before) / (state.t - t0)
+        if last is not None:
+            last[:] = [state.step, state.t, now]
         return u, v
 
     def at(self, state: StepState, dofs: np.ndarray):
-        u, v = self._parts(state, dofs)
-        return u, v
+        return self._parts(state, dofs)
 
     def frame(self, state: StepState) -> dict[str, np.ndarray]:
-        rows = slice(None)
-        u, v = self._parts(state, rows)
+        u, v = self._parts(state, slice(None))
         return {"u": u, "v": v, "a": self.Y1 @ state.A, "contact_force": -(self.cons.P_local @ state.force)}
 
     def velocity_functionals(self, rows: np.ndarray, comm: MPI.Comm):
