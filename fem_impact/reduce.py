@@ -156,7 +156,7 @@ class ReducedFields:
     def __init__(self, Y1: np.ndarray, XR: np.ndarray | None, XP: np.ndarray | None, static, cons: Constraints, dt):
         self.Y1, self.XR, self.XP, self.static, self.cons, self.dt = Y1, XR, XP, static, cons, dt
         self._previous = None   # (t, force) of the previous step, for the static part's velocity
-        self._blocks: dict[bytes, tuple] = {}     # rows -> (Y1, X_R, X_P rows, [step, t, static part])
+        self._blocks: dict[bytes, tuple] = {}     # rows -> (Y1, X_R, X_P rows, [t, static part])
 
     def _block(self, rows):
         if isinstance(rows, slice):
@@ -165,8 +165,21 @@ class ReducedFields:
         if key not in self._blocks:
             static = self.static is not None
             self._blocks[key] = (self.Y1[rows], self.XR[rows] if static else None, self.XP[rows] if static else None,
-                                 [None, None, None])
+                                 [None, None])
         return self._blocks[key]
+
+    def _static_and_rate(self, XR, XP, state: StepState, last: list | None = None):
+        """The static part ``X_R c(t) - X_P F`` seen through (XR, XP), and its change over the last
+        step divided by dt (0 on the first). ``last``: [t, value] of the previous call, reused."""
+        now = XR @ self.static.coefficients(state.t) - XP @ state.force
+        rate = 0.0
+        if self._previous is not None and self._previous[0] < state.t:
+            t0, f0 = self._previous
+            before = last[1] if last is not None and last[0] == t0 else XR @ self.static.coefficients(t0) - XP @ f0
+            rate = (now - before) / (state.t - t0)
+        if last is not None:
+            last[:] = [state.t, now]
+        return now, rate
 
     def _parts(self, state: StepState, rows):
         Y, XR, XP, last = self._block(rows)
@@ -174,16 +187,8 @@ class ReducedFields:
         v = Y @ state.V
         if self.static is None:
             return u, v
-        now = XR @ self.static.coefficients(state.t) - XP @ state.force
-        u = u + now
-        previous = self._previous
-        if previous is not None and previous[0] < state.t:
-            t0, f0 = previous
-            before = last[2] if last is not None and last[1] == t0 else XR @ self.static.coefficients(t0) - XP @ f0
-            v = v + (now - before) / (state.t - t0)
-        if last is not None:
-            last[:] = [state.step, state.t, now]
-        return u, v
+        now, rate = self._static_and_rate(XR, XP, state, last)
+        return u + now, v + rate
 
     def at(self, state: StepState, dofs: np.ndarray):
         return self._parts(state, dofs)
@@ -199,15 +204,12 @@ class ReducedFields:
         rows_Y = _allsum(comm, rows.T @ self.Y1)
         rows_R = _allsum(comm, rows.T @ self.XR) if self.static is not None else None
         rows_P = _allsum(comm, rows.T @ self.XP) if self.static is not None else None
-
-        def static(t: float, force: np.ndarray) -> np.ndarray:
-            return rows_R @ self.static.coefficients(t) - rows_P @ force
+        last = [None, None]
 
         def read(state: StepState) -> np.ndarray:
             values = rows_Y @ state.V
-            if self.static is not None and self._previous is not None and self._previous[0] < state.t:
-                t0, f0 = self._previous
-                values = values + (static(state.t, state.force) - static(t0, f0)) / (state.t - t0)
+            if self.static is not None:
+                values = values + self._static_and_rate(rows_R, rows_P, state, last)[1]
             return values
         return read
 

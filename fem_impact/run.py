@@ -52,14 +52,10 @@ MODELS = {"newmark": full_model, "central_difference": full_model, "modal": redu
 
 
 def make_integrator(case: Case, operators):
-    """The time integrator of ``solver.method`` (the modal model is integrated with Newmark)."""
-    from .integrators import CentralDifference, Newmark
+    """The time integrator of ``solver.method``, from the integrators' registry."""
+    from .integrators import METHODS
 
-    solver = case.solver
-    if solver.method == "central_difference":
-        return CentralDifference(operators, solver.dt)
-    return Newmark(operators, solver.dt, beta=solver.beta, gamma=solver.gamma,
-                   impact_correction=solver.impact_correction)
+    return METHODS[case.solver.method].from_solver(operators, case.solver)
 
 
 def default_outdir(case: Case) -> Path:

@@ -4,7 +4,8 @@ from .base import EnergyBudget, Operators, SimulationError, StepState, integrate
 from .central_difference import CentralDifference
 from .newmark import Newmark
 
-METHODS = {Newmark.name: Newmark, CentralDifference.name: CentralDifference}
+# solver.method -> integrator (the modal model is integrated with Newmark).
+METHODS = {Newmark.name: Newmark, CentralDifference.name: CentralDifference, "modal": Newmark}
 
 __all__ = ["METHODS", "CentralDifference", "EnergyBudget", "Newmark", "Operators", "SimulationError", "StepState",
            "integrate", "steps_for"]

@@ -221,19 +221,16 @@ class Operators:
         return parts
 
     def mass_for_solves(self):
-        """M, with a unit diagonal on the massless dofs so that it can be factorized."""
-        if not self.massless.size:
+        """M, with a unit diagonal on the massless dofs so that it can be factorized.
+
+        (Only a finite-element model has massless dofs: the case refuses mass redistribution
+        for the reduced model.)
+        """
+        if not self.algebra.distributed or not self.comm.allreduce(self.massless.size, op=MPI.SUM):
             return self.M
-        if isinstance(self.M, PETSc.Mat):
-            M = self.M.copy()
-            first = self.M.getOwnershipRange()[0]
-            M.zeroRowsColumns((self.massless + first).astype(np.int32), diag=1.0)
-            return M
         M = self.M.copy()
-        if M.ndim == 1:
-            M[self.massless] = 1.0
-        else:
-            M[self.massless, self.massless] = 1.0
+        first = self.M.getOwnershipRange()[0]
+        M.zeroRowsColumns((self.massless + first).astype(np.int32), diag=1.0)
         return M
 
     def equilibrate_massless(self, U: np.ndarray, R: np.ndarray) -> float:

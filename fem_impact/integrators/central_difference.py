@@ -55,6 +55,11 @@ class CentralDifference(ContactScheme):
             log.info("central difference: dt = %.4g, stable limit 2/omega_max = %.4g (ratio %.3g)",
                      dt, self.critical_dt, dt / self.critical_dt)
 
+    @classmethod
+    def from_solver(cls, ops: Operators, solver) -> CentralDifference:
+        """From the case file's ``solver`` section (only ``dt`` matters)."""
+        return cls(ops, solver.dt)
+
     def start(self, U0, V0, t0: float = 0.0) -> StepState:
         """Free initial acceleration, then the force that keeps the gaps at t0 + dt non-negative."""
         ops, dt = self.ops, self.dt
@@ -84,7 +89,7 @@ class CentralDifference(ContactScheme):
         np.multiply(A, 0.5 * dt, out=Vp)
         Vp += V
         self._evaluate_load(t1)
-        self._free_acceleration(t1, U, Vp, self.solve_S, A)
+        self._free_acceleration(U, Vp, self.solve_S, A)
 
         p = ops.p
         force = np.zeros(p)

@@ -43,6 +43,11 @@ class Newmark(ContactScheme):
         static = ops.static
         self.lcp_matrix = regularized(beta * dt * dt * self.W + (static.compliance if static else 0.0))
 
+    @classmethod
+    def from_solver(cls, ops: Operators, solver) -> Newmark:
+        """From the case file's ``solver`` section."""
+        return cls(ops, solver.dt, beta=solver.beta, gamma=solver.gamma, impact_correction=solver.impact_correction)
+
     def step(self) -> StepState:
         ops, st, dt, beta, gamma = self.ops, self.state, self.dt, self.beta, self.gamma
         t1 = self.t0 + (st.step + 1) * dt   # not accumulated, so no drift over long runs
@@ -57,7 +62,7 @@ class Newmark(ContactScheme):
         np.multiply(A, dt * (1.0 - gamma), out=Vp)
         Vp += V
         self._evaluate_load(t1)
-        self._free_acceleration(t1, Up, Vp, self.solve_S, A)
+        self._free_acceleration(Up, Vp, self.solve_S, A)
 
         # Position-level multipliers: g = d0 - P U_free + beta dt^2 W lam0 >= 0, lam0 >= 0.
         p = ops.p

@@ -47,9 +47,9 @@ class ContactScheme:
         self.state: StepState | None = None
 
     # -- pieces of a step ----------------------------------------------------------------
-    def _free_acceleration(self, t: float, U: np.ndarray, V: np.ndarray, solve, out: np.ndarray,
+    def _free_acceleration(self, U: np.ndarray, V: np.ndarray, solve, out: np.ndarray,
                            massless_at_rest: bool = False) -> None:
-        """``out = solve(R(t) - K U - C V)``; C V is kept in ``self.CV``.
+        """``out = solve(R - K U - C V)`` with the load in ``self.R``; C V is kept in ``self.CV``.
 
         ``massless_at_rest``: a zero right-hand side on the massless dofs (for the solve with M,
         whose unit diagonal there is a placeholder; a step matrix S holds their equation).
@@ -90,14 +90,18 @@ class ContactScheme:
         """Kinetic energy removed by dV = -H lam1: 1/2 V-MV- - 1/2 V+MV+, exactly, in p x p terms."""
         return float(lam1 @ (pv_after + 0.5 * self.D @ lam1))
 
-    def _quadratic_energies(self) -> tuple[float, float]:
+    def _quadratic_sums(self, sums: np.ndarray) -> None:
+        """``V^T M V`` and ``U^T K U`` of the owned entries into ``sums[0:2]`` (not yet summed over ranks)."""
         ops, alg, work = self.ops, self.alg, self.work
-        sums = np.empty(2)
         alg.mult(ops.M, self.V, work)
         sums[0] = work @ self.V
         alg.mult(ops.K, self.U, work)
         sums[1] = work @ self.U
-        alg.allsum(sums)
+
+    def _quadratic_energies(self) -> tuple[float, float]:
+        sums = np.empty(2)
+        self._quadratic_sums(sums)
+        self.alg.allsum(sums)
         return 0.5 * sums[0], 0.5 * sums[1]
 
     def _step_energies(self, energy: EnergyBudget, w_prev: float, w_new: float) -> None:
@@ -107,16 +111,13 @@ class ContactScheme:
         step (the trapezoidal rule: 1/2, 1/2), with ``Delta U``: for the Newmark family the
         balance then closes to round-off.
         """
-        ops, alg, work = self.ops, self.alg, self.work
+        ops = self.ops
         du = np.subtract(self.U, self.U_prev, out=self.Up)   # the predictor is no longer needed
         sums = np.empty(4)
-        alg.mult(ops.M, self.V, work)
-        sums[0] = work @ self.V
-        alg.mult(ops.K, self.U, work)
-        sums[1] = work @ self.U
+        self._quadratic_sums(sums)
         sums[2] = w_prev * (du @ self.R_prev) + w_new * (du @ self.R)
         sums[3] = (w_prev * (du @ self.CV_prev) + w_new * (du @ self.CV)) if ops.C is not None else 0.0
-        alg.allsum(sums)
+        self.alg.allsum(sums)
         energy.kinetic, energy.strain = 0.5 * sums[0], 0.5 * sums[1]
         energy.external_work += sums[2]
         energy.damping_loss += sums[3]
@@ -128,12 +129,11 @@ class ContactScheme:
         self.U[:] = owned_values(U0)
         self.V[:] = owned_values(V0)
         ops.load.evaluate(t0, self.R)
-        if ops.massless.size or ops.algebra.distributed:
-            move = ops.equilibrate_massless(self.U, self.R)
-            if move:
-                log.info("mass redistribution: the massless contact nodes start in static equilibrium "
-                         "(moved by up to %.3g)", move)
-        self._free_acceleration(t0, self.U, self.V, self.solve_M, self.A, massless_at_rest=True)
+        move = ops.equilibrate_massless(self.U, self.R)   # (collective: every rank calls it)
+        if move:
+            log.info("mass redistribution: the massless contact nodes start in static equilibrium "
+                     "(moved by up to %.3g)", move)
+        self._free_acceleration(self.U, self.V, self.solve_M, self.A, massless_at_rest=True)
         if ops.p:
             return tuple(ops.project_many(self.U, self.V, self.A))
         return (np.zeros(0),) * 3
