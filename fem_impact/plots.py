@@ -20,6 +20,12 @@ def read_history(path: Path) -> tuple[list[str], np.ndarray]:
     return columns, np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
 
 
+def history_columns(outdir: Path) -> dict[str, np.ndarray]:
+    """A run's history.csv as columns by their CSV names."""
+    columns, data = read_history(Path(outdir) / "history.csv")
+    return {name: data[:, i] for i, name in enumerate(columns)}
+
+
 def plot_history(outdir, png=None, units: dict | None = None) -> Path:
     """Two panels: contact force per contact, and the energy budget with its residual."""
     import matplotlib

@@ -34,7 +34,7 @@ import yaml
 from mpi4py import MPI
 
 from .case import CaseError, load_case, yaml_value
-from .plots import read_history
+from .plots import history_columns
 
 log = logging.getLogger(__name__)
 AXES = "xyz"
@@ -97,8 +97,7 @@ def check(case_path, key: str, texts: list[str], overrides, target: Target | Non
 
 def measure(outdir: Path, target: Target) -> dict:
     """Mean velocity over the second half, final displacement, impulses and wall time of one run."""
-    columns, data = read_history(outdir / "history.csv")
-    col = {name: data[:, i] for i, name in enumerate(columns)}
+    col = history_columns(outdir)
     summary = json.loads((outdir / "summary.json").read_text())
     t = col["t"]
     half = int(np.searchsorted(t, 0.5 * t[-1] * (1 - 1e-12)))

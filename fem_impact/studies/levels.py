@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from ..case import CaseError, load_case
-from ..plots import read_history
+from ..plots import history_columns
 
 log = logging.getLogger(__name__)
 
@@ -83,8 +83,7 @@ class Outcome:
 
     def history(self) -> dict[str, np.ndarray]:
         """history.csv as columns by their CSV names."""
-        columns, data = read_history(self.folder / "history.csv")
-        return {name: data[:, i] for i, name in enumerate(columns)}
+        return history_columns(self.folder)
 
 
 class StudyStopped(Exception):

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from ..plots import read_history
+from ..plots import history_columns
 from ..run import run_case, staged_directory
 
 log = logging.getLogger(__name__)
@@ -41,11 +41,6 @@ def low_pass(signal: np.ndarray, dt: float, cutoff_hz: float) -> np.ndarray:
     return sosfiltfilt(butter(4, cutoff_hz, fs=1.0 / dt, output="sos"), signal)
 
 
-def _history(outdir: Path) -> dict[str, np.ndarray]:
-    columns, data = read_history(outdir / "history.csv")
-    return {name: data[:, i] for i, name in enumerate(columns)}
-
-
 def _probe_component(history: dict, probe: str | None) -> str:
     """The displacement column of the probe that moves most (the first probe by default)."""
     names = [c for c in history if re.fullmatch(r"[^.]+\.u[xyz]", c)]
@@ -72,7 +67,7 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe
     rows = []
     with staged_directory(outdir, comm) as stage:
         full_summary = run_case(case, stage / "full", [*overrides, "output.vtk=false"], comm=comm, progress=False)
-        full = _history(stage / "full")
+        full = history_columns(stage / "full")
         u_col = _probe_component(full, probe)
         v_col = u_col.replace(".u", ".v")
         impulse_cols = [c for c in full if c.endswith(".impulse")]
@@ -85,7 +80,7 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe
                 summary = run_case(case, stage / name, [*overrides, "output.vtk=false", "solver.method=modal",
                                                         f"solver.modes={n1}", f"solver.static_correction={static}"],
                                    comm=comm, progress=False)
-                h = _history(stage / name)
+                h = history_columns(stage / name)
                 cut = summary["cutoff_hz"]
                 errors = {}
                 for what, col in (("displacement", u_col), ("velocity", v_col)):
