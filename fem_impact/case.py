@@ -20,6 +20,7 @@ SHAPES = ("bar",)
 METHODS = ("newmark", "central_difference", "modal")
 MASS_MATRICES = ("consistent", "lumped", "redistributed")
 CONTACT_TYPES = ("obstacle", "pair")
+CONTACT_COUPLINGS = ("each", "mean")
 COMPONENTS = ("x", "y", "z")
 SPACE = ("x", "y", "z")  # variables of initial fields
 TIME = ("t",)  # variables of loads
@@ -109,6 +110,8 @@ class Contact:
     normal: list[float]
     gap: float | None = None
     restitution: float = 0.0
+    coupling: str = "each"      # "each": a row per node (pair); "mean": one row on the group's mean
+    stiffness: float | None = None   # N/m per row: an elastic stop (None: rigid)
 
 
 @dataclass(kw_only=True)  # keyword-only, so the required dt and t_end can follow method
@@ -608,7 +611,8 @@ def _contact(value, path):
     f = _fields(value, path, {
         "name": (_csv_name, _REQUIRED), "type": (_choice(*CONTACT_TYPES), _REQUIRED),
         "nodes": (lambda nodes, _: nodes, _REQUIRED), "normal": (_vector(_number), _REQUIRED),
-        "gap": (_real(), None), "restitution": (_real(ge=0, le=1), 0.0)})
+        "gap": (_real(), None), "restitution": (_real(ge=0, le=1), 0.0),
+        "coupling": (_choice(*CONTACT_COUPLINGS), "each"), "stiffness": (_real(gt=0), None)})
     nodes = [f["nodes"]] if isinstance(f["nodes"], str) else f["nodes"]
     if f["type"] == "obstacle":
         if not (isinstance(nodes, list) and len(nodes) == 1):

@@ -33,6 +33,7 @@ class Constraints:
     d0: np.ndarray
     restitution: np.ndarray
     contacts: list[ContactRows]
+    compliance: np.ndarray      # 1/stiffness of an elastic stop per row (m/N); 0 on rigid rows
 
     @property
     def p(self) -> int:
@@ -49,7 +50,7 @@ class Constraints:
 def build_constraints(case: Case, model: Model) -> Constraints:
     dim, bs = model.meshdata.dim, model.bs
     n_local = model.U0.getLocalSize()
-    columns, gaps, restitution, contacts = [], [], [], []
+    columns, gaps, restitution, compliance, contacts = [], [], [], [], []
     for i, contact in enumerate(case.contacts):
         key = ("contacts", i)
         normal = np.asarray(pad_vector(contact.normal, dim, case, key + ("normal",), "normal"), dtype=float)
@@ -66,19 +67,26 @@ def build_constraints(case: Case, model: Model) -> Constraints:
             col = _rows(n_local, bs, normal, a) - _rows(n_local, bs, normal, b)
             mesh_gap = (b.coords - a.coords)[:, :dim] @ normal
             gap = np.full(len(a), contact.gap) if contact.gap is not None else mesh_gap
+        if contact.coupling == "mean":
+            # One row on the group's mean normal displacement (a distributing coupling): its
+            # force P^T lam is shared equally by the nodes, as a load on a node group is.
+            col = sparse.csr_matrix(col.mean(axis=1))
+            gap = np.array([gap.mean()])
         start = sum(len(g) for g in gaps)
         contacts.append(ContactRows(contact.name, i, slice(start, start + len(gap))))
         columns.append(col)
         gaps.append(gap)
         restitution.append(np.full(len(gap), contact.restitution))
+        compliance.append(np.full(len(gap), 1.0 / contact.stiffness if contact.stiffness else 0.0))
     if not columns:
-        return Constraints(sparse.csr_matrix((n_local, 0)), np.zeros(0), np.zeros(0), [])
+        return Constraints(sparse.csr_matrix((n_local, 0)), np.zeros(0), np.zeros(0), [], np.zeros(0))
     # Supports act first: a held dof cannot move, so it does not enter a constraint.
     free = np.ones(n_local)
     free[model.fixed] = 0.0
     P_local = (sparse.diags(free) @ sparse.hstack(columns)).tocsr()
     P_local.eliminate_zeros()
-    cons = Constraints(P_local, np.concatenate(gaps), np.concatenate(restitution), contacts)
+    cons = Constraints(P_local, np.concatenate(gaps), np.concatenate(restitution), contacts,
+                       np.concatenate(compliance))
     norms = np.sqrt(model.comm.allreduce(np.asarray(P_local.power(2).sum(axis=0)).ravel(), op=MPI.SUM))
     for c in contacts:
         if np.any(norms[c.rows] == 0.0):

@@ -226,7 +226,7 @@ class ReducedModel:
     Zdot0: np.ndarray
     modes: int
     cutoff_hz: float
-    neglected_flexibility: np.ndarray   # per contact row: (P S_k P^T)_jj / (P K^+ P^T)_jj
+    neglected_flexibility: np.ndarray   # per contact row: (P S_k P^T)_jj / ((P K^+ P^T)_jj + c_j)
     flexibility_columns: np.ndarray     # K^+ [P^T, R_c, b_1, ...] (owned rows): reusable
 
 
@@ -277,7 +277,9 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
     flex_full = np.diag(_allsum(comm, P_dense.T @ full[:, : cons.p])) if cons.p else np.zeros(0)
     compliance = _allsum(comm, P_dense.T @ XP)
     compliance = 0.5 * (compliance + compliance.T)
-    neglected = np.divide(np.diag(compliance), flex_full, out=np.zeros(cons.p), where=flex_full > 0)
+    # Against the whole compliance the contact sees: the structure's and an elastic stop's in series.
+    seen = flex_full + cons.compliance
+    neglected = np.divide(np.diag(compliance), seen, out=np.zeros(cons.p), where=seen > 0)
 
     static = None
     if static_correction:
@@ -291,7 +293,8 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
         )
     # The modal equations are diagonal: M = I, K = diag(w1^2), C = diag(alpha + beta w1^2).
     C = (alpha + beta * w2) if (alpha or beta) else None
-    ops = Operators(np.ones(n1), w2.copy(), C, modal_load, Pr.T.copy(), cons.d0, cons.restitution, static=static)
+    ops = Operators(np.ones(n1), w2.copy(), C, modal_load, Pr.T.copy(), cons.d0, cons.restitution, static=static,
+                    stop_compliance=cons.compliance)
     fields = ReducedFields(Y1, XR if static else None, XP if static else None, static, cons, dt)
     cutoff = float(np.sqrt(w2[-1]) / (2 * np.pi))
     log.info("reduced model: %d modes (cut-off %.4g Hz), static correction %s", n1, cutoff, static_correction)
@@ -415,7 +418,7 @@ def scene_frequency(case: Case, model: Model) -> tuple[float, str]:
 def choose_mode_count(modes: Modes, cons: Constraints, columns: np.ndarray, tolerance: float,
                       f_scene: float, scene_why: str = "half the output rate") -> tuple[int | None, str]:
     """The smallest n1 (all rigid modes included) whose neglected flexibility at every contact
-    row, ``(P S_k P^T)_jj / (P K^+ P^T)_jj``, is at most ``tolerance`` and whose cut-off frequency
+    row, ``(P S_k P^T)_jj / ((P K^+ P^T)_jj + c_j)`` (c: an elastic stop's compliance), is at most ``tolerance`` and whose cut-off frequency
     reaches ``f_scene`` (``scene_frequency``: what the output resolves, what the loads drive).
 
     Returns (n1, why) or (None, what falls short with all of ``modes``).
@@ -428,7 +431,8 @@ def choose_mode_count(modes: Modes, cons: Constraints, columns: np.ndarray, tole
         flex = np.diag(_allsum(comm, P.T @ columns[:, : cons.p]))
         PY = _allsum(comm, P.T @ modes.Y_local)
         contribution = np.where(modes.rigid, 0.0, PY**2 / np.where(modes.rigid, 1.0, modes.omega2))
-        neglected = 1.0 - np.cumsum(contribution, axis=1) / np.where(flex > 0, flex, 1.0)[:, None]
+        seen = flex + cons.compliance          # an elastic stop's compliance in series
+        neglected = (flex[:, None] - np.cumsum(contribution, axis=1)) / np.where(seen > 0, seen, 1.0)[:, None]
         worst = neglected.max(axis=0)          # after keeping 1, 2, ... modes
     else:
         worst = np.zeros(modes.n)

@@ -36,7 +36,7 @@ def full_model(case: Case, model, cons) -> System:
     from .output import NodalFields
 
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
-                    massless=model.massless)
+                    massless=model.massless, stop_compliance=cons.compliance)
     return System(ops, NodalFields(cons), model.U0, model.V0, {"modes": None})
 
 

@@ -169,7 +169,9 @@ class Operators:
     numpy arrays (a small replicated system; 1D = diagonal); the algebra follows from their
     type. ``P_local`` holds the owned rows of ``P^T`` (n_local x p, sparse or dense); the
     p-vectors ``d0`` and ``restitution`` are known on every rank. ``massless`` lists the owned
-    dofs without mass (mass redistribution): their rows of M are zero. Nothing here knows
+    dofs without mass (mass redistribution): their rows of M are zero. ``stop_compliance``
+    (p-vector, m/N, or None: all rigid) makes a row an elastic stop: the gap condition becomes
+    ``d0 - P U + c lam >= 0``, a massless spring in series. Nothing here knows
     about meshes, so the integrators run as well on a 1-dof system as on a finite-element model.
     """
 
@@ -182,6 +184,7 @@ class Operators:
     restitution: np.ndarray
     static: StaticPart | None = None
     massless: np.ndarray | None = None
+    stop_compliance: np.ndarray | None = None
 
     def __post_init__(self):
         self.algebra = PETScAlgebra(self.K) if isinstance(self.K, PETSc.Mat) else DenseAlgebra(self.K)
@@ -194,6 +197,8 @@ class Operators:
         self._P_dense = None if self.algebra.distributed else self._P.toarray()
         if self.massless is None:
             self.massless = np.zeros(0, dtype=np.int64)
+        if self.stop_compliance is None:
+            self.stop_compliance = np.zeros(self.p)
         # Rows of P that touch a dof without mass: no velocity jump there, so no Carnot correction.
         touches = np.zeros(self.P_local.shape[0])
         touches[self.massless] = 1.0

@@ -45,8 +45,9 @@ class CentralDifference(ContactScheme):
             raise ValueError("central difference needs mass on every dof (no mass redistribution)")
         S = ops.algebra.combine((1.0, ops.M), (0.5 * dt, ops.C))
         super().__init__(ops, dt, S, impact_correction=False)
-        self.lcp_matrix = regularized(dt * dt * self.W)
-        self.start_matrix = regularized(0.5 * dt * dt * self.D)
+        stops = np.diag(ops.stop_compliance)   # elastic stops: g = d0 - P U + c lam >= 0
+        self.lcp_matrix = regularized(dt * dt * self.W + stops)
+        self.start_matrix = regularized(0.5 * dt * dt * self.D + stops)
         self.critical_dt = critical_time_step(ops)
         if dt > self.critical_dt * (1.0 + 1e-9):
             log.warning("central difference: dt = %.4g is above the stable limit 2/omega_max = %.4g "
@@ -72,6 +73,7 @@ class CentralDifference(ContactScheme):
                 subtract_product(self.A, self.H, force)
         energy = EnergyBudget()
         energy.kinetic, energy.strain = self._quadratic_energies()
+        self._book_stops(energy, force, force)
         energy.initial = energy.total
         self.state = StepState(0, t0, self.U, self.V, self.A, ops.d0 - pu, force, np.zeros(ops.p), energy, pu, pv)
         return self.state
@@ -112,6 +114,7 @@ class CentralDifference(ContactScheme):
         if p:
             energy.contact_loss += float((pu - st.normal_displacement) @ f_mean)
         self._step_energies(energy, 0.5, 0.5)
+        self._book_stops(energy, st.force, force)
         self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, impulse, energy, pu, pv)
         return self.state
 

@@ -40,8 +40,10 @@ class Newmark(ContactScheme):
         super().__init__(ops, dt, S, impact_correction)
         # A quasi-static part (reduced model) makes the contact rows compliant: lam0 then
         # solves an LCP in beta dt^2 W + P S_k P^T.
+        # An elastic stop adds its compliance c on the diagonal: g = d0 - P U + c lam0 >= 0.
         static = ops.static
-        self.lcp_matrix = regularized(beta * dt * dt * self.W + (static.compliance if static else 0.0))
+        self.lcp_matrix = regularized(beta * dt * dt * self.W + (static.compliance if static else 0.0)
+                                      + np.diag(ops.stop_compliance))
 
     @classmethod
     def from_solver(cls, ops: Operators, solver) -> Newmark:
@@ -109,6 +111,7 @@ class Newmark(ContactScheme):
         # Energy budget: kinetic and strain energy from the state; work terms with the
         # scheme's own weights (1 - gamma, gamma), so that the balance closes to round-off.
         self._step_energies(energy, 1.0 - gamma, gamma)
+        self._book_stops(energy, st.force, force)
         if ops.static:
             energy.strain += ops.static.energy(t1, force)
             energy.external_work += ops.static.work(st.t, t1, st.force, force, gamma)

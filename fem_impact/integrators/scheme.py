@@ -19,7 +19,8 @@ class ContactScheme:
     Built once: the factorization of the step matrix ``S`` (given by the subclass) and of ``M``,
     ``G = S^-1 P^T``, ``H = M^-1 P^T`` and the p x p matrices ``W = P G`` and ``D = P H``.
     ``impact_rows`` are the rows that get Carnot's velocity correction and the acceleration
-    projection: rigid (no compliance), with mass on their dofs, and the correction switched on.
+    projection: rigid (no static compliance, no elastic stop), with mass on their dofs, and the
+    correction switched on.
     """
 
     name = ""
@@ -36,7 +37,7 @@ class ContactScheme:
         self.D = regularized(ops.project(self.H))  # P M^-1 P^T
         static = ops.static
         rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
-        self.impact_rows = rigid & ~ops.massless_rows & bool(impact_correction)
+        self.impact_rows = rigid & (ops.stop_compliance == 0.0) & ~ops.massless_rows & bool(impact_correction)
         new = alg.vector
         # State and work vectors, allocated once; "_prev" ones are swapped by reference.
         self.U, self.V, self.A, self.U_prev = new(), new(), new(), new()
@@ -89,6 +90,17 @@ class ContactScheme:
     def _impact_loss(self, lam1: np.ndarray, pv_after: np.ndarray) -> float:
         """Kinetic energy removed by dV = -H lam1: 1/2 V-MV- - 1/2 V+MV+, exactly, in p x p terms."""
         return float(lam1 @ (pv_after + 0.5 * self.D @ lam1))
+
+    def _stop_energy(self, force: np.ndarray) -> float:
+        """Strain energy of the elastic stops, ``1/2 c lam^2`` per row."""
+        return 0.5 * float(self.ops.stop_compliance @ (force * force))
+
+    def _book_stops(self, energy: EnergyBudget, force_prev: np.ndarray, force: np.ndarray) -> None:
+        """An elastic stop stores what its force absorbs while it stays closed: that part of the
+        contact work moves from the contact loss to the strain energy."""
+        stored = self._stop_energy(force)
+        energy.contact_loss -= stored - self._stop_energy(force_prev)
+        energy.strain += stored
 
     def _quadratic_sums(self, sums: np.ndarray) -> None:
         """``V^T M V`` and ``U^T K U`` of the owned entries into ``sums[0:2]`` (not yet summed over ranks)."""
@@ -165,6 +177,7 @@ class ContactScheme:
         if ops.p:
             force, impulse, pu, pv = self._initial_contacts(pu, pv, pa, energy)
         energy.kinetic, energy.strain = self._quadratic_energies()
+        self._book_stops(energy, force, force)
         if ops.static:
             energy.strain += ops.static.energy(t0, force)
         energy.initial = energy.total + energy.impact_loss
