@@ -122,6 +122,11 @@ BAD = [
         "restitution: 1.5", ("must be in [0, 1]",)),
     Bad("restitution-negative", (("restitution: 0.0", "restitution: -0.1"),), "contacts[0].restitution",
         "restitution: -0.1", ("must be in [0, 1]",)),
+    # an elastic stop's stiffness must be positive; coupling is one of two words
+    Bad("stiffness-zero", (("restitution: 0.0", "restitution: 0.0\n    stiffness: 0"),), "contacts[0].stiffness",
+        "stiffness: 0", ("must be > 0",)),
+    Bad("coupling-unknown", (("restitution: 0.0", "restitution: 0.0\n    coupling: average"),),
+        "contacts[0].coupling", "coupling: average", ("each", "mean")),
     # a --set override: the message points to the option
     Bad("set-E-negative", (), "material.E", None, ("must be > 0", "--set material.E=-1"),
         args=("--set", "material.E=-1")),

@@ -171,27 +171,56 @@ def test_modes_auto_reaches_twice_the_drive_frequency(tmp_path):
     assert driven["modes"] >= 13 and "sin(2*pi*3*t)" in driven["modes_reason"]
 
 
+def reduction_rows(tmp_path, *args):
+    """``fem-impact reduction cases/beam_stop.yaml --modes 2,5,10 ARGS``: rows by (modes, static)."""
+    result = run_cli("reduction", str(CASES / "beam_stop.yaml"), "--modes", "2,5,10", "-o", str(tmp_path), *args)
+    assert result.returncode == 0, result.stderr
+    with open(tmp_path / "reduction.csv") as f:
+        rows = {(r["modes"], r["static_correction"]): r for r in csv.DictReader(f)}
+    assert set(rows) == {("", ""), *((str(n), s) for n in (2, 5, 10) for s in ("True", "False"))}
+    for r in rows.values():                                              # every run timed, every column set
+        assert float(r["wall_time_s"]) > 0 and r["displacement_error_band"] != "" and r["velocity_error_peak"] != ""
+    assert "disp L2" in result.stdout and "vel peak" in result.stdout
+    return rows
+
+
+def column_of(rows, key, static):
+    return [float(rows[(n, static)][key]) for n in ("2", "5", "10")]
+
+
 def test_b3_reduction_table(tmp_path):
     """B3 (cases/beam_stop.yaml, BENCHMARKS.md): `fem-impact reduction` against the full model.
 
-    What the method promises, row by row: with the static correction the tip displacement error
-    (relative L2 over the run) and the impulse error fall as modes are added (measured 6.8, 2.2,
-    0.93 % and 7.6, 1.9, 1.3 % for 2, 5, 10 modes); plain truncation misses the tip's static
-    compliance under the point stop and stays near 18 % whatever n1 (measured 18.6, 17.9,
-    18.6 %). The corrected model is at least 5 times closer from n1 = 5 on."""
-    result = run_cli("reduction", str(CASES / "beam_stop.yaml"), "--modes", "2,5,10", "-o", str(tmp_path / "b3"))
-    assert result.returncode == 0, result.stderr
-    with open(tmp_path / "b3" / "reduction.csv") as f:
-        rows = {(r["modes"], r["static_correction"]): r for r in csv.DictReader(f)}
-    assert set(rows) == {("", ""), *((str(n), s) for n in (2, 5, 10) for s in ("True", "False"))}
-    err = {k: float(r["displacement_error"]) for k, r in rows.items() if k[0]}
-    impulse = {k: float(r["impulse_error"]) for k, r in rows.items() if k[0]}
-    static = [err[(n, "True")] for n in ("2", "5", "10")]
-    plain = [err[(n, "False")] for n in ("2", "5", "10")]
+    The reference code's figures (5 modes + 1 static mode: 1.8 % on the tip displacement, 0.6 %
+    on the tip velocity; 5 modes alone 7.1 %, 3.2 %) are errors of the histories' extreme values
+    on a beam model; the full 2D model also rings above the kept band, so the peaks are those of
+    the band-limited histories (measured at n1 = 5: 0.13 % and 0.05 % corrected, 0.53 % and 1.26 %
+    plain). With the static correction the errors fall with n1 (relative L2 of the displacement
+    4.5, 0.43, 0.03 %; in-band velocity 3.3, 0.74, 0.11 %) and beat plain truncation at every n1
+    (8.0, 0.93, 0.33 %; 9.4, 3.6, 1.5 %)."""
+    rows = reduction_rows(tmp_path / "b3")
+    peak_u, peak_v = (float(rows[("5", "True")][k]) for k in ("displacement_error_peak", "velocity_error_peak"))
+    assert peak_u < 0.018 and peak_v < 0.006                             # BENCHMARKS.md's bar for n1 = 5
+    plain_u, plain_v = (float(rows[("5", "False")][k]) for k in ("displacement_error_peak", "velocity_error_peak"))
+    assert plain_u < 0.071 and plain_v < 0.032 and plain_v > 3 * peak_v
+    for key in ("displacement_error", "velocity_error_band", "impulse_error"):
+        static, plain = column_of(rows, key, "True"), column_of(rows, key, "False")
+        assert static[0] > static[1] > static[2], key                   # converges with n1
+        assert all(s < p for s, p in zip(static, plain, strict=True)), key
+    assert column_of(rows, "displacement_error", "True")[2] < 0.001
+
+
+def test_b3_point_stop_truncation_alone_does_not_converge(tmp_path):
+    """B3 with a rigid stop under one corner node: plain truncation misses the tip's local static
+    compliance under the point force and stays near 18 % whatever n1 (measured 18.6, 17.9, 18.6 %
+    relative L2 of the contact node's displacement); the corrected model converges (6.8, 2.2,
+    0.93 %) and is at least 5 times closer from n1 = 5 on."""
+    rows = reduction_rows(tmp_path / "point", "--set", "contacts.0.nodes=right_bottom", "--set",
+                          "contacts.0.coupling=each", "--set", "contacts.0.stiffness=null",
+                          "--set", "output.probes={tip: [1.0, 0.0]}")
+    static, plain = column_of(rows, "displacement_error", "True"), column_of(rows, "displacement_error", "False")
+    impulse = column_of(rows, "impulse_error", "True")
     assert static[0] > static[1] > static[2] and static[2] < 0.015
-    assert impulse[("2", "True")] > impulse[("5", "True")] > impulse[("10", "True")]
+    assert impulse[0] > impulse[1] > impulse[2]
     assert min(plain) > 0.1 and max(plain) / min(plain) < 1.2          # truncation alone does not converge
     assert all(p > 5 * s for p, s in zip(plain[1:], static[1:], strict=True))
-    for r in rows.values():                                              # every run timed, the band columns set
-        assert float(r["wall_time_s"]) > 0 and r["displacement_error_band"] != ""
-    assert "disp L2" in result.stdout and "band" in result.stdout
