@@ -27,6 +27,7 @@ B2A = dict(L=1.0, E=1.0, rho=1.0, A=1.0, v0=1.0, g0=0.1)
 @pytest.mark.parametrize("case, extra", [
     ("impacting_bar", ["mesh.cells=12", "solver.dt=0.04"]),                 # free body: a rigid mode
     ("signorini_bar", ["mesh.cells=12", "solver.dt=0.04", "solver.t_end=4"]),  # clamped
+    ("impacting_bar", ["mesh.cells=12", "solver.dt=0.04", "contacts.0.stiffness=20"]),  # elastic stop
 ])
 def test_all_modes_reproduce_the_full_model(tmp_path, case, extra):
     """With every mode kept S_k = 0: the same Newmark steps in another basis, to round-off."""
