@@ -418,8 +418,9 @@ def scene_frequency(case: Case, model: Model) -> tuple[float, str]:
 def choose_mode_count(modes: Modes, cons: Constraints, columns: np.ndarray, tolerance: float,
                       f_scene: float, scene_why: str = "half the output rate") -> tuple[int | None, str]:
     """The smallest n1 (all rigid modes included) whose neglected flexibility at every contact
-    row, ``(P S_k P^T)_jj / ((P K^+ P^T)_jj + c_j)`` (c: an elastic stop's compliance), is at most ``tolerance`` and whose cut-off frequency
-    reaches ``f_scene`` (``scene_frequency``: what the output resolves, what the loads drive).
+    row, ``(P S_k P^T)_jj / ((P K^+ P^T)_jj + c_j)`` (c: an elastic stop's compliance), is at
+    most ``tolerance`` and whose cut-off frequency reaches ``f_scene`` (``scene_frequency``:
+    what the output resolves, what the loads drive).
 
     Returns (n1, why) or (None, what falls short with all of ``modes``).
     """

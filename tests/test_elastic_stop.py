@@ -6,18 +6,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from mpi4py import MPI
 from petsc4py import PETSc
+from test_contact_law import ConstantLoad, one_by_one
 
 from conftest import CASES, run_case_file
-from fem_impact.constraints import build_constraints
 from fem_impact.case import load_case
+from fem_impact.constraints import build_constraints
 from fem_impact.integrators import CentralDifference, Newmark, Operators, integrate
 from fem_impact.mesh import build_mesh
 from fem_impact.model import build_model
 from fem_impact.references import b2_checks, column
 from test_bar_benchmarks import TOLERANCES, assert_energy
-from test_contact_law import ConstantLoad, one_by_one
-from mpi4py import MPI
 
 
 class Recorder:

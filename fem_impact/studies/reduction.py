@@ -18,7 +18,8 @@ log = logging.getLogger(__name__)
 
 REDUCTION_COLUMNS = ("model", "modes", "static_correction", "cutoff_hz", "displacement_error", "velocity_error",
                      "displacement_error_band", "velocity_error_band", "displacement_error_max",
-                     "velocity_error_max", "displacement_error_peak", "velocity_error_peak", "impulse_error", "wall_time_s", "loop_time_s", "neglected_flexibility")
+                     "velocity_error_max", "displacement_error_peak", "velocity_error_peak", "impulse_error",
+                     "wall_time_s", "loop_time_s", "neglected_flexibility")
 
 
 def relative_l2(a: np.ndarray, b: np.ndarray) -> float:
@@ -67,7 +68,8 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe
     cut-off frequency (``_band``: the error in what the kept modes represent), and the max norm
     relative to the full model's maximum (``_max``), the error of the extreme value (largest
     magnitude) of the band-limited history (``_peak``: what a reference that tests a history's
-    peak value measures, e.g. B3's); and the error of the total contact impulse. Writes ``reduction.csv`` and every run's folder into ``outdir``.
+    peak value measures, e.g. B3's); and the error of the total contact impulse. Writes
+    ``reduction.csv`` and every run's folder into ``outdir``.
     """
     case = Path(case)
     outdir = Path(outdir or Path.cwd() / "results" / f"{case.stem}-reduction")
