@@ -160,6 +160,7 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
             "mpi_ranks": comm.size,
             "mesh": meshdata.description,
             "max_penetration": stats.max_penetration,
+            "max_stop_compression": stats.max_stop_compression,
             "max_energy_error": stats.max_energy_error,
             "max_energy_error_relative": stats.max_energy_error / stats.energy_scale if stats.energy_scale else 0.0,
             "initial_energy": final.energy.initial,
@@ -191,7 +192,10 @@ def describe(summary: dict) -> str:
         f"on {summary['mpi_ranks']} rank(s). Wall time {summary['wall_time_s']:.2f} s "
         f"(setup {summary['setup_time_s']:.2f} s, loop {summary['loop_time_s']:.2f} s, "
         f"{1e3 * summary['loop_time_s'] / max(summary['steps'], 1):.3f} ms/step). "
-        f"Max penetration {summary['max_penetration']:.3g}; energy-balance residual "
+        f"Max penetration {summary['max_penetration']:.3g}"
+        + (f", elastic stops compressed by up to {summary['max_stop_compression']:.3g}"
+           if summary.get("max_stop_compression") else "")
+        + "; energy-balance residual "
         f"{summary['max_energy_error']:.3g} ({summary['max_energy_error_relative']:.2g} of the energy scale); "
         f"impact loss {summary['impact_loss']:.4g}, contact loss {summary['contact_loss']:.4g}. "
         f"Results in {summary['outdir']} (results.pvd, history.csv, summary.json, case.resolved.yaml)."

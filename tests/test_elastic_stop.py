@@ -84,6 +84,9 @@ def test_bar_wave_front_on_an_elastic_stop(tmp_path):
     exact = 1.0 * (1.0 - np.exp(-k * (t[window] - t0)))
     assert np.abs(force[window] - exact).max() < 0.005  # of Z v0 = 1 (measured 0.0013)
     assert np.abs(force[window] - exact).mean() < 5e-4
+    # The stop is pressed in by F / k exactly (the LCP's complementarity), and that is not a penetration.
+    assert summary["max_stop_compression"] == pytest.approx(force.max() / k, rel=1e-9)
+    assert summary["max_penetration"] == 0.0
     assert_energy(summary, h, rtol=1e-9)
 
 
