@@ -18,7 +18,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 from scipy import sparse
-from scipy.linalg.blas import dgemv
+from scipy.linalg.blas import daxpy, dgemv
 
 from ..errors import SimulationError
 
@@ -272,9 +272,20 @@ class Operators:
 
 
 def subtract_product(y: np.ndarray, X: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """``y -= X @ c`` in one pass over X (BLAS gemv, in place): X is a tall n x p column block."""
-    if y.size:   # (a rank may own no rows)
+    """``y -= X @ c`` in one pass over X (BLAS, in place): X is a tall n x p column block."""
+    if not y.size:   # (a rank may own no rows)
+        return y
+    if X.shape[1] == 1:   # one contact row: a contiguous column, an axpy
+        daxpy(X[:, 0], y, a=-c[0])
+    else:
         dgemv(-1.0, X.T, c, beta=1.0, y=y, overwrite_y=1, trans=1)
+    return y
+
+
+def axpy(y: np.ndarray, a: float, x: np.ndarray) -> np.ndarray:
+    """``y += a x`` in place, one pass and no temporary (BLAS)."""
+    if y.size:
+        daxpy(x, y, a=a)
     return y
 
 

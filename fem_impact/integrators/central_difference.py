@@ -9,7 +9,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from ..contact import regularized, solve_lcp
-from .base import EnergyBudget, Operators, StepState, subtract_product
+from .base import EnergyBudget, Operators, StepState, axpy, subtract_product
 from .scheme import ContactScheme
 
 log = logging.getLogger(__name__)
@@ -81,23 +81,21 @@ class CentralDifference(ContactScheme):
     def step(self) -> StepState:
         ops, st, dt = self.ops, self.state, self.dt
         t1 = self.t0 + (st.step + 1) * dt
-        if ops.C is not None:
-            self.CV, self.CV_prev = self.CV_prev, self.CV
-        self.U, self.U_prev = self.U_prev, self.U
-        U, V, A, Vp = self.U, self.V, self.A, self.Vp
-        np.multiply(V, dt, out=U)
-        U += self.U_prev
-        U += (0.5 * dt * dt) * A
-        np.multiply(A, 0.5 * dt, out=Vp)
-        Vp += V
+        U, V, A = self.U, self.V, self.A
+        self._begin_step()
+        # In place: U1 = U + dt V + dt^2/2 A and the predictor V~ = V + dt/2 A; then
+        # (M + dt/2 C) A1 = R1 - K U1 - C V~.
+        axpy(U, dt, V)
+        axpy(U, 0.5 * dt * dt, A)
+        axpy(V, 0.5 * dt, A)
         self._evaluate_load(t1)
-        self._free_acceleration(U, Vp, self.solve_S, A)
+        self._free_acceleration(U, V, self.solve_S, A)
 
         p = ops.p
         force = np.zeros(p)
         pu, pv = st.normal_displacement, st.normal_velocity
         if p:
-            pu, pv_pred, pa = ops.project_many(U, Vp, A)
+            pu, pv_pred, pa = ops.project_many(U, V, A)
             # Forward increment: the force at t1 keeps the gaps at t1 + dt non-negative.
             q = ops.d0 - (pu + dt * pv_pred + dt * dt * pa)
             force, _, _ = solve_lcp(self.lcp_matrix, q, guess=st.force > 0.0)
@@ -105,8 +103,7 @@ class CentralDifference(ContactScheme):
                 subtract_product(A, self.G, force)
                 pa = pa - self.W @ force
             pv = pv_pred + 0.5 * dt * pa
-        np.multiply(A, 0.5 * dt, out=V)
-        V += Vp
+        axpy(V, 0.5 * dt, A)
 
         energy = st.energy.copy()
         f_mean = 0.5 * (st.force + force)

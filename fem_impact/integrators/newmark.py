@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..contact import impact_correction, regularized, solve_lcp
-from .base import Operators, StepState, subtract_product
+from .base import Operators, StepState, axpy, subtract_product
 from .scheme import ContactScheme
 
 
@@ -53,36 +53,30 @@ class Newmark(ContactScheme):
     def step(self) -> StepState:
         ops, st, dt, beta, gamma = self.ops, self.state, self.dt, self.beta, self.gamma
         t1 = self.t0 + (st.step + 1) * dt   # not accumulated, so no drift over long runs
-        U, V, A, Up, Vp = self.U, self.V, self.A, self.Up, self.Vp
-        if ops.C is not None:
-            self.CV, self.CV_prev = self.CV_prev, self.CV
+        U, V, A = self.U, self.V, self.A
+        self._begin_step()
 
-        # Predictors, then the free acceleration: S A = R(t1) - C V~ - K U~.
-        np.multiply(V, dt, out=Up)
-        Up += U
-        Up += (dt * dt * (0.5 - beta)) * A
-        np.multiply(A, dt * (1.0 - gamma), out=Vp)
-        Vp += V
+        # Predictors, in place: U~ = U + dt V + dt^2 (1/2 - beta) A, V~ = V + dt (1 - gamma) A;
+        # then the free acceleration: S A = R(t1) - C V~ - K U~.
+        axpy(U, dt, V)
+        axpy(U, dt * dt * (0.5 - beta), A)
+        axpy(V, dt * (1.0 - gamma), A)
         self._evaluate_load(t1)
-        self._free_acceleration(Up, Vp, self.solve_S, A)
+        self._free_acceleration(U, V, self.solve_S, A)
 
         # Position-level multipliers: g = d0 - P U_free + beta dt^2 W lam0 >= 0, lam0 >= 0.
         p = ops.p
         lam0 = np.zeros(p)
         if p:
-            pu_pred, pv_pred, pa = ops.project_many(Up, Vp, A)
+            pu_pred, pv_pred, pa = ops.project_many(U, V, A)
             offset = ops.static.offset(t1) if ops.static else 0.0
             q = ops.d0 - offset - (pu_pred + beta * dt * dt * pa)
             lam0, _, _ = solve_lcp(self.lcp_matrix, q, guess=st.force > 0.0)
             if lam0.any():
                 subtract_product(A, self.G, lam0)
                 pa = pa - self.W @ lam0
-        self.U, self.U_prev = self.U_prev, self.U
-        U = self.U
-        np.multiply(A, beta * dt * dt, out=U)
-        U += Up
-        np.multiply(A, gamma * dt, out=V)
-        V += Vp   # V* (before the impact correction)
+        axpy(U, beta * dt * dt, A)
+        axpy(V, gamma * dt, A)   # V* (before the impact correction)
         if ops.C is not None:
             self.alg.mult(ops.C, V, self.CV)
 

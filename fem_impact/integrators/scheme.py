@@ -39,10 +39,12 @@ class ContactScheme:
         rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
         self.impact_rows = rigid & (ops.stop_compliance == 0.0) & ~ops.massless_rows & bool(impact_correction)
         new = alg.vector
-        # State and work vectors, allocated once; "_prev" ones are swapped by reference.
+        # State and work vectors, allocated once; pairs are swapped by reference. U and V are
+        # updated in place; U_prev keeps the step's starting U for the work terms.
         self.U, self.V, self.A, self.U_prev = new(), new(), new(), new()
-        self.Up, self.Vp, self.rhs, self.work = new(), new(), new(), new()
-        self.R, self.R_prev = new(), new()
+        self.rhs, self.work = new(), new()
+        self.R = new()
+        self.R_prev = new() if ops.load.time_dependent else self.R   # a constant load: one vector, no copies
         self.CV, self.CV_prev = (new(), new()) if ops.C is not None else (None, None)
         self.t0 = 0.0
         self.state: StepState | None = None
@@ -67,11 +69,15 @@ class ContactScheme:
 
     def _evaluate_load(self, t: float) -> None:
         """R(t) into ``self.R`` (the previous one is kept in ``self.R_prev``)."""
-        self.R, self.R_prev = self.R_prev, self.R
         if self.ops.load.time_dependent:
+            self.R, self.R_prev = self.R_prev, self.R
             self.ops.load.evaluate(t, self.R)
-        else:
-            self.R[:] = self.R_prev
+
+    def _begin_step(self) -> None:
+        """Keep what the step's work terms need of the state it starts from."""
+        if self.ops.C is not None:
+            self.CV, self.CV_prev = self.CV_prev, self.CV
+        np.copyto(self.U_prev, self.U)
 
     def _closed(self, pu: np.ndarray, lam0: np.ndarray) -> np.ndarray:
         """Rows closed at the end of a step: pushed by lam0, or at zero gap up to round-off."""
@@ -124,9 +130,9 @@ class ContactScheme:
         balance then closes to round-off.
         """
         ops = self.ops
-        du = np.subtract(self.U, self.U_prev, out=self.Up)   # the predictor is no longer needed
         sums = np.empty(4)
-        self._quadratic_sums(sums)
+        self._quadratic_sums(sums)   # (uses self.work: Delta U after it)
+        du = np.subtract(self.U, self.U_prev, out=self.work)
         sums[2] = w_prev * (du @ self.R_prev) + w_new * (du @ self.R)
         sums[3] = (w_prev * (du @ self.CV_prev) + w_new * (du @ self.CV)) if ops.C is not None else 0.0
         self.alg.allsum(sums)
