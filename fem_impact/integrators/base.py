@@ -23,6 +23,7 @@ from scipy.linalg.blas import daxpy, dgemv
 from ..errors import SimulationError
 
 BLOW_UP = 100.0  # kinetic + strain energy above this many times the energy put in: the run blew up
+DENSE_BLOCK = 4096  # entries: up to this size the block of P on the dofs it touches is kept dense
 
 
 class PETScAlgebra:
@@ -195,6 +196,13 @@ class Operators:
         self._rows, self._cols, self._vals = coo.row, coo.col, coo.data
         # A replicated small system: P as a dense p x n array (a handful of products per step).
         self._P_dense = None if self.algebra.distributed else self._P.toarray()
+        # P on the owned dofs it touches (a few per row; every coordinate of a replicated small
+        # system), for P^T lam on those dofs only. Dense while small, else sparse.
+        self._dofs = np.unique(self._P.indices) if self.algebra.distributed else slice(None)
+        block = self._P[:, self._dofs]
+        dense = not self.algebra.distributed or block.shape[0] * block.shape[1] <= DENSE_BLOCK
+        self._P_block = block.toarray() if dense else block
+        self._Pt_block = self._P_block.T
         if self.massless is None:
             self.massless = np.zeros(0, dtype=np.int64)
         if self.stop_compliance is None:
@@ -224,6 +232,10 @@ class Operators:
             stacked = self.algebra.allsum(np.concatenate(parts))
             parts = [stacked[k * p:(k + 1) * p] for k in range(len(arrays))]
         return parts
+
+    def subtract_transpose(self, y: np.ndarray, lam: np.ndarray) -> None:
+        """``y -= P^T lam`` on the owned entries, in place (only the dofs that P touches)."""
+        y[self._dofs] -= self._Pt_block @ lam
 
     def mass_for_solves(self):
         """M, with a unit diagonal on the massless dofs so that it can be factorized.

@@ -110,7 +110,9 @@ class CentralDifference(ContactScheme):
         impulse = dt * f_mean
         if p:
             energy.contact_loss += float((pu - st.normal_displacement) @ f_mean)
-        self._step_energies(energy, 0.5, 0.5)
+        # K U1 is in the step's right-hand side, K U1 = R1 - C V~ - rhs: one product more, M V.
+        self.alg.mult(ops.M, V, self.MV)
+        self._step_energies(energy, 0.5, 0.5, self.MV, self.rhs)
         self._book_stops(energy, st.force, force)
         self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, impulse, energy, pu, pv)
         return self.state

@@ -8,6 +8,8 @@ from ..contact import impact_correction, regularized, solve_lcp
 from .base import Operators, StepState, axpy, subtract_product
 from .scheme import ContactScheme
 
+CHECK_EVERY = 32   # steps: the strain energy by a product with K (see the end of Newmark.step)
+
 
 class Newmark(ContactScheme):
     """Newmark (beta, gamma) for ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d0``, ``lam >= 0``.
@@ -84,8 +86,9 @@ class Newmark(ContactScheme):
         energy = st.energy.copy()
         force, impulse = lam0, np.zeros(p)
         pu, pv = st.normal_displacement, st.normal_velocity
+        pu_dyn = pu
         if p:
-            pu = pu_pred + beta * dt * dt * pa
+            pu = pu_dyn = pu_pred + beta * dt * dt * pa
             if ops.static:
                 pu = pu + offset - ops.static.compliance @ lam0
             pv_star = pv_pred + gamma * dt * pa
@@ -97,14 +100,29 @@ class Newmark(ContactScheme):
                 force, impulse = res.force, s0 + res.lam1
                 pv = self._apply_corrections(res, pv_star)
                 energy.impact_loss += self._impact_loss(res.lam1, pv)
+                # M V: -P^T lam1 for the velocity correction, + gamma dt P^T lam2 as the update
+                # below takes M A after the acceleration correction (M H = P^T: the corrected
+                # rows touch no massless dof).
+                jump = res.lam1 - gamma * dt * res.lam2
+                if jump.any():
+                    ops.subtract_transpose(self.MV, jump)
             else:
                 impulse, pv = s0, pv_star
             # Work absorbed by the position-level forces over the step (METHOD.md s. 4).
             energy.contact_loss += float((pu - st.normal_displacement) @ f_mean)
 
-        # Energy budget: kinetic and strain energy from the state; work terms with the
-        # scheme's own weights (1 - gamma, gamma), so that the balance closes to round-off.
-        self._step_energies(energy, 1.0 - gamma, gamma)
+        # Energy budget: kinetic and strain energy of the state; work terms with the scheme's own
+        # weights (1 - gamma, gamma), so that the balance closes to round-off. One product per
+        # step, M A. M V follows the velocity update, M V += dt ((1 - gamma) M A0 + gamma M A1),
+        # and the corrections above. U^T K U from M A + C V* + K U = R - P^T F at the end of the
+        # step; that holds as far as the solves are right, so every CHECK_EVERY-th step U^T K U
+        # is a product with K instead, and the balance checks them too.
+        self.MA, self.MA_prev = self.MA_prev, self.MA
+        self.alg.mult(ops.M, A, self.MA)
+        axpy(self.MV, dt * (1.0 - gamma), self.MA_prev)
+        axpy(self.MV, dt * gamma, self.MA)
+        KU_rest = self.MA if (st.step + 1) % CHECK_EVERY else None
+        self._step_energies(energy, 1.0 - gamma, gamma, self.MV, KU_rest, float(pu_dyn @ force) if p else 0.0)
         self._book_stops(energy, st.force, force)
         if ops.static:
             energy.strain += ops.static.energy(t1, force)

@@ -39,13 +39,15 @@ class ContactScheme:
         rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
         self.impact_rows = rigid & (ops.stop_compliance == 0.0) & ~ops.massless_rows & bool(impact_correction)
         new = alg.vector
-        # State and work vectors, allocated once; pairs are swapped by reference. U and V are
-        # updated in place; U_prev keeps the step's starting U for the work terms.
+        # State, products and work vectors, allocated once; pairs are swapped by reference. U and V
+        # are updated in place; U_prev keeps the step's starting U where the work terms need it.
         self.U, self.V, self.A, self.U_prev = new(), new(), new(), new()
+        self.MV, self.MA, self.MA_prev = new(), new(), new()   # M V, M A: see _step_energies
         self.rhs, self.work = new(), new()
         self.R = new()
         self.R_prev = new() if ops.load.time_dependent else self.R   # a constant load: one vector, no copies
         self.CV, self.CV_prev = (new(), new()) if ops.C is not None else (None, None)
+        self.loaded = self.track_du = True   # (known at the start)
         self.t0 = 0.0
         self.state: StepState | None = None
 
@@ -77,7 +79,8 @@ class ContactScheme:
         """Keep what the step's work terms need of the state it starts from."""
         if self.ops.C is not None:
             self.CV, self.CV_prev = self.CV_prev, self.CV
-        np.copyto(self.U_prev, self.U)
+        if self.track_du:
+            np.copyto(self.U_prev, self.U)
 
     def _closed(self, pu: np.ndarray, lam0: np.ndarray) -> np.ndarray:
         """Rows closed at the end of a step: pushed by lam0, or at zero gap up to round-off."""
@@ -108,35 +111,50 @@ class ContactScheme:
         energy.contact_loss -= stored - self._stop_energy(force_prev)
         energy.strain += stored
 
-    def _quadratic_sums(self, sums: np.ndarray) -> None:
-        """``V^T M V`` and ``U^T K U`` of the owned entries into ``sums[0:2]`` (not yet summed over ranks)."""
-        ops, alg, work = self.ops, self.alg, self.work
-        alg.mult(ops.M, self.V, work)
-        sums[0] = work @ self.V
-        alg.mult(ops.K, self.U, work)
-        sums[1] = work @ self.U
-
     def _quadratic_energies(self) -> tuple[float, float]:
-        sums = np.empty(2)
-        self._quadratic_sums(sums)
-        self.alg.allsum(sums)
+        """Kinetic and strain energy from products with M and K; sets ``MV`` and ``MA`` (at the start)."""
+        ops, alg = self.ops, self.alg
+        alg.mult(ops.M, self.V, self.MV)
+        alg.mult(ops.M, self.A, self.MA)
+        alg.mult(ops.K, self.U, self.work)
+        sums = alg.allsum(np.array([self.V @ self.MV, self.U @ self.work]))
         return 0.5 * sums[0], 0.5 * sums[1]
 
-    def _step_energies(self, energy: EnergyBudget, w_prev: float, w_new: float) -> None:
+    def _step_energies(self, energy: EnergyBudget, w_prev: float, w_new: float, MV: np.ndarray,
+                       KU_rest: np.ndarray | None = None, force_work: float = 0.0) -> None:
         """Kinetic and strain energy at the new step; external work and damping loss over the step.
+
+        ``MV = M V`` comes from the scheme. ``U^T K U``: with ``KU_rest``, from the equation of
+        motion that the step solved, ``K U = R - CV - KU_rest - P^T F`` (``CV`` = ``self.CV``, its
+        damping force; the replicated ``force_work = (P U) . F``), without a product with K; else
+        by one.
 
         Work terms use the weights (w_prev, w_new) of the scheme's own rule for the forces over a
         step (the trapezoidal rule: 1/2, 1/2), with ``Delta U``: for the Newmark family the
         balance then closes to round-off.
         """
-        ops = self.ops
-        sums = np.empty(4)
-        self._quadratic_sums(sums)   # (uses self.work: Delta U after it)
-        du = np.subtract(self.U, self.U_prev, out=self.work)
-        sums[2] = w_prev * (du @ self.R_prev) + w_new * (du @ self.R)
-        sums[3] = (w_prev * (du @ self.CV_prev) + w_new * (du @ self.CV)) if ops.C is not None else 0.0
+        U, R, CV = self.U, self.R, self.CV
+        sums = np.zeros(4)
+        sums[0] = self.V @ MV
+        if KU_rest is None:
+            self.alg.mult(self.ops.K, U, self.work)
+            sums[1] = U @ self.work
+            force_work = 0.0
+        else:
+            sums[1] = -(U @ KU_rest)
+            if self.loaded:
+                sums[1] += U @ R
+            if CV is not None:
+                sums[1] -= U @ CV
+        if self.track_du:
+            du = np.subtract(U, self.U_prev, out=self.work)
+            if self.loaded:
+                sums[2] = (w_prev + w_new) * (du @ R) if self.R_prev is R else \
+                    w_prev * (du @ self.R_prev) + w_new * (du @ R)
+            if CV is not None:
+                sums[3] = w_prev * (du @ self.CV_prev) + w_new * (du @ CV)
         self.alg.allsum(sums)
-        energy.kinetic, energy.strain = 0.5 * sums[0], 0.5 * sums[1]
+        energy.kinetic, energy.strain = 0.5 * sums[0], 0.5 * (sums[1] - force_work)
         energy.external_work += sums[2]
         energy.damping_loss += sums[3]
 
@@ -147,6 +165,9 @@ class ContactScheme:
         self.U[:] = owned_values(U0)
         self.V[:] = owned_values(V0)
         ops.load.evaluate(t0, self.R)
+        # Work terms only where there is a load or damping (collective: every rank calls it).
+        self.loaded = ops.load.time_dependent or bool(self.alg.allsum(np.array([float(np.any(self.R))]))[0])
+        self.track_du = self.loaded or ops.C is not None
         move = ops.equilibrate_massless(self.U, self.R)   # (collective: every rank calls it)
         if move:
             log.info("mass redistribution: the massless contact nodes start in static equilibrium "
