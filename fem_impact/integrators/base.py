@@ -191,13 +191,10 @@ class Operators:
         self.algebra = PETScAlgebra(self.K) if isinstance(self.K, PETSc.Mat) else DenseAlgebra(self.K)
         self.comm: MPI.Comm = self.algebra.comm
         self.P_local = sparse.csr_matrix(self.P_local)
-        self._P = self.P_local.T.tocsr()  # owned columns of P, for P x in O(nnz)
-        coo = self._P.tocoo()
-        self._rows, self._cols, self._vals = coo.row, coo.col, coo.data
-        # A replicated small system: P as a dense p x n array (a handful of products per step).
-        self._P_dense = None if self.algebra.distributed else self._P.toarray()
+        self._P = self.P_local.T.tocsr()  # owned columns of P
         # P on the owned dofs it touches (a few per row; every coordinate of a replicated small
-        # system), for P^T lam on those dofs only. Dense while small, else sparse.
+        # system): P x and P^T lam read and write only those, by one small product (dense while
+        # small, where it is faster than a sparse one).
         self._dofs = np.unique(self._P.indices) if self.algebra.distributed else slice(None)
         block = self._P[:, self._dofs]
         dense = not self.algebra.distributed or block.shape[0] * block.shape[1] <= DENSE_BLOCK
@@ -222,13 +219,10 @@ class Operators:
 
     def project_many(self, *arrays: np.ndarray) -> list[np.ndarray]:
         """``P x`` for several vectors with a single reduction."""
-        if self._P_dense is not None:
-            return [self._P_dense @ x for x in arrays]
-        # A few nonzeros per row: one gather and one bincount per vector beat a sparse product.
-        p, rows, cols, vals = self.p, self._rows, self._cols, self._vals
-        # (astype: bincount of an empty array, on a rank without constraint dofs, gives ints)
-        parts = [np.bincount(rows, vals * x[cols], minlength=p).astype(float, copy=False) for x in arrays]
+        block, dofs = self._P_block, self._dofs
+        parts = [block @ x[dofs] for x in arrays]
         if self.comm.size > 1:
+            p = self.p
             stacked = self.algebra.allsum(np.concatenate(parts))
             parts = [stacked[k * p:(k + 1) * p] for k in range(len(arrays))]
         return parts
