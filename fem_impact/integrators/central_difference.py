@@ -9,7 +9,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from ..contact import regularized, solve_lcp
-from .base import EnergyBudget, Operators, StepState, axpy, subtract_product
+from .base import EnergyBudget, Operators, StepState, axpy
 from .scheme import ContactScheme
 
 log = logging.getLogger(__name__)
@@ -70,7 +70,7 @@ class CentralDifference(ContactScheme):
             q = ops.d0 - (pu + dt * pv + 0.5 * dt * dt * pa)
             force, _, _ = solve_lcp(self.start_matrix, q)
             if force.any():
-                subtract_product(self.A, self.H, force)
+                self.H.subtract_from(self.A, force)
         energy = EnergyBudget()
         energy.kinetic, energy.strain = self._quadratic_energies()
         self._book_stops(energy, force, force)
@@ -100,7 +100,7 @@ class CentralDifference(ContactScheme):
             q = ops.d0 - (pu + dt * pv_pred + dt * dt * pa)
             force, _, _ = solve_lcp(self.lcp_matrix, q, guess=st.force > 0.0)
             if force.any():
-                subtract_product(A, self.G, force)
+                self.G.subtract_from(A, force)
                 pa = pa - self.W @ force
             pv = pv_pred + 0.5 * dt * pa
         axpy(V, 0.5 * dt, A)

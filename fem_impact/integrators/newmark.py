@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..contact import impact_correction, regularized, solve_lcp
-from .base import Operators, StepState, axpy, subtract_product
+from .base import Operators, StepState, axpy
 from .scheme import ContactScheme
 
 CHECK_EVERY = 32   # steps: the strain energy by a product with K (see the end of Newmark.step)
@@ -75,7 +75,7 @@ class Newmark(ContactScheme):
             q = ops.d0 - offset - (pu_pred + beta * dt * dt * pa)
             lam0, _, _ = solve_lcp(self.lcp_matrix, q, guess=st.force > 0.0)
             if lam0.any():
-                subtract_product(A, self.G, lam0)
+                self.G.subtract_from(A, lam0)
                 pa = pa - self.W @ lam0
         axpy(U, beta * dt * dt, A)
         axpy(V, gamma * dt, A)   # V* (before the impact correction)

@@ -8,7 +8,7 @@ import logging
 import numpy as np
 
 from ..contact import TINY, ImpactResult, impact_correction, regularized, solve_lcp
-from .base import EnergyBudget, Operators, StepState, owned_values, subtract_product
+from .base import Columns, EnergyBudget, Operators, StepState, owned_values
 
 log = logging.getLogger(__name__)
 
@@ -31,10 +31,11 @@ class ContactScheme:
         self.S = S
         self.solve_S = alg.factorize(S)
         self.solve_M = alg.factorize(ops.mass_for_solves())
-        self.G = ops.solve_columns(self.solve_S)   # S^-1 P^T, owned rows (n_local x p)
-        self.H = ops.solve_columns(self.solve_M)   # M^-1 P^T
-        self.W = ops.project(self.G)               # P S^-1 P^T (p x p, on every rank)
-        self.D = regularized(ops.project(self.H))  # P M^-1 P^T
+        G = ops.solve_columns(self.solve_S)        # S^-1 P^T, owned rows (n_local x p)
+        H = ops.solve_columns(self.solve_M)        # M^-1 P^T
+        self.W = ops.project(G)                    # P S^-1 P^T (p x p, on every rank)
+        self.D = regularized(ops.project(H))       # P M^-1 P^T
+        self.G, self.H = Columns(G), Columns(H)
         static = ops.static
         rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
         self.impact_rows = rigid & (ops.stop_compliance == 0.0) & ~ops.massless_rows & bool(impact_correction)
@@ -90,10 +91,10 @@ class ContactScheme:
     def _apply_corrections(self, res: ImpactResult, pv: np.ndarray) -> np.ndarray:
         """Velocity (-H lam1) and acceleration (-H lam2) corrections; returns the new P V."""
         if res.lam1.any():
-            subtract_product(self.V, self.H, res.lam1)
+            self.H.subtract_from(self.V, res.lam1)
             pv = pv - self.D @ res.lam1
         if res.lam2.any():
-            subtract_product(self.A, self.H, res.lam2)
+            self.H.subtract_from(self.A, res.lam2)
         return pv
 
     def _impact_loss(self, lam1: np.ndarray, pv_after: np.ndarray) -> float:
@@ -186,7 +187,7 @@ class ContactScheme:
             c = ~static.rigid_rows
             force[c] = solve_lcp(static.compliance[c][:, c], (ops.d0 - static.offset(t0) - pu)[c])[0]
             if force.any():
-                subtract_product(self.A, self.H, force)
+                self.H.subtract_from(self.A, force)
                 pa = pa - self.D @ force
             pu = pu + static.offset(t0) - static.compliance @ force
         res = impact_correction(self.D, self._closed(pu, force) & self.impact_rows, np.zeros(p), pv, pv, pa,
