@@ -38,8 +38,9 @@ def solve_lcp(
     """
     n = q.size
     if n == 1:  # the common case of one contact row, in closed form
-        x = max(0.0, -q[0] / A[0, 0])
-        return np.array([x]), np.array([0.0 if x > 0.0 else q[0]]), np.array([x > 0.0])
+        q0 = float(q[0])
+        x = -q0 / float(A[0, 0]) if q0 < 0.0 else 0.0
+        return np.array([x]), np.array([0.0 if x > 0.0 else q0]), np.array([x > 0.0])
     active = np.zeros(n, dtype=bool) if guess is None else guess.copy()
     if n == 0 or (not active.any() and np.all(q >= 0.0)):
         return np.zeros(n), q.copy(), np.zeros(n, dtype=bool)
@@ -114,21 +115,37 @@ def impact_correction(
 
     All arguments are per-row p-vectors (``D`` is p x p); only rows in ``closed`` change.
     """
+    # (Small arrays: .dot and count_nonzero cost half of @ and .any().)
     p = s0.size
-    lam1, force, lam2 = np.zeros(p), lam0.copy(), np.zeros(p)
-    a = np.flatnonzero(closed)
-    if a.size:
-        Daa = D[a][:, a]
-        q1 = -(Daa @ s0[a] + v_star[a] + restitution[a] * np.maximum(v_minus[a], 0.0))
-        S, w, active = solve_lcp(Daa, q1, guess=lam0[a] > 0.0)
-        lam1[a] = S - s0[a]
-        staying = a[active | (w <= 0.0)]
-        leaving = a[~(active | (w <= 0.0))]
+    lam1, lam2, force = np.zeros(p), np.zeros(p), lam0.copy()
+    a = _rows(closed)
+    Daa, s0a, lam0a = D[a][:, a], s0[a], lam0[a]
+    q1 = -(Daa.dot(s0a) + v_star[a])
+    if np.count_nonzero(restitution):
+        q1 -= restitution[a] * np.maximum(v_minus[a], 0.0)
+    S, w, active = solve_lcp(Daa, q1, guess=lam0a > 0.0)
+    lam1[a] = S - s0a
+    # Normal accelerations after the velocity change are unchanged by it: project them.
+    stays = active | (w <= 0.0)
+    n_stay = np.count_nonzero(stays)
+    if n_stay == stays.size:
+        b, Dbb, lam0b = a, Daa, lam0a
+        q2 = -(Dbb.dot(lam0b) + a_normal[b])
+    else:
+        rows = np.arange(p)[a]
+        b, leaving = rows[stays], rows[~stays]
         force[leaving] = 0.0
-        if staying.size:
-            Dbb = D[staying][:, staying]
-            # Normal accelerations after the velocity change are unchanged by it: project them.
-            q2 = -(Dbb @ lam0[staying] + a_normal[staying] + D[staying][:, leaving] @ lam0[leaving])
-            force[staying], _, _ = solve_lcp(Dbb, q2, guess=lam0[staying] > 0.0)
-        lam2[a] = force[a] - lam0[a]
+        Dbb, lam0b = D[b][:, b], lam0[b]
+        q2 = -(Dbb.dot(lam0b) + a_normal[b] + D[b][:, leaving].dot(lam0[leaving]))
+    if n_stay:
+        force[b] = solve_lcp(Dbb, q2, guess=lam0b > 0.0)[0]
+    lam2[a] = force[a] - lam0a
     return ImpactResult(lam1, lam2, force)
+
+
+ALL = slice(None)   # every row: indexing with it gives views, no copies
+
+
+def _rows(mask: np.ndarray):
+    """The rows set in ``mask``: ``ALL`` when all are (the common case in a contact)."""
+    return ALL if np.count_nonzero(mask) == mask.size else np.flatnonzero(mask)

@@ -196,6 +196,8 @@ class Operators:
         # system): P x and P^T lam read and write only those, by one small product (dense while
         # small, where it is faster than a sparse one).
         self._dofs = np.unique(self._P.indices) if self.algebra.distributed else slice(None)
+        if self.algebra.distributed and self._dofs.size and self._dofs[-1] - self._dofs[0] < 2 * self._dofs.size:
+            self._dofs = slice(int(self._dofs[0]), int(self._dofs[-1]) + 1)   # nearly contiguous: views, not copies
         block = self._P[:, self._dofs]
         dense = not self.algebra.distributed or block.shape[0] * block.shape[1] <= DENSE_BLOCK
         self._P_block = block.toarray() if dense else block
@@ -220,7 +222,7 @@ class Operators:
     def project_many(self, *arrays: np.ndarray) -> list[np.ndarray]:
         """``P x`` for several vectors with a single reduction."""
         block, dofs = self._P_block, self._dofs
-        parts = [block @ x[dofs] for x in arrays]
+        parts = [block.dot(x[dofs]) for x in arrays]
         if self.comm.size > 1:
             p = self.p
             stacked = self.algebra.allsum(np.concatenate(parts))
@@ -229,7 +231,7 @@ class Operators:
 
     def subtract_transpose(self, y: np.ndarray, lam: np.ndarray) -> None:
         """``y -= P^T lam`` on the owned entries, in place (only the dofs that P touches)."""
-        y[self._dofs] -= self._Pt_block @ lam
+        y[self._dofs] -= self._Pt_block.dot(lam)
 
     def mass_for_solves(self):
         """M, with a unit diagonal on the massless dofs so that it can be factorized.

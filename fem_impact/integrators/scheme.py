@@ -39,6 +39,7 @@ class ContactScheme:
         static = ops.static
         rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
         self.impact_rows = rigid & (ops.stop_compliance == 0.0) & ~ops.massless_rows & bool(impact_correction)
+        self._abs_d0 = np.abs(ops.d0)
         new = alg.vector
         # State, products and work vectors, allocated once; pairs are swapped by reference. U and V
         # are updated in place; U_prev keeps the step's starting U where the work terms need it.
@@ -84,22 +85,22 @@ class ContactScheme:
             np.copyto(self.U_prev, self.U)
 
     def _closed(self, pu: np.ndarray, lam0: np.ndarray) -> np.ndarray:
-        """Rows closed at the end of a step: pushed by lam0, or at zero gap up to round-off."""
-        gap = self.ops.d0 - pu
-        return (lam0 > 0.0) | (gap <= 1e-10 * (np.abs(self.ops.d0) + np.abs(pu)) + TINY)
+        """Impact rows closed at the end of a step: pushed by lam0, or at zero gap up to round-off."""
+        closed = lam0 > 0.0
+        if np.count_nonzero(closed) < closed.size:   # (all pushed: the common case in a contact)
+            closed |= self.ops.d0 - pu <= 1e-10 * (self._abs_d0 + np.abs(pu)) + TINY
+        return closed & self.impact_rows
 
-    def _apply_corrections(self, res: ImpactResult, pv: np.ndarray) -> np.ndarray:
-        """Velocity (-H lam1) and acceleration (-H lam2) corrections; returns the new P V."""
-        if res.lam1.any():
+    def _apply_corrections(self, res: ImpactResult, pv: np.ndarray) -> tuple[np.ndarray, float]:
+        """Velocity (-H lam1) and acceleration (-H lam2) corrections; returns the new P V and the
+        kinetic energy that dV = -H lam1 removes, 1/2 V-MV- - 1/2 V+MV+ (exactly, in p x p terms)."""
+        Dlam1 = self.D.dot(res.lam1)
+        if np.count_nonzero(res.lam1):
             self.H.subtract_from(self.V, res.lam1)
-            pv = pv - self.D @ res.lam1
-        if res.lam2.any():
+            pv = pv - Dlam1
+        if np.count_nonzero(res.lam2):
             self.H.subtract_from(self.A, res.lam2)
-        return pv
-
-    def _impact_loss(self, lam1: np.ndarray, pv_after: np.ndarray) -> float:
-        """Kinetic energy removed by dV = -H lam1: 1/2 V-MV- - 1/2 V+MV+, exactly, in p x p terms."""
-        return float(lam1 @ (pv_after + 0.5 * self.D @ lam1))
+        return pv, float(res.lam1.dot(pv + 0.5 * Dlam1))
 
     def _stop_energy(self, force: np.ndarray) -> float:
         """Strain energy of the elastic stops, ``1/2 c lam^2`` per row."""
@@ -190,10 +191,8 @@ class ContactScheme:
                 self.H.subtract_from(self.A, force)
                 pa = pa - self.D @ force
             pu = pu + static.offset(t0) - static.compliance @ force
-        res = impact_correction(self.D, self._closed(pu, force) & self.impact_rows, np.zeros(p), pv, pv, pa,
-                                force, ops.restitution)
-        pv = self._apply_corrections(res, pv)
-        energy.impact_loss = self._impact_loss(res.lam1, pv)
+        res = impact_correction(self.D, self._closed(pu, force), np.zeros(p), pv, pv, pa, force, ops.restitution)
+        pv, energy.impact_loss = self._apply_corrections(res, pv)
         return res.force, res.lam1.copy(), pu, pv
 
     def start(self, U0, V0, t0: float = 0.0) -> StepState:
