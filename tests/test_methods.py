@@ -158,6 +158,41 @@ def test_blow_up_guard_stops_a_runaway_energy():
         BlowUpGuard().check(state(np.nan))
 
 
+@pytest.mark.parametrize("fault, bound", [(None, 1e-11), ("solve", 1e-7), ("step matrix", 1e-10)])
+def test_energy_balance_sees_a_faulty_solve(fault, bound):
+    """Newmark's strain energy comes from the equation of motion at the end of the step (no
+    product with K), which holds only as far as its solves are right; every CHECK_EVERY-th step
+    it is a product with K, so that the balance still sees a wrong solve. B2a's free bar into
+    its contact, with solves scaled by 1 + 1e-6 or S factorized with K (1 + 1e-6): the residual
+    rises from round-off (6e-14 of E0) to 8.6e-7 and 2.4e-9 of E0, as with products with K at
+    every step. (From the equation of motion alone the scaled solve went unseen: 5e-14.)"""
+    from fem_impact.integrators import Newmark, integrate
+
+    case, model, cons = model_of(BAR, "mesh.cells=100", "solver.dt=0.005", "solver.t_end=1.0")
+    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
+    dt = case.solver.dt
+    newmark = Newmark(ops, dt)
+    solve = newmark.solve_S
+    if fault == "solve":
+        def faulty(b, x):
+            solve(b, x)
+            x *= 1.0 + 1e-6
+        newmark.solve_S = faulty
+    elif fault == "step matrix":
+        newmark.solve_S = ops.algebra.factorize(ops.algebra.combine((1.0, ops.M), (0.25 * dt * dt * (1 + 1e-6), ops.K)))
+
+    class Residual:
+        worst = 0.0
+
+        def write(self, state):
+            self.worst = max(self.worst, abs(state.energy.error) / state.energy.initial)
+
+    residual = Residual()
+    final = integrate(newmark, model.U0, model.V0, case.solver.t_end, [residual])
+    assert final.force.sum() > 0   # (in contact since t = 0.1)
+    assert (residual.worst < bound) if fault is None else (residual.worst > bound)
+
+
 def test_explicit_method_defaults_to_the_lumped_mass(tmp_path):
     """central_difference without solver.mass gets the lumped (diagonal) mass it is meant for, and the
     resolved case says so; Newmark keeps the consistent mass."""

@@ -26,7 +26,8 @@ class Newmark(ContactScheme):
       correction of the velocities and no acceleration projection (METHOD.md s. 5: the contact
       force then oscillates and the contact chatters; for comparison studies).
 
-    A step is vector updates, one solve with ``S = M + gamma dt C + beta dt^2 K`` and p x p
+    A step is vector updates, one solve with ``S = M + gamma dt C + beta dt^2 K``, a product
+    with K (and C) for its right-hand side and one with M for the energy budget, and p x p
     problems: the LCP for ``lam0``, then Carnot's correction and the acceleration projection
     on the closed rows.
     """
