@@ -40,6 +40,7 @@ class ContactScheme:
         rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
         self.impact_rows = rigid & (ops.stop_compliance == 0.0) & ~ops.massless_rows & bool(impact_correction)
         self._abs_d0 = np.abs(ops.d0)
+        self._elastic_stops = bool(np.count_nonzero(ops.stop_compliance))
         new = alg.vector
         # State, products and work vectors, allocated once; pairs are swapped by reference. U and V
         # are updated in place; U_prev keeps the step's starting U where the work terms need it.
@@ -109,6 +110,8 @@ class ContactScheme:
     def _book_stops(self, energy: EnergyBudget, force_prev: np.ndarray, force: np.ndarray) -> None:
         """An elastic stop stores what its force absorbs while it stays closed: that part of the
         contact work moves from the contact loss to the strain energy."""
+        if not self._elastic_stops:   # (then nothing to book: skip the small-array arithmetic)
+            return
         stored = self._stop_energy(force)
         energy.contact_loss -= stored - self._stop_energy(force_prev)
         energy.strain += stored
