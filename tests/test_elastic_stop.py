@@ -113,3 +113,21 @@ def test_2d_bar_on_a_wall_through_its_end_sections_mean(tmp_path):
     for key, tol in TOLERANCES.items():
         assert errors[key] < tol, f"{key}: {errors[key]:.3g} >= {tol}"
     assert_energy(summary, h)
+
+
+def test_a_stop_stiffer_than_the_step_resolves_is_flagged_and_pumps_energy(tmp_path, caplog):
+    """Where the method fails: k = 1e5 on B2a's bar at dt = 0.002 (c / (beta dt^2 W) = 0.015) is
+    not resolved: the row chatters and, with no Carnot correction on an elastic row, energy grows
+    16-fold (the balance still books it, as a negative contact loss). The run says so at the
+    start; at the step it suggests (dt = 1e-4) the energy stays within 0.2 %."""
+    with caplog.at_level("WARNING"):
+        summary, _ = run_case_file(CASES / "impacting_bar.yaml", tmp_path / "coarse", "contacts.0.stiffness=1e5",
+                                   "output.vtk=false")
+    assert "stiffer than the time step resolves" in caplog.text and "dt <=" in caplog.text
+    assert summary["max_energy"] > 5 * summary["initial_energy"] and summary["contact_loss"] < 0
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        summary, _ = run_case_file(CASES / "impacting_bar.yaml", tmp_path / "fine", "contacts.0.stiffness=1e5",
+                                   "solver.dt=1e-4", "solver.t_end=1.0", "output.vtk=false")
+    assert "stiffer" not in caplog.text
+    assert summary["max_energy"] < 1.002 * summary["initial_energy"]

@@ -73,7 +73,7 @@ class CentralDifference(ContactScheme):
                 self.H.subtract_from(self.A, force)
         energy = EnergyBudget()
         energy.kinetic, energy.strain = self._quadratic_energies()
-        self._book_stops(energy, force, force)
+        self._stop_force = np.zeros(ops.p)   # at t0 an elastic stop is relaxed (the initial gaps are open)
         energy.initial = energy.total
         self.state = StepState(0, t0, self.U, self.V, self.A, ops.d0 - pu, force, np.zeros(ops.p), energy, pu, pv)
         return self.state
@@ -113,7 +113,9 @@ class CentralDifference(ContactScheme):
         # K U1 is in the step's right-hand side, K U1 = R1 - C V~ - rhs: one product more, M V.
         self.alg.mult(ops.M, V, self.MV)
         self._step_energies(energy, 0.5, 0.5, self.MV, self.rhs)
-        self._book_stops(energy, st.force, force)
+        # The force of step n keeps the gaps at t_n+1: an elastic stop holds c F_n^2 / 2 at t1.
+        self._book_stops(energy, self._stop_force, st.force)
+        self._stop_force = st.force
         self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, impulse, energy, pu, pv)
         return self.state
 

@@ -135,8 +135,9 @@ class ContactScheme:
         by one.
 
         Work terms use the weights (w_prev, w_new) of the scheme's own rule for the forces over a
-        step (the trapezoidal rule: 1/2, 1/2), with ``Delta U``: for the Newmark family the
-        balance then closes to round-off.
+        step (the trapezoidal rule: 1/2, 1/2), with ``Delta U``: for the trapezoidal rule the
+        balance then closes to round-off; with gamma > 1/2 its residual is the scheme's own
+        numerical dissipation, which no term books.
         """
         U, R, CV = self.U, self.R, self.CV
         sums = np.zeros(4)
