@@ -64,3 +64,31 @@ def plot_history(outdir, png=None, units: dict | None = None) -> Path:
     fig.savefig(png, dpi=110)
     plt.close(fig)
     return png
+
+
+def plot_reduction(runs: dict[str, dict[str, np.ndarray]], u_col: str, png: Path, title: str = "") -> Path:
+    """The reduction study in a picture: the probe's displacement and velocity and the total
+    contact force of the full model (black) against each reduced run (``runs``: label ->
+    history columns; the first is the full model; labels ending in "plain" dashed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    v_col = u_col.replace(".u", ".v")
+    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True, constrained_layout=True)
+    for k, (label, h) in enumerate(runs.items()):
+        style = (dict(color="k", lw=1.6, zorder=3) if k == 0
+                 else dict(lw=0.9, ls="--" if label.endswith("plain") else "-"))
+        force = sum(h[c] for c in h if c.endswith(".force"))
+        for ax, y in zip(axes, (h[u_col], h[v_col], force), strict=True):
+            ax.plot(h["t"], y, label=label, **style)
+    for ax, name in zip(axes, (f"{u_col} (displacement)", f"{v_col} (velocity)", "total contact force"), strict=True):
+        ax.set_ylabel(name, fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[-1].legend(fontsize=7, loc="upper right")   # (after the last contact: room there, as a rule)
+    axes[-1].set_xlabel("time")
+    fig.suptitle(title or "reduced models against the full model")
+    fig.savefig(png, dpi=100)
+    plt.close(fig)
+    return png

@@ -183,6 +183,7 @@ def reduction_rows(tmp_path, *args, modes=(2, 5, 10)):
     for r in rows.values():                                              # every run timed, every column set
         assert float(r["wall_time_s"]) > 0 and r["displacement_error_band"] != "" and r["velocity_error_peak"] != ""
     assert "disp L2" in result.stdout and "vel peak" in result.stdout
+    assert (tmp_path / "reduction.png").stat().st_size > 10_000     # the histories, drawn
     return rows
 
 

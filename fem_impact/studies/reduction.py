@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from ..plots import history_columns
+from ..plots import history_columns, plot_reduction
 from ..run import run_case, staged_directory
 
 log = logging.getLogger(__name__)
@@ -69,7 +69,7 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe
     relative to the full model's maximum (``_max``), the error of the extreme value (largest
     magnitude) of the band-limited history (``_peak``: what a reference that tests a history's
     peak value measures, e.g. B3's); and the error of the total contact impulse. Writes
-    ``reduction.csv`` and every run's folder into ``outdir``.
+    ``reduction.csv``, ``reduction.png`` (the histories) and every run's folder into ``outdir``.
     """
     case = Path(case)
     outdir = Path(outdir or Path.cwd() / "results" / f"{case.stem}-reduction")
@@ -83,6 +83,7 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe
         impulse_full = sum(full[c].sum() for c in impulse_cols)
         dt = float(full["t"][1] - full["t"][0])
         rows.append(_row("full", None, None, dict.fromkeys(REDUCTION_COLUMNS[4:13], 0.0), full_summary))
+        histories = {"full": full}
         for n1 in modes:
             for static in (True, False):
                 name = f"modal-{n1}-{'static' if static else 'plain'}"
@@ -90,6 +91,7 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe
                                                         f"solver.modes={n1}", f"solver.static_correction={static}"],
                                    comm=comm, progress=False)
                 h = history_columns(stage / name)
+                histories[f"{n1} modes, {'static correction' if static else 'plain'}"] = h
                 cut = summary["cutoff_hz"]
                 errors = {}
                 for what, col in (("displacement", u_col), ("velocity", v_col)):
@@ -102,6 +104,8 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe
                 rows.append(_row("modal", n1, static, errors, summary))
                 log.info("%s: %s", name, rows[-1])
         if comm.rank == 0:
+            plot_reduction(histories, u_col, stage / "reduction.png",
+                           f"{case.stem}: reduced models against the full one")
             with open(stage / "reduction.csv", "w", newline="") as f:
                 writer = csv.DictWriter(f, fieldnames=REDUCTION_COLUMNS)
                 writer.writeheader()
