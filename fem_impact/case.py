@@ -17,7 +17,9 @@ import yaml
 from .expressions import RESERVED, Expression, ExpressionError, parse_expression
 
 SHAPES = ("bar",)
-METHODS = ("newmark", "central_difference", "modal")
+METHODS = ("moreau_jean", "newmark", "central_difference", "modal")
+# Time schemes of the reduced model (method modal).
+MODAL_SCHEMES = ("moreau_jean", "newmark")
 MASS_MATRICES = ("consistent", "lumped", "redistributed")
 CONTACT_TYPES = ("obstacle", "pair")
 CONTACT_COUPLINGS = ("each", "mean")
@@ -116,7 +118,9 @@ class Contact:
 
 @dataclass(kw_only=True)  # keyword-only, so the required dt and t_end can follow method
 class Solver:
-    method: str = "newmark"
+    method: str = "moreau_jean"
+    theta: float = 0.5
+    scheme: str = "moreau_jean"
     beta: float = 0.25
     gamma: float = 0.5
     dt: float
@@ -653,7 +657,8 @@ def _modes(value, path):
 def _solver(value, path):
     f = _fields(value, path, {
         "dt": (_real(gt=0), _REQUIRED), "t_end": (_real(gt=0), _REQUIRED),
-        "method": (_choice(*METHODS), "newmark"), "beta": (_real(gt=0), 0.25),
+        "method": (_choice(*METHODS), "moreau_jean"), "theta": (_real(ge=0.5, le=1.0), 0.5),
+        "scheme": (_choice(*MODAL_SCHEMES), "moreau_jean"), "beta": (_real(gt=0), 0.25),
         "gamma": (_real(ge=0), 0.5), "mass": (_choice(*MASS_MATRICES), None),
         "impact_correction": (_boolean, True),
         "modes": (_modes, None), "static_correction": (_boolean, True),
@@ -663,9 +668,9 @@ def _solver(value, path):
     # The explicit scheme is meant for the lumped (diagonal) mass: no solve per step.
     if f["mass"] is None:
         f["mass"] = "lumped" if f["method"] == "central_difference" else "consistent"
-    if f["mass"] == "redistributed" and f["method"] != "newmark":
-        raise _Invalid(path + ("mass",), f"'redistributed' (no mass on the contact nodes) needs method newmark; "
-                                         f"{f['method']} needs mass on every node")
+    if f["mass"] == "redistributed" and f["method"] not in ("moreau_jean", "newmark"):
+        raise _Invalid(path + ("mass",), f"'redistributed' (no mass on the contact nodes) needs method moreau_jean "
+                                         f"or newmark; {f['method']} needs mass on every node")
     if f["gamma"] < 0.5:
         raise _Invalid(path + ("gamma",), f"must be >= 0.5 (below, Newmark amplifies every mode), got {f['gamma']:g}")
     return Solver(**f)

@@ -48,14 +48,15 @@ def reduced_model(case: Case, model, cons) -> System:
     return System(red.operators, red.fields, red.Z0, red.Zdot0, summary)
 
 
-MODELS = {"newmark": full_model, "central_difference": full_model, "modal": reduced_model}
+MODELS = {"moreau_jean": full_model, "newmark": full_model, "central_difference": full_model, "modal": reduced_model}
 
 
 def make_integrator(case: Case, operators):
     """The time integrator of ``solver.method``, from the integrators' registry."""
     from .integrators import METHODS
 
-    return METHODS[case.solver.method].from_solver(operators, case.solver)
+    solver = case.solver
+    return METHODS[solver.scheme if solver.method == "modal" else solver.method].from_solver(operators, solver)
 
 
 def default_outdir(case: Case) -> Path:

@@ -109,7 +109,8 @@ def test_defaults(tmp_path):
     assert case.initial.velocity == [] and case.initial.displacement == []
     assert case.supports == [] and case.loads == [] and case.contacts == []
     solver = case.solver
-    assert (solver.method, solver.beta, solver.gamma, solver.modes) == ("newmark", 0.25, 0.5, None)
+    assert (solver.method, solver.theta, solver.scheme) == ("moreau_jean", 0.5, "moreau_jean")   # one that holds
+    assert (solver.beta, solver.gamma, solver.modes) == (0.25, 0.5, None)
     assert (solver.static_correction, solver.tolerance) == (True, 0.01)
     assert (case.output.every, case.output.probes, case.output.vtk) == (10, {}, True)
 
@@ -225,9 +226,9 @@ def test_integral_float_accepted_for_int(tmp_path):
     ("shape: bar", "shape: bar\n  length: 0", "mesh.length", "must be > 0"),
     ("dt: 0.01", "dt: 0.01\n  tolerance: 1", "solver.tolerance", "must be in (0, 1)"),
     ("dt: 0.01", "dt: 0.01\n  modes: 0", "solver.modes", "'auto' or an integer >= 1"),
-    ("dt: 0.01", "dt: 0.01\n  method: explicit", "solver.method", "one of newmark, central_difference, modal"),
+    ("dt: 0.01", "dt: 0.01\n  method: explicit", "solver.method", "one of moreau_jean, newmark, central_difference, modal"),
         ("dt: 0.01", "dt: 0.01\n  gamma: 0.4", "solver.gamma", "must be >= 0.5"),
-        ("dt: 0.01", "dt: 0.01\n  method: modal\n  mass: redistributed", "solver.mass", "needs method newmark"),
+        ("dt: 0.01", "dt: 0.01\n  method: modal\n  mass: redistributed", "solver.mass", "needs method moreau_jean or newmark"),
 ])
 def test_out_of_range(tmp_path, old, new, key, message):
     err = error_of(tmp_path, BASE.replace(old, new))

@@ -2,10 +2,12 @@
 
 from .base import EnergyBudget, Operators, SimulationError, StepState, integrate, steps_for
 from .central_difference import CentralDifference
+from .moreau_jean import MoreauJean
 from .newmark import Newmark
 
-# solver.method -> integrator (the modal model is integrated with Newmark).
-METHODS = {Newmark.name: Newmark, CentralDifference.name: CentralDifference, "modal": Newmark}
+# solver.method -> integrator of the full model; the reduced model (method modal) is integrated
+# with the one its solver.scheme names.
+METHODS = {MoreauJean.name: MoreauJean, Newmark.name: Newmark, CentralDifference.name: CentralDifference}
 
-__all__ = ["METHODS", "CentralDifference", "EnergyBudget", "Newmark", "Operators", "SimulationError", "StepState",
+__all__ = ["METHODS", "CentralDifference", "MoreauJean", "EnergyBudget", "Newmark", "Operators", "SimulationError", "StepState",
            "integrate", "steps_for"]

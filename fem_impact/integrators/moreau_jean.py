@@ -1,0 +1,241 @@
+"""Moreau-Jean: the theta-method with contact impulses and Newton's impact law (METHOD.md s. 8).
+
+Why it holds where the paper's scheme does not. With theta = 1/2 the smooth part is the
+trapezoidal rule, the same as Newmark's (beta 1/4, gamma 1/2). The two differ only in how the
+contact acts over a step:
+
+- Newmark (the paper) books the contact forces with the trapezoidal weights: over a step the
+  contact does the work ``-Delta(P U) . (F_n + F_n+1)/2``, which by complementarity at both
+  ends (``F . g = 0``, ``g = d0 - P U``) is ``(F_n . g_n+1 - F_n+1 . g_n) / 2``. The first term
+  is energy *given* to the structure by a row that carried a force at t_n and is open at t_n+1;
+  at Courant numbers far above 1 the stiff modes ring with period 2 dt, rows open and close
+  every step, and those release terms win: energy is created while the balance still closes.
+- Moreau-Jean applies the contact as an impulse ``p`` over the step, with the mean velocity
+  ``(V_n + V_n+1)/2`` doing the work ``-p . P (V_n + V_n+1)/2 = p . (gdot_n + gdot_n+1)/2``
+  (``gdot = -P V``). On a rigid row, Newton's law ``gdot_n+1 + e gdot_n >= 0 _|_ p >= 0`` makes
+  that ``p (1 - e) gdot_n / 2 <= 0`` whenever ``gdot_n <= 0``. A row that is active (its
+  predicted gap closed) while separating (``gdot_n > 0``, only after a drift into the obstacle)
+  takes ``e = 1`` instead: then the work is zero, never positive. On an elastic row (a stop's
+  spring or the reduced model's static compliance), the gap condition is enforced at the end of
+  the step with the force ``lam = p / dt``: the spring energy ``phi`` is convex, so
+  ``phi(x1) - phi(x0) <= phi'(x1) (x1 - x0)``: the stop stores at most the work it receives.
+
+So for theta = 1/2, any step, any number of rows and e in [0, 1], the contacts never create
+energy; theta > 1/2 adds numerical damping. The price is a drift of the gap (at most about
+dt/2 times the impact speed, per impact) that a position-level scheme does not have.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..contact import regularized, solve_lcp
+from .base import EnergyBudget, Operators, StepState, axpy
+from .scheme import ContactScheme
+
+CHECK_EVERY = 32   # steps: K U and K V by products with K instead of from the step's identity
+
+
+class MoreauJean(ContactScheme):
+    """Moreau-Jean theta-method for ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d0``, ``lam >= 0``.
+
+    Parameters (``solver.theta``):
+
+    - ``theta = 1/2`` (the default): the trapezoidal rule for the smooth forces, second order
+      between impacts, unconditionally stable, and the contacts never create energy (see the
+      module's docstring). The energy balance closes to round-off.
+    - ``theta in (1/2, 1]``: numerical damping of the high frequencies, first order; theta = 1
+      is backward Euler. The balance then has the scheme's own dissipation as its residual.
+
+    A step: ``(M + theta dt C + theta^2 dt^2 K) V1 = M V0 + dt R_theta - dt (1 - theta) C V0
+    - dt K (U0 + theta (1 - theta) dt V0) - P^T p``, ``U1 = U0 + dt (theta V1 + (1 - theta) V0)``.
+    Rows whose gap, predicted to mid-step, is closed take Newton's law at the velocity level;
+    elastic rows (stops with a stiffness, the reduced model's compliant rows) take their gap
+    condition at the end of the step, ``d0 - P U1 + c p / dt >= 0``. Both in one LCP in
+    ``W = P S^-1 P^T`` (plus ``c / (theta dt^2)`` on the elastic rows). The impulse ``p`` is
+    reported as the impulse S_N, ``p / dt`` as the force F_N; there is no Carnot correction,
+    and mass redistribution (no mass on the contact nodes) is allowed.
+
+    Per step: one solve for the free velocity, a second one when some row carries an impulse,
+    one product with M (and C); K U and K V follow from the step's own equation, and every
+    CHECK_EVERY-th step they are products with K, so that the energy balance checks the solves.
+    """
+
+    name = "moreau_jean"
+
+    def __init__(self, ops: Operators, dt: float, theta: float = 0.5):
+        if not 0.5 <= theta <= 1.0:
+            raise ValueError(f"Moreau-Jean needs theta in [1/2, 1], got {theta}")
+        self.theta = theta
+        S = ops.algebra.combine((1.0, ops.M), (theta * dt, ops.C), (theta * theta * dt * dt, ops.K))
+        super().__init__(ops, dt, S, impact_correction=False)
+        static = ops.static
+        # Elastic rows: an elastic stop, or a row the reduced model's static part makes compliant.
+        compliance = np.diag(ops.stop_compliance)
+        if static is not None:
+            compliance = compliance + static.compliance
+        self.elastic = np.diag(compliance) > 0.0
+        if static is not None:
+            self.elastic |= ~static.rigid_rows
+        self.lcp_matrix = regularized(self.W + compliance / (theta * dt * dt))
+        new = self.alg.vector
+        self.KU, self.KV, self.KV_prev = new(), new(), new()
+
+    @classmethod
+    def from_solver(cls, ops: Operators, solver) -> MoreauJean:
+        """From the case file's ``solver`` section."""
+        return cls(ops, solver.dt, theta=solver.theta)
+
+    def start(self, U0, V0, t0: float = 0.0) -> StepState:
+        """The state at t0: no impulse yet (a row closed and approaching is handled by the first step)."""
+        ops, alg = self.ops, self.alg
+        pu, pv, _ = self._initial_state(U0, V0, t0)
+        self._pu_dyn = pu   # P U of the dynamic part (without a static part's offset)
+        force = np.zeros(ops.p)
+        if ops.static:   # forces of the compliant rows that the initial state already loads
+            c = ~ops.static.rigid_rows
+            force[c] = solve_lcp(ops.static.compliance[c][:, c], (ops.d0 - ops.static.offset(t0) - pu)[c])[0]
+            pu = pu + ops.static.offset(t0) - ops.static.compliance @ force
+        energy = EnergyBudget()
+        energy.kinetic, energy.strain = self._quadratic_energies()
+        alg.mult(ops.K, self.U, self.KU)
+        alg.mult(ops.K, self.V, self.KV)
+        if ops.C is not None:
+            alg.mult(ops.C, self.V, self.CV)
+        self._book_stops(energy, force, force)
+        if ops.static:
+            energy.strain += ops.static.energy(t0, force)
+        energy.initial = energy.total
+        self.state = StepState(0, t0, self.U, self.V, self.A, ops.d0 - pu, force, np.zeros(ops.p), energy, pu, pv)
+        return self.state
+
+    def step(self) -> StepState:
+        ops, alg, st, dt, theta = self.ops, self.alg, self.state, self.dt, self.theta
+        t1 = self.t0 + (st.step + 1) * dt
+        U, V, A, rhs = self.U, self.V, self.A, self.rhs
+        self._begin_step()   # U_prev = U0; C V0 kept in CV_prev
+        self.KV, self.KV_prev = self.KV_prev, self.KV
+
+        # rhs = M V0 + dt R_theta - dt (1 - theta) C V0 - dt K U0 - theta (1 - theta) dt^2 K V0
+        # (M V0 is the previous step's M V1; R_theta = theta R1 + (1 - theta) R0).
+        np.multiply(self.MV, 1.0, out=rhs)
+        if self.loaded:
+            axpy(rhs, dt * (1.0 - theta), self.R)
+            self._evaluate_load(t1)
+            axpy(rhs, dt * theta, self.R)
+        if ops.C is not None:
+            axpy(rhs, -dt * (1.0 - theta), self.CV_prev)
+        axpy(rhs, -dt, self.KU)
+        axpy(rhs, -theta * (1.0 - theta) * dt * dt, self.KV_prev)
+        axpy(U, dt * (1.0 - theta), V)   # U0 + dt (1 - theta) V0; the theta V1 part below
+        np.copyto(A, V)                  # V0, for the mean acceleration (V1 - V0) / dt
+        self.solve_S(rhs, V)             # the free velocity
+
+        p = ops.p
+        impulse = np.zeros(p)
+        pu, pv = st.normal_displacement, st.normal_velocity
+        if p:
+            pv_free = ops.project_many(V)[0]
+            impulse = self._impulse(st, pv_free, t1)
+            pv = pv_free
+            if np.count_nonzero(impulse):
+                self.G.subtract_from(V, impulse)
+                ops.subtract_transpose(rhs, impulse)   # the step's equation with the impulse, for K V1
+                pv = pv_free - self.W.dot(impulse)
+        axpy(U, dt * theta, V)
+        np.subtract(V, A, out=A)
+        A *= 1.0 / dt
+        force = impulse / dt
+
+        # K V1 from the step's equation S V1 = rhs: theta^2 dt^2 K V1 = rhs - M V1 - theta dt C V1.
+        alg.mult(ops.M, V, self.MV)
+        if ops.C is not None:
+            alg.mult(ops.C, V, self.CV)
+        if (st.step + 1) % CHECK_EVERY:
+            np.subtract(rhs, self.MV, out=self.KV)
+            if ops.C is not None:
+                axpy(self.KV, -theta * dt, self.CV)
+            self.KV *= 1.0 / (theta * theta * dt * dt)
+            axpy(self.KU, dt * (1.0 - theta), self.KV_prev)
+            axpy(self.KU, dt * theta, self.KV)
+        else:
+            alg.mult(ops.K, V, self.KV)
+            alg.mult(ops.K, U, self.KU)
+
+        energy = st.energy.copy()
+        if p:
+            pu = self._pu_dyn = ops.project_many(U)[0]
+            if ops.static:
+                pu = pu + ops.static.offset(t1) - ops.static.compliance.dot(force)
+            # The work of the impulse with the step's mean velocity (exact for theta = 1/2).
+            energy.contact_loss += float(impulse.dot(0.5 * (st.normal_velocity + pv)))
+            if ops.static:
+                energy.contact_loss += self._static_contact_loss(st, force, t1)
+        self._energies(energy)
+        self._book_stops(energy, st.force, force)
+        if ops.static:
+            energy.strain += ops.static.energy(t1, force)
+            energy.external_work += ops.static.work(st.t, t1, st.force, force, theta)
+        self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, impulse, energy, pu, pv)
+        return self.state
+
+    def _impulse(self, st: StepState, pv_free: np.ndarray, t1: float) -> np.ndarray:
+        """The step's impulses from one LCP over the active rows (see the class docstring)."""
+        ops, dt, theta = self.ops, self.dt, self.theta
+        pv0 = st.normal_velocity   # P V0 (the dynamic part: a static part has no velocity of its own)
+        gap0 = st.gap
+        # Rigid rows: active when the gap predicted to mid-step is closed. Newton's law
+        # -P V1 - e' P V0 >= 0, with e' = e while approaching (P V0 >= 0), 1 while separating.
+        e = np.where(pv0 >= 0.0, ops.restitution, 1.0)
+        q = -pv_free - e * pv0
+        active = self.elastic | (gap0 - 0.5 * dt * pv0 <= 0.0)
+        if np.count_nonzero(self.elastic):
+            # Elastic rows: d0 - P U1 + c p / dt >= 0 with P U1 = P U0 + dt ((1 - theta) P V0 + theta P V1),
+            # divided by theta dt to keep the LCP matrix symmetric.
+            el = self.elastic
+            offset = ops.static.offset(t1) if ops.static else 0.0
+            g_free = (ops.d0 - offset - self._pu_dyn - dt * (1.0 - theta) * pv0) / (theta * dt) - pv_free
+            q = np.where(el, g_free, q)
+        impulse = np.zeros(ops.p)
+        if not np.count_nonzero(active):
+            return impulse
+        if np.count_nonzero(active) == active.size:
+            impulse = solve_lcp(self.lcp_matrix, q, guess=st.impulse > 0.0)[0]
+        else:
+            a = np.flatnonzero(active)
+            impulse[a] = solve_lcp(self.lcp_matrix[np.ix_(a, a)], q[a], guess=st.impulse[a] > 0.0)[0]
+        return impulse
+
+    def _static_contact_loss(self, st: StepState, force: np.ndarray, t1: float) -> float:
+        """What the reduced model's static part adds to the contact loss over a step.
+
+        The static part stores ``E_s(t, lam) = 1/2 c G c - lam . L c + 1/2 lam . C lam`` (c: the
+        load's time functions, L c = P S_k R, C = P S_k P^T) and the loads work on it as
+        ``StaticCorrection.work`` books. With the dynamic part's exact identity, the balance closes
+        when the contact loss also holds ``mean(lam) . Delta(L c) - Delta(1/2 lam . C lam)``. For
+        constant loads, complementarity at the end of the step makes the whole contact loss at
+        least ``1/2 Delta lam . C Delta lam >= 0`` (the end-point rule on a convex spring).
+        """
+        static = self.ops.static
+        f0 = st.force
+        loss = 0.5 * float((f0 + force).dot(static.offset(t1) - static.offset(st.t)))
+        return loss - 0.5 * float(force.dot(static.compliance.dot(force)) - f0.dot(static.compliance.dot(f0)))
+
+    def _energies(self, energy: EnergyBudget) -> None:
+        """Kinetic and strain energy at t1; external work and damping loss over the step, with the
+        weights (1 - theta, theta) of the scheme's own rule."""
+        theta = self.theta
+        sums = np.zeros(4)
+        sums[0] = self.V @ self.MV
+        sums[1] = self.U @ self.KU
+        if self.track_du:
+            du = np.subtract(self.U, self.U_prev, out=self.work)
+            if self.loaded:
+                sums[2] = (du @ self.R) if self.R_prev is self.R else \
+                    (1.0 - theta) * (du @ self.R_prev) + theta * (du @ self.R)
+            if self.ops.C is not None:
+                sums[3] = (1.0 - theta) * (du @ self.CV_prev) + theta * (du @ self.CV)
+        self.alg.allsum(sums)
+        energy.kinetic, energy.strain = 0.5 * sums[0], 0.5 * sums[1]
+        energy.external_work += sums[2]
+        energy.damping_loss += sums[3]
