@@ -60,6 +60,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary paragraph")
     run.add_argument("-v", "--verbose", action="store_true", help="log the stages of the run")
     run.add_argument("--plot", action="store_true", help="also write history.png (contact force and energies)")
+    run.add_argument("--stop-on-energy-gain", action="store_true",
+                     help="stop with status 3 as soon as the contacts create energy (E above E0 + W_ext by more "
+                          "than 1e-6 of the energy scale); without it the run goes on, warns at the end and "
+                          "records energy_created in summary.json")
 
     reduction = sub.add_parser(
         "reduction", help="table of the reduced model's errors and times against the full model",
@@ -245,12 +249,16 @@ def main(argv=None) -> int:
         return animate_main(args)
 
     # Heavy imports (dolfinx, PETSc) only once the arguments are known to be sound.
-    from .run import describe, run_case
+    from .run import describe, energy_warning, run_case
 
     def run():
-        summary = run_case(args.case, args.output, args.overrides, comm=_comm(), progress=not args.quiet)
+        summary = run_case(args.case, args.output, args.overrides, comm=_comm(), progress=not args.quiet,
+                           stop_on_energy_gain=args.stop_on_energy_gain)
         if _comm().rank == 0 and not args.quiet:
             print(describe(summary))
+        warning = energy_warning(summary)
+        if _comm().rank == 0 and warning:
+            print(warning, file=sys.stderr)
         if _comm().rank == 0 and args.plot:
             _plot(summary["outdir"], None)
 

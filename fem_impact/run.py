@@ -91,11 +91,14 @@ def staged_directory(outdir: Path, comm: MPI.Comm):
     comm.barrier()
 
 
-def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, progress=True) -> dict:
+def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, progress=True,
+             stop_on_energy_gain: bool = False) -> dict:
     """Run a case file end to end; returns the summary (also written to ``summary.json``).
 
     ``progress``: True for the time loop's progress bar (on a terminal), False for none, or a
     callable ``(step, total)`` of the caller's own (e.g. an ``output.Progress`` with a label).
+    ``stop_on_energy_gain``: stop with an EnergyCreated error as soon as the contacts create
+    energy; otherwise the summary records it (``energy_created``, ``energy_created_at``).
     """
     t_start = time.perf_counter()
     case = load_case(path, overrides)
@@ -104,7 +107,7 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
         raise CaseError(str(outdir), None, None, "the output path exists and is not a folder")
     # dolfinx and PETSc load in about a second: only once the case file is known to be sound.
     from .constraints import build_constraints, check_initial_state
-    from .integrators import integrate, steps_for
+    from .integrators import EnergyWatch, integrate, steps_for
     from .mesh import build_mesh
     from .model import build_model
     from .output import BodyMomenta, HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
@@ -139,7 +142,8 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
         try:
             if hasattr(fields, "write"):   # the reduced model's fields remember the previous step
                 observers.append(fields)
-            final = integrate(integrator, system.U0, system.V0, solver.t_end, observers,
+            watch = EnergyWatch(stop_on_energy_gain)
+            final = integrate(integrator, system.U0, system.V0, solver.t_end, observers, watch=watch,
                               progress=progress if callable(progress) else Progress(comm) if progress else None)
         finally:
             history.close()
@@ -167,6 +171,11 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
             "initial_energy": final.energy.initial,
             "final_energy": final.energy.total,
             "max_energy": stats.max_energy,
+            # Energy the scheme created (E above E0 + W_ext(t), or a loss below zero): 0 and null when none.
+            "energy_created": watch.created if watch.energy_was_created else 0.0,
+            "energy_created_relative": watch.created_relative if watch.energy_was_created else 0.0,
+            "energy_created_at": watch.created_at,
+            "max_energy_ratio": watch.max_ratio,
             "impact_loss": final.energy.impact_loss,
             "contact_loss": final.energy.contact_loss,
             "total_impulse": stats.total_impulse,
@@ -183,6 +192,17 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
                 write_view_script(stage, meshdata.dim, final_dir=outdir)
     summary["outdir"] = str(outdir.resolve())
     return summary
+
+
+def energy_warning(summary: dict) -> str | None:
+    """One line when the run created energy (printed on stderr at the end of a run), else None."""
+    if summary.get("energy_created_at") is None:
+        return None
+    return (f"warning: the contacts created energy in {summary['case']} ({summary['method']}, dt = "
+            f"{summary['dt']:.4g} s): {summary['energy_created']:.4g} J above E0 + W_ext ("
+            f"{summary['energy_created_relative']:.3g} of the energy scale), first at t = "
+            f"{summary['energy_created_at']:.6g} s; max E / (E0 + W_ext) = {summary['max_energy_ratio']:.3g}. "
+            "The results are not physical: use solver.method: moreau_jean (stable at any step), or a smaller dt")
 
 
 def describe(summary: dict) -> str:

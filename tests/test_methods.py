@@ -136,21 +136,49 @@ def test_mass_redistribution_starts_the_massless_node_in_equilibrium(tmp_path):
     assert summary["max_energy_error"] < 1e-9 / 8
 
 
-def test_blow_up_guard_stops_a_runaway_energy():
-    """The guard's bound is E0 + max |W_ext|; a state 100 times above it stops the run."""
-    from fem_impact.integrators.base import BlowUpGuard, EnergyBudget, StepState
+def _state(total, work=0.0, contact_loss=0.0, t=0.1):
+    from fem_impact.integrators.base import EnergyBudget, StepState
 
-    guard = BlowUpGuard()
-    def state(total, work=0.0):
-        e = EnergyBudget(kinetic=total, external_work=work, initial=1.0)
-        return StepState(1, 0.1, np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(0), np.zeros(0), np.zeros(0),
-                         e, np.zeros(0), np.zeros(0))
-    guard.check(state(50.0))
-    guard.check(state(900.0, work=10.0))     # energy put in raises the bound to 11
+    e = EnergyBudget(kinetic=total, external_work=work, contact_loss=contact_loss, initial=1.0)
+    return StepState(1, t, np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(0), np.zeros(0), np.zeros(0),
+                     e, np.zeros(0), np.zeros(0))
+
+
+def test_blow_up_guard_stops_a_runaway_energy():
+    """The guard's bound is E0 + W_ext(t) reached so far (work taken out does not raise it); a state
+    100 times above it stops the run."""
+    from fem_impact.integrators.base import EnergyWatch
+
+    watch = EnergyWatch()
+    watch.check(_state(0.5, work=-10.0))      # work taken out: the bound stays E0 = 1
     with pytest.raises(SimulationError, match="blew up"):
-        guard.check(state(1200.0))
+        watch.check(_state(101.0, work=-10.0))
+    watch = EnergyWatch()
+    watch.check(_state(50.0))
+    watch.check(_state(900.0, work=10.0))     # energy put in raises the bound to 11
+    with pytest.raises(SimulationError, match="blew up"):
+        watch.check(_state(1200.0))
     with pytest.raises(SimulationError, match="no longer finite"):
-        BlowUpGuard().check(state(np.nan))
+        EnergyWatch().check(_state(np.nan))
+
+
+def test_energy_watch_records_created_energy_and_when_it_began():
+    """E above E0 + W_ext(t), or a contact loss below zero, by more than 1e-6 of the scale is energy
+    created; its size and the time it began are recorded, or the run stops (EnergyCreated)."""
+    from fem_impact.integrators.base import EnergyCreated, EnergyWatch
+
+    watch = EnergyWatch()
+    watch.check(_state(1.0 + 0.5e-6, t=0.1))                 # within the tolerance: round-off
+    assert not watch.energy_was_created
+    watch.check(_state(1.5, work=0.4, t=0.2))                # 0.1 above E0 + W_ext = 1.4
+    watch.check(_state(1.2, work=0.4, contact_loss=-0.3, t=0.3))   # a negative contact loss of 0.3
+    assert watch.energy_was_created and watch.created_at == 0.2
+    assert watch.created == pytest.approx(0.3) and watch.created_relative == pytest.approx(0.3 / 1.4)
+    assert watch.max_ratio == pytest.approx(1.5 / 1.4)
+    strict = EnergyWatch(stop_on_energy_gain=True)
+    strict.check(_state(1.0))
+    with pytest.raises(EnergyCreated, match="t = 0.2"):
+        strict.check(_state(1.01, t=0.2))
 
 
 @pytest.mark.parametrize("fault, bound", [(None, 1e-11), ("solve", 1e-7), ("step matrix", 1e-10)])

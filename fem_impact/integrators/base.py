@@ -23,6 +23,9 @@ from scipy.linalg.blas import daxpy, dgemv
 from ..errors import SimulationError
 
 BLOW_UP = 100.0  # kinetic + strain energy above this many times the energy put in: the run blew up
+# Energy above E0 + W_ext (or a loss below zero) by more than this fraction of the energy scale: the
+# scheme created it (round-off and a closed balance leave 1e-12 .. 1e-10).
+ENERGY_TOLERANCE = 1e-6
 DENSE_BLOCK = 4096  # entries: up to this size the block of P on the dofs it touches is kept dense
 
 
@@ -365,49 +368,88 @@ class Observer(Protocol):
     def write(self, state: StepState) -> None: ...
 
 
-class BlowUpGuard:
-    """Stops a run whose energy grows far beyond what was put in (an unstable scheme).
+class EnergyCreated(SimulationError):
+    """The contacts created energy and the run was asked to stop on it (``stop_on_energy_gain``)."""
 
-    A stable run keeps ``E <= E0 + W_ext`` up to its losses (all >= 0 but for a little contact
-    work) and the balance residual. Growth past ``BLOW_UP`` times that bound is no accuracy
-    problem but a runaway instability (an explicit scheme above its step limit): the run stops
-    with a SimulationError instead of writing ever larger numbers (and then NaN). Milder energy
-    growth (position-level multipliers alone pump energy in over repeated impacts) is left
-    for the studies to classify.
+
+class EnergyWatch:
+    """Watches the energy of every step: that none is created, and that the run has not blown up.
+
+    A scheme that holds keeps ``E(t) <= E0 + W_ext(t)`` (every loss >= 0; the balance residual is
+    round-off). The watch records the largest amount by which the energy exceeds that bound or a
+    loss term (contact, impact, damping) falls below zero, and when it first did so by more than
+    ``tolerance`` of the energy scale, ``max E0 + W_ext`` reached so far: energy created, although
+    the balance may still close (position-level contact forces doing negative work). With
+    ``stop_on_energy_gain`` the run stops there (EnergyCreated).
+
+    Growth past ``blow_up`` times the scale is no accuracy problem but a runaway instability (an
+    explicit scheme above its step limit): the run always stops with a SimulationError instead of
+    writing ever larger numbers (and then NaN).
     """
 
-    def __init__(self, factor: float = BLOW_UP):
-        self.factor = factor
-        self.bound = 0.0
+    def __init__(self, stop_on_energy_gain: bool = False, tolerance: float = ENERGY_TOLERANCE,
+                 blow_up: float = BLOW_UP):
+        self.stop, self.tolerance, self.factor = stop_on_energy_gain, tolerance, blow_up
+        self.scale = 0.0          # E0 + W_ext(t), the largest so far
+        self.created = 0.0        # the largest excess (energy units)
+        self.created_at: float | None = None
+        self.max_ratio = 0.0      # max E / scale
+
+    @property
+    def created_relative(self) -> float:
+        return self.created / self.scale if self.scale > 0.0 else 0.0
 
     def check(self, state: StepState) -> None:
         e = state.energy
-        self.bound = max(self.bound, e.initial + abs(e.external_work))
         if not np.isfinite(e.total):
             raise SimulationError(f"the solution is no longer finite at t = {state.t:.6g} (step {state.step}): "
                                   "the scheme blew up (for an explicit method: is dt above its stable limit?)")
-        if e.total > self.factor * self.bound and e.total > 0.0:
+        self.scale = max(self.scale, e.initial + e.external_work, e.initial)
+        if self.scale <= 0.0:
+            return
+        excess = max(e.total - e.initial - e.external_work, -e.contact_loss, -e.impact_loss, -e.damping_loss)
+        self.max_ratio = max(self.max_ratio, e.total / self.scale)
+        if excess > self.created:
+            self.created = excess
+            if self.created_at is None and excess > self.tolerance * self.scale:
+                self.created_at = state.t
+                if self.stop:
+                    raise EnergyCreated(f"the contacts created energy at t = {state.t:.6g} (step {state.step}): "
+                                        f"{self.describe()}")
+        if e.total > self.factor * self.scale:
             raise SimulationError(
                 f"blew up at t = {state.t:.6g} (step {state.step}): kinetic + strain energy {e.total:.4g} is "
-                f"{e.total / max(self.bound, np.finfo(float).tiny):.3g} times the initial energy plus the work put "
-                f"in ({self.bound:.4g}); the scheme is unstable at this time step")
+                f"{e.total / self.scale:.3g} times the initial energy plus the work put in so far "
+                f"({self.scale:.4g}); the scheme is unstable at this time step")
+
+    def describe(self) -> str:
+        """The finding in words, for a warning or an error."""
+        return (f"the energy exceeded E0 + W_ext (or a loss went below zero) by {self.created:.4g} "
+                f"({self.created_relative:.3g} of the energy scale {self.scale:.4g}; max E / (E0 + W_ext) = "
+                f"{self.max_ratio:.3g}), first at t = {self.created_at:.6g}")
+
+    @property
+    def energy_was_created(self) -> bool:
+        return self.created_at is not None
 
 
-def integrate(integrator, U0, V0, t_end: float, observers=(), t0: float = 0.0, progress=None) -> StepState:
+def integrate(integrator, U0, V0, t_end: float, observers=(), t0: float = 0.0, progress=None,
+              watch: EnergyWatch | None = None) -> StepState:
     """Run ``integrator`` from (U0, V0) at ``t0`` to ``t_end``, calling each observer every step.
 
-    Stops with a SimulationError (before the observers see it) when the state stops being
-    finite or its energy blows up.
+    ``watch`` (an EnergyWatch; a default one when None) checks every step before the observers see
+    it: a run whose state stops being finite or whose energy blows up stops with a
+    SimulationError, and energy created by the contacts is recorded (or stops the run).
     """
     n_steps = steps_for(t_end - t0, integrator.dt)
-    guard = BlowUpGuard()
+    watch = EnergyWatch() if watch is None else watch
     state = integrator.start(U0, V0, t0)
-    guard.check(state)
+    watch.check(state)
     for obs in observers:
         obs.write(state)
     for _ in range(n_steps):
         state = integrator.step()
-        guard.check(state)
+        watch.check(state)
         for obs in observers:
             obs.write(state)
         if progress is not None:

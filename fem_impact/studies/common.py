@@ -128,9 +128,13 @@ def run_reference(outcome: Outcome, case_path, label: str) -> RunReference:
 def measure(outcome: Outcome, reference, history=None) -> dict:
     """Error measures of a finished level against ``reference`` (NaN for a level that did not finish)."""
     if not outcome.ok:
-        return {**dict.fromkeys(ERROR_MEASURES, math.nan), "energy_growth": math.nan}
+        return {**dict.fromkeys(ERROR_MEASURES, math.nan), "energy_growth": math.nan, "energy_created": math.nan,
+                "energy_created_at": None}
     h = outcome.history() if history is None else history
-    return {**errors(h, reference), "energy_growth": energy_growth(h)}
+    # The run's own verdict (EnergyWatch): energy created by the contacts, relative to E0 + W_ext.
+    created = outcome.summary.get("energy_created_relative", 0.0)
+    return {**errors(h, reference), "energy_growth": energy_growth(h), "energy_created": created,
+            "energy_created_at": outcome.summary.get("energy_created_at")}
 
 
 def fmt(value, spec=".3g") -> str:

@@ -6,7 +6,9 @@ never stops the study.
 
 Each run is classified, in this order (thresholds below, with why):
 
-- ``failed``: the run stopped (SimulationError: blow-up, NaN); kinetic + strain energy grew above
+- ``failed``: the run stopped (SimulationError: blow-up, NaN); the contacts created energy (the
+  run's own check: ``E > E0 + W_ext(t)`` or a loss below zero, by more than 1e-6 of the energy
+  scale, ``energy_created`` in its summary); kinetic + strain energy grew above
   ``E(0) + W_ext(t)`` by more than ENERGY_GROWTH of ``E(0) + max |W_ext|``; the largest
   penetration exceeds PENETRATION of the displacement scale; or chattering without end: the
   contact state (force or impulse carried, or not) still switches at the last step, in a stretch
@@ -70,8 +72,8 @@ FORCE_OSCILLATION = 0.5
 CHATTER_STEPS = 4
 CHATTER_SWITCHES = 20
 COLUMNS = ("method", "sweep", "value", "courant", "restitution", "length", "dt", "steps", "impacts", "outcome",
-           "reason", *ERROR_MEASURES, "energy_growth", "penetration", "chatter_switches", "loop_time_s", "wall_time_s",
-           "reference", "level", "jobs")
+           "reason", *ERROR_MEASURES, "energy_growth", "energy_created", "penetration", "chatter_switches",
+           "loop_time_s", "wall_time_s", "reference", "level", "jobs")
 COLORS = {"accurate": "#43a047", "inaccurate": "#ffb300", "failed": "#e53935", "skipped": "#bdbdbd"}
 SWEEPS = (("courant", "Courant number c dt / h"), ("restitution", "restitution e"),
           ("length", "run length (x t_end)"))
@@ -106,6 +108,9 @@ def classify(status: str, reason: str, m: dict, tolerance: float) -> tuple[str, 
         return "skipped", reason, "n/a"
     if status != "ok":
         return "failed", reason, "NaN" if "finite" in reason else "blow-up"
+    if _finite(m.get("energy_created")) and m["energy_created"] > 0.0:
+        return ("failed", f"the contacts created energy: {m['energy_created']:.3g} of E0 + W_ext, from t = "
+                          f"{m['energy_created_at']:.4g}", "E+")
     if m["energy_growth"] > ENERGY_GROWTH:
         return "failed", f"energy grew by {m['energy_growth']:.3g} of E0 + input work (> {ENERGY_GROWTH:g})", "E+"
     if m["penetration"] > PENETRATION:
