@@ -163,8 +163,9 @@ def test_blow_up_guard_stops_a_runaway_energy():
 
 
 def test_energy_watch_records_created_energy_and_when_it_began():
-    """E above E0 + W_ext(t), or a contact loss below zero, by more than 1e-6 of the scale is energy
-    created; its size and the time it began are recorded, or the run stops (EnergyCreated)."""
+    """E above E0 + W_ext(t), or the contacts' losses (contact + impact) below zero, by more than 1e-6
+    of the scale is energy created; its size and the time it began are recorded, or the run stops
+    (EnergyCreated)."""
     from fem_impact.integrators.base import EnergyCreated, EnergyWatch
 
     watch = EnergyWatch()

@@ -377,7 +377,8 @@ class EnergyWatch:
 
     A scheme that holds keeps ``E(t) <= E0 + W_ext(t)`` (every loss >= 0; the balance residual is
     round-off). The watch records the largest amount by which the energy exceeds that bound or a
-    loss term (contact, impact, damping) falls below zero, and when it first did so by more than
+    loss falls below zero (the contacts' -- contact plus impact loss -- or the damping's), and when
+    it first did so by more than
     ``tolerance`` of the energy scale, ``max E0 + W_ext`` reached so far: energy created, although
     the balance may still close (position-level contact forces doing negative work). With
     ``stop_on_energy_gain`` the run stops there (EnergyCreated).
@@ -407,7 +408,9 @@ class EnergyWatch:
         self.scale = max(self.scale, e.initial + e.external_work, e.initial)
         if self.scale <= 0.0:
             return
-        excess = max(e.total - e.initial - e.external_work, -e.contact_loss, -e.impact_loss, -e.damping_loss)
+        # The contacts' losses together: Carnot's impulses and the position-level forces are one
+        # contact model (on an impact the forces may give back a little of what the impulse took).
+        excess = max(e.total - e.initial - e.external_work, -(e.contact_loss + e.impact_loss), -e.damping_loss)
         self.max_ratio = max(self.max_ratio, e.total / self.scale)
         if excess > self.created:
             self.created = excess
@@ -424,7 +427,7 @@ class EnergyWatch:
 
     def describe(self) -> str:
         """The finding in words, for a warning or an error."""
-        return (f"the energy exceeded E0 + W_ext (or a loss went below zero) by {self.created:.4g} "
+        return (f"the energy exceeded E0 + W_ext (or the contacts' losses went below zero) by {self.created:.4g} "
                 f"({self.created_relative:.3g} of the energy scale {self.scale:.4g}; max E / (E0 + W_ext) = "
                 f"{self.max_ratio:.3g}), first at t = {self.created_at:.6g}")
 
