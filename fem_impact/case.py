@@ -120,6 +120,7 @@ class Contact:
 class Solver:
     method: str = "moreau_jean"
     theta: float = 0.5
+    level: str = "position"
     scheme: str = "moreau_jean"
     beta: float = 0.25
     gamma: float = 0.5
@@ -658,6 +659,7 @@ def _solver(value, path):
     f = _fields(value, path, {
         "dt": (_real(gt=0), _REQUIRED), "t_end": (_real(gt=0), _REQUIRED),
         "method": (_choice(*METHODS), "moreau_jean"), "theta": (_real(ge=0.5, le=1.0), 0.5),
+        "level": (_choice("position", "velocity"), "position"),
         "scheme": (_choice(*MODAL_SCHEMES), "moreau_jean"), "beta": (_real(gt=0), 0.25),
         "gamma": (_real(ge=0), 0.5), "mass": (_choice(*MASS_MATRICES), None),
         "impact_correction": (_boolean, True),

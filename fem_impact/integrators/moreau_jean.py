@@ -1,28 +1,36 @@
-"""Moreau-Jean: the theta-method with contact impulses and Newton's impact law (METHOD.md s. 8).
+"""Moreau-Jean: the theta-method with contact impulses (METHOD.md s. 8), the default method.
 
 Why it holds where the paper's scheme does not. With theta = 1/2 the smooth part is the
 trapezoidal rule, the same as Newmark's (beta 1/4, gamma 1/2). The two differ only in how the
 contact acts over a step:
 
 - Newmark (the paper) books the contact forces with the trapezoidal weights: over a step the
-  contact does the work ``-Delta(P U) . (F_n + F_n+1)/2``, which by complementarity at both
-  ends (``F . g = 0``, ``g = d0 - P U``) is ``(F_n . g_n+1 - F_n+1 . g_n) / 2``. The first term
-  is energy *given* to the structure by a row that carried a force at t_n and is open at t_n+1;
-  at Courant numbers far above 1 the stiff modes ring with period 2 dt, rows open and close
-  every step, and those release terms win: energy is created while the balance still closes.
-- Moreau-Jean applies the contact as an impulse ``p`` over the step, with the mean velocity
-  ``(V_n + V_n+1)/2`` doing the work ``-p . P (V_n + V_n+1)/2 = p . (gdot_n + gdot_n+1)/2``
-  (``gdot = -P V``). On a rigid row, Newton's law ``gdot_n+1 + e gdot_n >= 0 _|_ p >= 0`` makes
-  that ``p (1 - e) gdot_n / 2 <= 0`` whenever ``gdot_n <= 0``. A row that is active (its
-  predicted gap closed) while separating (``gdot_n > 0``, only after a drift into the obstacle)
-  takes ``e = 1`` instead: then the work is zero, never positive. On an elastic row (a stop's
-  spring or the reduced model's static compliance), the gap condition is enforced at the end of
-  the step with the force ``lam = p / dt``: the spring energy ``phi`` is convex, so
-  ``phi(x1) - phi(x0) <= phi'(x1) (x1 - x0)``: the stop stores at most the work it receives.
+  contact does the work ``-Delta(P U) . (F_n + lam0_n+1)/2``, which by complementarity at both
+  ends (``F . g = 0``, ``g = d0 - P U``) is ``(F_n . g_n+1 - lam0_n+1 . g_n) / 2``. The first
+  term is energy *given* to the structure by a row that carried a force at t_n and is open at
+  t_n+1; at Courant numbers far above 1 the stiff modes ring with period 2 dt, rows open and
+  close every step, and those release terms win: energy is created while the balance still
+  closes (tests/test_energy_stability.py shows it on two masses).
+- Moreau-Jean applies the contact as an impulse ``p`` at the end of the step: its work is
+  ``-p . P (V_n + V_n+1)/2``, with no share of the previous step's force, so no release term.
 
-So for theta = 1/2, any step, any number of rows and e in [0, 1], the contacts never create
-energy; theta > 1/2 adds numerical damping. The price is a drift of the gap (at most about
-dt/2 times the impact speed, per impact) that a position-level scheme does not have.
+Two levels of the condition on a row, both energy-safe for theta = 1/2, any step, any number of
+rows and e in [0, 1]:
+
+- ``position`` (the default): the gap at the end of every step, ``g_n+1 >= 0 _|_ p >= 0``. The
+  work is ``-p . Delta(P U) / dt = -(p / dt) . g_n <= 0``: the paper's position-level scheme with
+  its contact work fixed, gaps exact to round-off. The trapezoidal step leaves a held row with a
+  spurious velocity; Carnot's correction then sets it to ``-e`` times the approach speed (the
+  paper's law), or, should that give energy back, scales it by e (``_restitution``).
+- ``velocity``: Newton's law ``gdot_n+1 + e gdot_n >= 0 _|_ p >= 0`` (``gdot = -P V``) on the
+  rows whose gap, predicted to mid-step, is closed (Siconos' MoreauJeanOSI). The work is
+  ``p (1 - e) gdot_n / 2 <= 0`` while ``gdot_n <= 0``; a row active while separating (only after
+  a drift into the obstacle) takes e = 1, work zero. The price: the gap drifts into the
+  obstacle by up to about dt times the impact speed per impact.
+
+On an elastic row (a stop's spring, the reduced model's static compliance) the gap condition is
+always taken at the end of the step with the force ``lam = p / dt``: the spring energy ``phi`` is
+convex, so ``phi(x1) - phi(x0) <= phi'(x1) (x1 - x0)``: the stop stores at most what it receives.
 """
 
 from __future__ import annotations
@@ -34,39 +42,41 @@ from .base import EnergyBudget, Operators, StepState, axpy
 from .scheme import ContactScheme
 
 CHECK_EVERY = 32   # steps: K U and K V by products with K instead of from the step's identity
+LEVELS = ("velocity", "position")
 
 
 class MoreauJean(ContactScheme):
     """Moreau-Jean theta-method for ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d0``, ``lam >= 0``.
 
-    Parameters (``solver.theta``):
+    Parameters (``solver.theta``, ``solver.level``):
 
     - ``theta = 1/2`` (the default): the trapezoidal rule for the smooth forces, second order
       between impacts, unconditionally stable, and the contacts never create energy (see the
       module's docstring). The energy balance closes to round-off.
     - ``theta in (1/2, 1]``: numerical damping of the high frequencies, first order; theta = 1
       is backward Euler. The balance then has the scheme's own dissipation as its residual.
+    - ``level``: ``position`` (the default: gaps closed at every step's end, Carnot's correction
+      for the restitution) or ``velocity`` (Newton's law on velocities; gaps drift).
 
     A step: ``(M + theta dt C + theta^2 dt^2 K) V1 = M V0 + dt R_theta - dt (1 - theta) C V0
-    - dt K (U0 + theta (1 - theta) dt V0) - P^T p``, ``U1 = U0 + dt (theta V1 + (1 - theta) V0)``.
-    Rows whose gap, predicted to mid-step, is closed take Newton's law at the velocity level;
-    elastic rows (stops with a stiffness, the reduced model's compliant rows) take their gap
-    condition at the end of the step, ``d0 - P U1 + c p / dt >= 0``. Both in one LCP in
-    ``W = P S^-1 P^T`` (plus ``c / (theta dt^2)`` on the elastic rows). The impulse ``p`` is
-    reported as the impulse S_N, ``p / dt`` as the force F_N; there is no Carnot correction,
-    and mass redistribution (no mass on the contact nodes) is allowed.
+    - dt K (U0 + theta (1 - theta) dt V0) - P^T p``, ``U1 = U0 + dt (theta V1 + (1 - theta) V0)``,
+    one LCP for the impulses ``p`` in ``W = P S^-1 P^T`` (plus ``c / (theta dt^2)`` on elastic
+    rows). The impulse ``p`` is reported as S_N, ``p / dt`` as the force F_N. Mass redistribution
+    (no mass on the contact nodes) is allowed; such rows get no Carnot correction.
 
     Per step: one solve for the free velocity, a second one when some row carries an impulse,
-    one product with M (and C); K U and K V follow from the step's own equation, and every
-    CHECK_EVERY-th step they are products with K, so that the energy balance checks the solves.
+    one product with M (and C); K U and K V follow from the step's own equation (products with K
+    after a Carnot correction, and every CHECK_EVERY-th step, so that the balance checks the solves).
     """
 
     name = "moreau_jean"
 
-    def __init__(self, ops: Operators, dt: float, theta: float = 0.5):
+    def __init__(self, ops: Operators, dt: float, theta: float = 0.5, level: str = "position"):
         if not 0.5 <= theta <= 1.0:
             raise ValueError(f"Moreau-Jean needs theta in [1/2, 1], got {theta}")
-        self.theta = theta
+        if level not in LEVELS:
+            raise ValueError(f"level must be one of {', '.join(LEVELS)}, got {level!r}")
+        self.theta, self.level = theta, level
         S = ops.algebra.combine((1.0, ops.M), (theta * dt, ops.C), (theta * theta * dt * dt, ops.K))
         super().__init__(ops, dt, S, impact_correction=False)
         static = ops.static
@@ -77,6 +87,10 @@ class MoreauJean(ContactScheme):
         self.elastic = np.diag(compliance) > 0.0
         if static is not None:
             self.elastic |= ~static.rigid_rows
+        # Position level: every row takes its gap at the end of the step (a rigid row as an elastic
+        # one without compliance); the rigid rows with mass then get Carnot's correction.
+        self.position_rows = np.ones(ops.p, dtype=bool) if level == "position" else self.elastic
+        self.carnot_rows = ~self.elastic & ~ops.massless_rows if level == "position" else np.zeros(ops.p, bool)
         self.lcp_matrix = regularized(self.W + compliance / (theta * dt * dt))
         new = self.alg.vector
         self.KU, self.KV, self.KV_prev = new(), new(), new()
@@ -84,7 +98,7 @@ class MoreauJean(ContactScheme):
     @classmethod
     def from_solver(cls, ops: Operators, solver) -> MoreauJean:
         """From the case file's ``solver`` section."""
-        return cls(ops, solver.dt, theta=solver.theta)
+        return cls(ops, solver.dt, theta=solver.theta, level=solver.level)
 
     def start(self, U0, V0, t0: float = 0.0) -> StepState:
         """The state at t0: no impulse yet (a row closed and approaching is handled by the first step)."""
@@ -143,6 +157,11 @@ class MoreauJean(ContactScheme):
                 ops.subtract_transpose(rhs, impulse)   # the step's equation with the impulse, for K V1
                 pv = pv_free - self.W.dot(impulse)
         axpy(U, dt * theta, V)
+        pv_star, restitution_loss = pv, 0.0
+        if p:
+            step_contact_loss = float(impulse.dot(0.5 * (st.normal_velocity + pv_star)))
+            if np.count_nonzero(self.carnot_rows):
+                pv, restitution_loss = self._restitution(impulse, st.normal_velocity, pv, step_contact_loss)
         np.subtract(V, A, out=A)
         A *= 1.0 / dt
         force = impulse / dt
@@ -151,7 +170,7 @@ class MoreauJean(ContactScheme):
         alg.mult(ops.M, V, self.MV)
         if ops.C is not None:
             alg.mult(ops.C, V, self.CV)
-        if (st.step + 1) % CHECK_EVERY:
+        if (st.step + 1) % CHECK_EVERY and pv is pv_star:   # (Carnot's correction changed V: products)
             np.subtract(rhs, self.MV, out=self.KV)
             if ops.C is not None:
                 axpy(self.KV, -theta * dt, self.CV)
@@ -168,7 +187,8 @@ class MoreauJean(ContactScheme):
             if ops.static:
                 pu = pu + ops.static.offset(t1) - ops.static.compliance.dot(force)
             # The work of the impulse with the step's mean velocity (exact for theta = 1/2).
-            energy.contact_loss += float(impulse.dot(0.5 * (st.normal_velocity + pv)))
+            energy.contact_loss += step_contact_loss
+            energy.impact_loss += restitution_loss
             if ops.static:
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
         self._energies(energy)
@@ -188,11 +208,12 @@ class MoreauJean(ContactScheme):
         # -P V1 - e' P V0 >= 0, with e' = e while approaching (P V0 >= 0), 1 while separating.
         e = np.where(pv0 >= 0.0, ops.restitution, 1.0)
         q = -pv_free - e * pv0
-        active = self.elastic | (gap0 - 0.5 * dt * pv0 <= 0.0)
-        if np.count_nonzero(self.elastic):
-            # Elastic rows: d0 - P U1 + c p / dt >= 0 with P U1 = P U0 + dt ((1 - theta) P V0 + theta P V1),
-            # divided by theta dt to keep the LCP matrix symmetric.
-            el = self.elastic
+        active = self.position_rows | (gap0 - 0.5 * dt * pv0 <= 0.0)
+        if np.count_nonzero(self.position_rows):
+            # Elastic rows (and every row at the position level): d0 - P U1 + c p / dt >= 0 with
+            # P U1 = P U0 + dt ((1 - theta) P V0 + theta P V1), divided by theta dt to keep the LCP
+            # matrix symmetric.
+            el = self.position_rows
             offset = ops.static.offset(t1) if ops.static else 0.0
             g_free = (ops.d0 - offset - self._pu_dyn - dt * (1.0 - theta) * pv0) / (theta * dt) - pv_free
             q = np.where(el, g_free, q)
@@ -205,6 +226,39 @@ class MoreauJean(ContactScheme):
             a = np.flatnonzero(active)
             impulse[a] = solve_lcp(self.lcp_matrix[np.ix_(a, a)], q[a], guess=st.impulse[a] > 0.0)[0]
         return impulse
+
+    def _restitution(self, impulse: np.ndarray, pv0: np.ndarray, pv: np.ndarray,
+                     contact_loss: float) -> tuple[np.ndarray, float]:
+        """Position level: Carnot's correction on the rigid rows held at the end of the step.
+
+        A row held by a position-level impulse leaves the trapezoidal step with a spurious
+        velocity ``P V*`` (a row hit mid-step ends at rest, one hit at the start of the step
+        rebounds elastically). The smallest velocity change in the norm of M, ``dV = -M^-1 P_a^T
+        lam`` with ``lam = D_aa^-1 (P_a V* - d)``, sets the normal velocity to ``d = -e max(P V0,
+        0)``: Newton's law on the approach speed at the start of the step (the paper's choice;
+        e = 0: the row stops). With the impulse of the step this loses ``contact_loss + lam .
+        (P V* - 1/2 D lam)``; should that be negative (it is not for a point mass, nor for e = 0),
+        the target becomes ``d = e P V*``, which loses ``(1 - e^2)/2 P V* . D^-1 P V* >= 0``
+        (e the smallest on those rows): the contacts never give energy. Returns (P V+, its loss).
+        """
+        rows = np.flatnonzero(self.carnot_rows & (impulse > 0.0))
+        if not rows.size:
+            return pv, 0.0
+        e = self.ops.restitution[rows]
+        Daa = self.D[np.ix_(rows, rows)]
+        x = pv[rows]
+
+        def loss_for(target):
+            lam_a = np.linalg.solve(Daa, x - target)
+            return lam_a, float(lam_a.dot(x) - 0.5 * lam_a.dot(Daa.dot(lam_a)))
+
+        lam_a, loss = loss_for(-e * np.maximum(pv0[rows], 0.0))
+        if contact_loss + loss < 0.0 and np.count_nonzero(e):
+            lam_a, loss = loss_for(e.min() * x)
+        lam = np.zeros(self.ops.p)
+        lam[rows] = lam_a
+        self.H.subtract_from(self.V, lam)
+        return pv - self.D.dot(lam), loss
 
     def _static_contact_loss(self, st: StepState, force: np.ndarray, t1: float) -> float:
         """What the reduced model's static part adds to the contact loss over a step.

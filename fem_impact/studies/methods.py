@@ -58,9 +58,12 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "unconditionally stable without contact; its contact forces create energy at large steps in "
            "persistent contact"),
     Method("moreau-jean", ("solver.method=moreau_jean",),
-           "Moreau-Jean theta = 1/2: trapezoidal smooth forces, contact impulses with Newton's impact law at the "
-           "velocity level (the default method)",
-           "unconditionally stable; the contacts never create energy; gap drift of about dt/2 x impact speed"),
+           "Moreau-Jean theta = 1/2 at the position level: trapezoidal smooth forces, contact impulses at the "
+           "end of the step holding the gaps, Carnot's correction for e (the default method)",
+           "unconditionally stable; the contacts never create energy; gaps exact"),
+    Method("moreau-jean-velocity", ("solver.method=moreau_jean", "solver.level=velocity"),
+           "Moreau-Jean theta = 1/2 with Newton's impact law on velocities (as Siconos)",
+           "unconditionally stable; the contacts never create energy; gaps drift up to dt x impact speed"),
     Method("position-only", (*_NEWMARK, "solver.impact_correction=false"),
            "Newmark trapezoidal with position-level multipliers only (no velocity correction)",
            "unconditionally stable without contact; the contact force oscillates"),
