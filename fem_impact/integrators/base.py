@@ -25,7 +25,8 @@ from ..errors import SimulationError
 BLOW_UP = 100.0  # kinetic + strain energy above this many times the energy put in: the run blew up
 DENSE_BLOCK = 4096  # entries: up to this size the block of P on the dofs it touches is kept dense
 KEEP_COLUMNS = 1 << 22   # entries (N x p, 32 MB): up to this size S^-1 P^T is stored; above, applied by a solve
-MUMPS_FROM = 20000   # unknowns: serial systems from this size on are factorized by MUMPS (Cholesky if SPD)
+MUMPS_FROM = 5000    # unknowns: serial systems from this size on with 3D fill (MUMPS_FILL entries a row
+MUMPS_FILL = 30      # or more) are factorized by MUMPS (Cholesky if SPD); smaller or sparser ones by PETSc
 RHS_BLOCK = 256      # right-hand sides per multi-RHS solve (fewer on large models: N x block <= RHS_ENTRIES)
 RHS_ENTRIES = 1 << 25
 OPTIONS_PREFIX = "fem_impact_"   # PETSc options of the direct solver, e.g. -fem_impact_pc_factor_mat_solver_type
@@ -122,11 +123,15 @@ class DenseAlgebra:
 def factorize(A: PETSc.Mat, spd: bool = False) -> Callable[[PETSc.Vec, PETSc.Vec], None]:
     """A direct PETSc solver for ``A``, factorized now: ``solve(b, x)`` on PETSc vectors.
 
-    Small serial systems use PETSc's own sparse LU (its per-solve overhead is a fraction of
-    MUMPS'); parallel runs and serial ones from ``MUMPS_FROM`` unknowns on use MUMPS, as a
-    Cholesky factorization when the caller knows ``A`` to be symmetric positive definite (half
-    the factor, about half the time). PETSc's options with the prefix ``fem_impact_`` override
-    the choice (``PETSC_OPTIONS="-fem_impact_pc_factor_mat_solver_type superlu_dist"``).
+    Serial runs use PETSc's own sparse LU where its factor is cheap (1D and 2D models, small
+    ones): its solves cost a fraction of MUMPS' there (a 1D bar of 10 000 cells: 0.04 ms
+    against 7-12 ms, a 2D strip of 20 000 unknowns: 1.2 against 5-6 ms, measured). Parallel
+    runs, and serial ones of 3D fill (``MUMPS_FILL`` entries a row) from ``MUMPS_FROM`` unknowns
+    on, use MUMPS: as a Cholesky factorization when the caller knows ``A`` to be symmetric
+    positive definite (a 45 000-unknown plate of hexahedra: 2 s against PETSc's LU 20 s, and
+    multi-RHS solves at 6-9 ms a column against 60). PETSc's options with the prefix
+    ``fem_impact_`` override the choice
+    (``PETSC_OPTIONS="-fem_impact_pc_factor_mat_solver_type superlu_dist"``).
     """
     return _direct_solver(A, spd).solve
 
@@ -137,7 +142,9 @@ def _direct_solver(A: PETSc.Mat, spd: bool) -> PETSc.KSP:
     ksp.setOperators(A)
     ksp.setType(PETSc.KSP.Type.PREONLY)
     pc = ksp.getPC()
-    mumps = PETSc.Sys.hasExternalPackage("mumps") and (comm.getSize() > 1 or A.getSize()[0] >= MUMPS_FROM)
+    n = A.getSize()[0]
+    dense_fill = n >= MUMPS_FROM and A.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"] >= MUMPS_FILL * n
+    mumps = PETSc.Sys.hasExternalPackage("mumps") and (comm.getSize() > 1 or dense_fill)
     if mumps and spd:
         A.setOption(PETSc.Mat.Option.SPD, True)
         pc.setType(PETSc.PC.Type.CHOLESKY)
