@@ -17,7 +17,7 @@ import yaml
 from .expressions import RESERVED, Expression, ExpressionError, parse_expression
 
 SHAPES = ("bar",)
-BAR_CELLS = ("simplex", "hex")   # triangles/tetrahedra, or quadrilaterals/hexahedra (2D/3D bar)
+BAR_ELEMENTS = ("simplex", "hex")   # triangles/tetrahedra, or quadrilaterals/hexahedra (2D/3D bar)
 METHODS = ("newmark", "central_difference", "modal")
 MASS_MATRICES = ("consistent", "lumped", "redistributed")
 CONTACT_TYPES = ("obstacle", "pair")
@@ -61,7 +61,7 @@ class MeshSpec:
     cells: int = 100
     height: float | None = None
     width: float | None = None
-    cell: str = "simplex"
+    elements: str = "simplex"
 
 
 @dataclass
@@ -544,7 +544,7 @@ def _mesh(value, path, folder):
         "shape": (_choice(*SHAPES), None), "file": (_string, None), "dim": (_integer(1, 3), None),
         "length": (_real(gt=0), 1.0), "cells": (_integer(1), 100),
         "height": (_real(gt=0), None), "width": (_real(gt=0), None),
-        "cell": (_choice(*BAR_CELLS), "simplex")})
+        "elements": (_choice(*BAR_ELEMENTS), "simplex")})
     if (f["shape"] is None) == (f["file"] is None):
         raise _Invalid(path, f"give either 'shape' ({', '.join(SHAPES)}) or 'file', not both")
     if f["file"] is not None:
