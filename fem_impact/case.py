@@ -17,6 +17,7 @@ import yaml
 from .expressions import RESERVED, Expression, ExpressionError, parse_expression
 
 SHAPES = ("bar",)
+BAR_ELEMENTS = ("simplex", "hex")   # triangles/tetrahedra, or quadrilaterals/hexahedra (2D/3D bar)
 METHODS = ("moreau_jean", "newmark", "central_difference", "modal")
 # Time schemes of the reduced model (method modal).
 MODAL_SCHEMES = ("moreau_jean", "newmark")
@@ -62,6 +63,7 @@ class MeshSpec:
     cells: int = 100
     height: float | None = None
     width: float | None = None
+    elements: str = "simplex"
 
 
 @dataclass
@@ -546,7 +548,8 @@ def _mesh(value, path, folder):
     f = _fields(value, path, {
         "shape": (_choice(*SHAPES), None), "file": (_string, None), "dim": (_integer(1, 3), None),
         "length": (_real(gt=0), 1.0), "cells": (_integer(1), 100),
-        "height": (_real(gt=0), None), "width": (_real(gt=0), None)})
+        "height": (_real(gt=0), None), "width": (_real(gt=0), None),
+        "elements": (_choice(*BAR_ELEMENTS), "simplex")})
     if (f["shape"] is None) == (f["file"] is None):
         raise _Invalid(path, f"give either 'shape' ({', '.join(SHAPES)}) or 'file', not both")
     if f["file"] is not None:

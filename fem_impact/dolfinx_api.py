@@ -25,14 +25,16 @@ def interval(comm: MPI.Comm, cells: int, length: float) -> Mesh:
     return mesh.create_interval(comm, cells, [0.0, length])
 
 
-def rectangle(comm: MPI.Comm, nx: int, ny: int, length: float, height: float) -> Mesh:
-    """A triangle mesh of [0, length] x [0, height]."""
-    return mesh.create_rectangle(comm, [np.array([0.0, 0.0]), np.array([length, height])], [nx, ny])
+def rectangle(comm: MPI.Comm, nx: int, ny: int, length: float, height: float, hex: bool = False) -> Mesh:
+    """A triangle (``hex``: quadrilateral) mesh of [0, length] x [0, height]."""
+    cell = mesh.CellType.quadrilateral if hex else mesh.CellType.triangle
+    return mesh.create_rectangle(comm, [np.array([0.0, 0.0]), np.array([length, height])], [nx, ny], cell_type=cell)
 
 
-def box(comm: MPI.Comm, n: tuple[int, int, int], size: tuple[float, float, float]) -> Mesh:
-    """A tetrahedron mesh of [0, Lx] x [0, Ly] x [0, Lz]."""
-    return mesh.create_box(comm, [np.zeros(3), np.array(size, dtype=float)], list(n))
+def box(comm: MPI.Comm, n: tuple[int, int, int], size: tuple[float, float, float], hex: bool = False) -> Mesh:
+    """A tetrahedron (``hex``: hexahedron) mesh of [0, Lx] x [0, Ly] x [0, Lz]."""
+    cell = mesh.CellType.hexahedron if hex else mesh.CellType.tetrahedron
+    return mesh.create_box(comm, [np.zeros(3), np.array(size, dtype=float)], list(n), cell_type=cell)
 
 
 def gmsh_model_to_mesh(model, comm: MPI.Comm, gdim: int):

@@ -59,9 +59,9 @@ def _builtin_bar(spec: MeshSpec, comm: MPI.Comm) -> MeshData:
     if dim == 1:
         msh = dx.interval(comm, cells, length)
     elif dim == 2:
-        msh = dx.rectangle(comm, cells, across(height), length, height)
+        msh = dx.rectangle(comm, cells, across(height), length, height, hex=spec.elements == "hex")
     else:
-        msh = dx.box(comm, (cells, across(height), across(width)), (length, height, width))
+        msh = dx.box(comm, (cells, across(height), across(width)), (length, height, width), hex=spec.elements == "hex")
     tol = 1e-9 * length
     planes = {"left": (0, 0.0), "right": (0, length)}
     if dim >= 2:

@@ -21,12 +21,20 @@ from scipy import sparse
 from scipy.linalg.blas import daxpy, dgemv
 
 from ..errors import SimulationError
+from ..petsc_api import mumps_inverse_block
 
 BLOW_UP = 100.0  # kinetic + strain energy above this many times the energy put in: the run blew up
 # Energy above E0 + W_ext (or a loss below zero) by more than this fraction of the energy scale: the
 # scheme created it (round-off and a closed balance leave 1e-12 .. 1e-10).
 ENERGY_TOLERANCE = 1e-6
 DENSE_BLOCK = 4096  # entries: up to this size the block of P on the dofs it touches is kept dense
+KEEP_COLUMNS = 1 << 22   # entries (N x p, 32 MB): up to this size S^-1 P^T is stored; above, applied by a solve
+INVERSE_ENTRIES_FROM = 64   # contact rows: from these on, W from selected entries of A^-1 (serial MUMPS)
+MUMPS_FROM = 5000    # unknowns: serial systems from this size on with 3D fill (MUMPS_FILL entries a row
+MUMPS_FILL = 30      # or more) are factorized by MUMPS (Cholesky if SPD); smaller or sparser ones by PETSc
+RHS_BLOCK = 256      # right-hand sides per multi-RHS solve (fewer on large models: N x block <= RHS_ENTRIES)
+RHS_ENTRIES = 1 << 25
+OPTIONS_PREFIX = "fem_impact_"   # PETSc options of the direct solver, e.g. -fem_impact_pc_factor_mat_solver_type
 
 
 class PETScAlgebra:
@@ -64,15 +72,10 @@ class PETScAlgebra:
             S.axpy(c, A, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
         return S
 
-    def factorize(self, A: PETSc.Mat) -> Callable[[np.ndarray, np.ndarray], None]:
-        """A direct solver for ``A``, factorized now, once: ``solve(b, x)`` on arrays from ``vector()``.
-
-        Serial runs use PETSc's own sparse LU (for small systems its per-solve overhead is a
-        fraction of MUMPS'); parallel runs use MUMPS.
-        """
-        ksp = factorize(A)
-        vec = self._vec
-        return lambda b, x: ksp(vec(b), vec(x))
+    def factorize(self, A: PETSc.Mat, spd: bool = False) -> Factor:
+        """A direct solver for ``A``, factorized now, once: ``solve(b, x)`` on arrays from ``vector()``,
+        ``solve.many(B)`` on a block of columns. See ``factorize`` for the choice of solver."""
+        return Factor(_direct_solver(A, spd), self)
 
     def diagonal(self, A: PETSc.Mat) -> np.ndarray:
         return A.getDiagonal().array_r.copy()
@@ -110,14 +113,8 @@ class DenseAlgebra:
         return sum(c * (np.diag(A) if A.ndim == 1 else A) for c, A in terms)
 
     @staticmethod
-    def factorize(A: np.ndarray) -> Callable[[np.ndarray, np.ndarray], None]:
-        if A.ndim == 1:
-            if np.any(A == 0.0):
-                raise SimulationError("a diagonal operator of the reduced system is singular")
-            inverse = 1.0 / A
-            return lambda b, x: np.multiply(inverse, b, out=x)
-        inverse = np.linalg.inv(A)   # a few dozen unknowns at most
-        return lambda b, x: np.dot(inverse, b, out=x)
+    def factorize(A: np.ndarray, spd: bool = False) -> DenseFactor:
+        return DenseFactor(A)
 
     @staticmethod
     def diagonal(A: np.ndarray) -> np.ndarray:
@@ -128,17 +125,114 @@ class DenseAlgebra:
         return local
 
 
-def factorize(A: PETSc.Mat) -> Callable[[PETSc.Vec, PETSc.Vec], None]:
-    """A direct PETSc solver for ``A``, factorized now: ``solve(b, x)`` on PETSc vectors."""
-    ksp = PETSc.KSP().create(A.getComm())
+def factorize(A: PETSc.Mat, spd: bool = False) -> Callable[[PETSc.Vec, PETSc.Vec], None]:
+    """A direct PETSc solver for ``A``, factorized now: ``solve(b, x)`` on PETSc vectors.
+
+    Serial runs use PETSc's own sparse LU where its factor is cheap (1D and 2D models, small
+    ones): its solves cost a fraction of MUMPS' there (a 1D bar of 10 000 cells: 0.04 ms
+    against 7-12 ms, a 2D strip of 20 000 unknowns: 1.2 against 5-6 ms, measured). Parallel
+    runs, and serial ones of 3D fill (``MUMPS_FILL`` entries a row) from ``MUMPS_FROM`` unknowns
+    on, use MUMPS: as a Cholesky factorization when the caller knows ``A`` to be symmetric
+    positive definite (a 45 000-unknown plate of hexahedra: 2 s against PETSc's LU 20 s, and
+    multi-RHS solves at 6-9 ms a column against 60). PETSc's options with the prefix
+    ``fem_impact_`` override the choice
+    (``PETSC_OPTIONS="-fem_impact_pc_factor_mat_solver_type superlu_dist"``).
+    """
+    return _direct_solver(A, spd).solve
+
+
+def _direct_solver(A: PETSc.Mat, spd: bool) -> PETSc.KSP:
+    comm = A.getComm()
+    ksp = PETSc.KSP().create(comm)
     ksp.setOperators(A)
     ksp.setType(PETSc.KSP.Type.PREONLY)
     pc = ksp.getPC()
-    pc.setType(PETSc.PC.Type.LU)
-    if A.getComm().getSize() > 1 and PETSc.Sys.hasExternalPackage("mumps"):
+    n = A.getSize()[0]
+    dense_fill = n >= MUMPS_FROM and A.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"] >= MUMPS_FILL * n
+    mumps = PETSc.Sys.hasExternalPackage("mumps") and (comm.getSize() > 1 or dense_fill)
+    if mumps and spd:
+        A.setOption(PETSc.Mat.Option.SPD, True)
+        pc.setType(PETSc.PC.Type.CHOLESKY)
+    else:
+        pc.setType(PETSc.PC.Type.LU)
+    if mumps:
         pc.setFactorSolverType("mumps")
+    ksp.setOptionsPrefix(OPTIONS_PREFIX)
+    ksp.setFromOptions()
     ksp.setUp()
-    return ksp.solve
+    return ksp
+
+
+class Factor:
+    """A factorized PETSc matrix on the arrays of a ``PETScAlgebra``: ``solve(b, x)``, and
+    ``many(B)`` for a block of columns (owned rows, n_local x k) in one multi-RHS solve."""
+
+    def __init__(self, ksp: PETSc.KSP, algebra: PETScAlgebra):
+        self.ksp, self.algebra = ksp, algebra
+        self._solve, self._vec = ksp.solve, algebra._vec
+
+    def __call__(self, b: np.ndarray, x: np.ndarray) -> None:
+        self._solve(self._vec(b), self._vec(x))
+
+    def inverse_block(self, dofs: np.ndarray) -> np.ndarray | None:
+        """``(A^-1)[dofs][:, dofs]`` from a serial MUMPS factor (selected inverse entries), else None."""
+        try:
+            F = self.ksp.getPC().getFactorMatrix()
+        except PETSc.Error:
+            return None
+        return mumps_inverse_block(F, dofs)
+
+    def many(self, B: np.ndarray) -> np.ndarray:
+        """``A^-1 B`` for the owned rows ``B`` (n_local x k)."""
+        alg = self.algebra
+        n, k = alg.sizes, B.shape[1]
+        pc = self.ksp.getPC()
+        try:
+            F = pc.getFactorMatrix()
+        except PETSc.Error:   # not a direct solver (chosen by options): column by column
+            F = None
+        if F is None or pc.getType() not in (PETSc.PC.Type.LU, PETSc.PC.Type.CHOLESKY):
+            X = np.empty_like(B)
+            b, x = alg.vector(), alg.vector()
+            for j in range(k):
+                b[:] = B[:, j]
+                self(b, x)
+                X[:, j] = x
+            return X
+        comm = alg._petsc_comm
+        Bm = PETSc.Mat().createDense((n, (PETSc.DECIDE, k)), array=np.asfortranarray(B), comm=comm)
+        Xm = PETSc.Mat().createDense((n, (PETSc.DECIDE, k)), comm=comm)
+        Xm.setUp()
+        Bm.assemble()
+        Xm.assemble()
+        F.matSolve(Bm, Xm)
+        X = np.array(Xm.getDenseArray(), copy=True)
+        Bm.destroy()
+        Xm.destroy()
+        return X
+
+
+class DenseFactor:
+    """The inverse of a small replicated matrix (a diagonal when 1D): ``solve(b, x)``, ``many(B)``."""
+
+    def __init__(self, A: np.ndarray):
+        if A.ndim == 1:
+            if np.any(A == 0.0):
+                raise SimulationError("a diagonal operator of the reduced system is singular")
+            self.inverse = 1.0 / A
+            self.diagonal = True
+        else:
+            self.inverse = np.linalg.inv(A)   # a few dozen unknowns at most
+            self.diagonal = False
+
+    def __call__(self, b: np.ndarray, x: np.ndarray) -> None:
+        if self.diagonal:
+            np.multiply(self.inverse, b, out=x)
+        else:
+            np.dot(self.inverse, b, out=x)
+
+    def many(self, B: np.ndarray) -> np.ndarray:
+        return self.inverse[:, None] * B if self.diagonal else self.inverse @ B
 
 
 class TimeDependentLoad(Protocol):
@@ -271,8 +365,10 @@ class Operators:
         U[:] = x
         return move
 
-    def solve_columns(self, solve: Callable[[np.ndarray, np.ndarray], None]) -> np.ndarray:
-        """``A^-1 P^T`` (owned rows) for a factorized ``A``: p solves, once per run."""
+    def solve_columns(self, solve) -> np.ndarray:
+        """``A^-1 P^T`` (owned rows, n_local x p) for a factorized ``A``: p solves, once per run."""
+        if hasattr(solve, "many"):
+            return solve.many(self.P_local.toarray())
         b, x = self.algebra.vector(), self.algebra.vector()
         out = np.empty(self.P_local.shape)
         for j in range(self.p):
@@ -280,6 +376,35 @@ class Operators:
             solve(b, x)
             out[:, j] = x
         return out
+
+    def delassus(self, solve) -> tuple[np.ndarray, Columns | SolvedColumns]:
+        """``W = P A^-1 P^T`` (p x p, on every rank) and the correction ``y -= A^-1 P^T c``.
+
+        ``A^-1 P^T`` is computed in blocks of columns (multi-RHS solves with the factor), so
+        that memory stays N x block; it is kept (``Columns``) only while N x p is small
+        (``KEEP_COLUMNS``), else the correction is a solve with the factor (``SolvedColumns``).
+        The choice depends on global sizes only, so every rank makes the same (solves are
+        collective).
+        """
+        p, N = self.p, self.algebra.sizes[1]
+        keep = N * p <= KEEP_COLUMNS or not self.algebra.distributed
+        if keep:
+            X = self.solve_columns(solve)
+            return self.project(X), Columns(X)
+        # Serial MUMPS: (A^-1) on the dofs P touches, as selected entries of the inverse.
+        dofs = np.unique(self._P.indices)
+        if p >= INVERSE_ENTRIES_FROM and hasattr(solve, "inverse_block"):
+            block = solve.inverse_block(dofs)
+            if block is not None:
+                Pd = self._P[:, dofs].toarray()
+                return Pd @ block @ Pd.T, SolvedColumns(self, solve)
+        W = np.empty((p, p))
+        block = max(16, min(RHS_BLOCK, RHS_ENTRIES // max(N, 1)))
+        for j0 in range(0, p, block):
+            j1 = min(p, j0 + block)
+            X = solve.many(self.P_local[:, j0:j1].toarray())
+            W[:, j0:j1] = self.project(X)
+        return W, SolvedColumns(self, solve)
 
 
 class Columns:
@@ -304,6 +429,23 @@ class Columns:
             daxpy(X[:, 0], y, a=-c[0])
         else:
             dgemv(-1.0, X.T, c, beta=1.0, y=y, overwrite_y=1, trans=1)
+
+
+class SolvedColumns:
+    """``X = A^-1 P^T`` never formed: the corrections ``y -= X c`` are one solve with A's factor
+    each (for many contact rows, where N x p would not fit or cost more than the solve)."""
+
+    def __init__(self, ops: Operators, solve):
+        self.ops, self.solve = ops, solve
+        self.b, self.x = ops.algebra.vector(), ops.algebra.vector()
+
+    def subtract_from(self, y: np.ndarray, c: np.ndarray) -> None:
+        """``y -= A^-1 P^T c``, in place (collective: every rank calls it)."""
+        b = self.b
+        b.fill(0.0)
+        self.ops.subtract_transpose(b, -c)
+        self.solve(b, self.x)
+        axpy(y, -1.0, self.x)
 
 
 def axpy(y: np.ndarray, a: float, x: np.ndarray) -> np.ndarray:

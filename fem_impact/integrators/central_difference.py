@@ -8,7 +8,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..contact import regularized, solve_lcp
+from ..contact import Delassus
 from .base import EnergyBudget, Operators, StepState, axpy
 from .scheme import ContactScheme
 
@@ -46,8 +46,9 @@ class CentralDifference(ContactScheme):
         S = ops.algebra.combine((1.0, ops.M), (0.5 * dt, ops.C))
         super().__init__(ops, dt, S, impact_correction=False)
         stops = np.diag(ops.stop_compliance)   # elastic stops: g = d0 - P U + c lam >= 0
-        self.lcp_matrix = regularized(dt * dt * self.W + stops)
-        self.start_matrix = regularized(0.5 * dt * dt * self.D + stops)
+        self.lcp = Delassus.regularized(dt * dt * self.W + stops)
+        self.lcp_matrix = self.lcp.matrix
+        self.start_matrix = None   # (built at the start if a contact needs it: it takes D)
         self.critical_dt = critical_time_step(ops)
         if dt > self.critical_dt * (1.0 + 1e-9):
             log.warning("central difference: dt = %.4g is above the stable limit 2/omega_max = %.4g "
@@ -68,7 +69,9 @@ class CentralDifference(ContactScheme):
         force = np.zeros(ops.p)
         if ops.p:
             q = ops.d0 - (pu + dt * pv + 0.5 * dt * dt * pa)
-            force, _, _ = solve_lcp(self.start_matrix, q)
+            if np.any(q < 0.0):   # a contact closes in the first step
+                self.start_matrix = Delassus.regularized(0.5 * dt * dt * self.D + np.diag(ops.stop_compliance))
+                force, _, _ = self.start_matrix.solve(q)
             if force.any():
                 self.H.subtract_from(self.A, force)
         energy = EnergyBudget()
@@ -98,7 +101,7 @@ class CentralDifference(ContactScheme):
             pu, pv_pred, pa = ops.project_many(U, V, A)
             # Forward increment: the force at t1 keeps the gaps at t1 + dt non-negative.
             q = ops.d0 - (pu + dt * pv_pred + dt * dt * pa)
-            force, _, _ = solve_lcp(self.lcp_matrix, q, guess=st.force > 0.0)
+            force, _, _ = self.lcp.solve(q, guess=st.force > 0.0)
             if force.any():
                 self.G.subtract_from(A, force)
                 pa = pa - self.W @ force

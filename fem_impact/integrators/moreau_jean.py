@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..contact import regularized, solve_lcp
+from ..contact import Delassus, solve_lcp
 from .base import EnergyBudget, Operators, StepState, axpy
 from .scheme import ContactScheme
 
@@ -91,7 +91,7 @@ class MoreauJean(ContactScheme):
         # one without compliance); the rigid rows with mass then get Carnot's correction.
         self.position_rows = np.ones(ops.p, dtype=bool) if level == "position" else self.elastic
         self.carnot_rows = ~self.elastic & ~ops.massless_rows if level == "position" else np.zeros(ops.p, bool)
-        self.lcp_matrix = regularized(self.W + compliance / (theta * dt * dt))
+        self.lcp = Delassus.regularized(self.W + compliance / (theta * dt * dt))   # factors kept over the steps
         new = self.alg.vector
         self.KU, self.KV, self.KV_prev = new(), new(), new()
 
@@ -221,10 +221,10 @@ class MoreauJean(ContactScheme):
         if not np.count_nonzero(active):
             return impulse
         if np.count_nonzero(active) == active.size:
-            impulse = solve_lcp(self.lcp_matrix, q, guess=st.impulse > 0.0)[0]
+            impulse = self.lcp.solve(q, guess=st.impulse > 0.0)[0]
         else:
             a = np.flatnonzero(active)
-            impulse[a] = solve_lcp(self.lcp_matrix[np.ix_(a, a)], q[a], guess=st.impulse[a] > 0.0)[0]
+            impulse[a] = self.lcp.solve(q[a], guess=st.impulse[a] > 0.0, rows=a)[0]
         return impulse
 
     def _restitution(self, impulse: np.ndarray, pv0: np.ndarray, pv: np.ndarray,
@@ -245,12 +245,11 @@ class MoreauJean(ContactScheme):
         if not rows.size:
             return pv, 0.0
         e = self.ops.restitution[rows]
-        Daa = self.D[np.ix_(rows, rows)]
-        x = pv[rows]
+        carnot, x = self.carnot, pv[rows]   # (the solver of D keeps the factor while the rows stay)
 
         def loss_for(target):
-            lam_a = np.linalg.solve(Daa, x - target)
-            return lam_a, float(lam_a.dot(x) - 0.5 * lam_a.dot(Daa.dot(lam_a)))
+            lam_a = carnot.solve_block(rows, x - target)
+            return lam_a, float(lam_a.dot(x) - 0.5 * lam_a.dot(carnot.matrix[np.ix_(rows, rows)].dot(lam_a)))
 
         lam_a, loss = loss_for(-e * np.maximum(pv0[rows], 0.0))
         if contact_loss + loss < 0.0 and np.count_nonzero(e):
@@ -258,7 +257,7 @@ class MoreauJean(ContactScheme):
         lam = np.zeros(self.ops.p)
         lam[rows] = lam_a
         self.H.subtract_from(self.V, lam)
-        return pv - self.D.dot(lam), loss
+        return pv - carnot.dot(lam), loss
 
     def _static_contact_loss(self, st: StepState, force: np.ndarray, t1: float) -> float:
         """What the reduced model's static part adds to the contact loss over a step.

@@ -6,7 +6,7 @@ import logging
 
 import numpy as np
 
-from ..contact import impact_correction, regularized, solve_lcp
+from ..contact import Delassus, impact_correction
 from .base import Operators, StepState, axpy
 from .scheme import ContactScheme
 
@@ -49,8 +49,9 @@ class Newmark(ContactScheme):
         # solves an LCP in beta dt^2 W + P S_k P^T.
         # An elastic stop adds its compliance c on the diagonal: g = d0 - P U + c lam0 >= 0.
         static = ops.static
-        self.lcp_matrix = regularized(beta * dt * dt * self.W + (static.compliance if static else 0.0)
-                                      + np.diag(ops.stop_compliance))
+        self.lcp = Delassus.regularized(beta * dt * dt * self.W + (static.compliance if static else 0.0)
+                                        + np.diag(ops.stop_compliance))
+        self.lcp_matrix = self.lcp.matrix
         self._check_stop_stiffness()
 
     def _check_stop_stiffness(self) -> None:
@@ -102,7 +103,7 @@ class Newmark(ContactScheme):
             pu_pred, pv_pred, pa = ops.project_many(U, V, A)
             offset = ops.static.offset(t1) if ops.static else 0.0
             q = ops.d0 - offset - (pu_pred + bdt2 * pa)
-            lam0 = solve_lcp(self.lcp_matrix, q, guess=st.force > 0.0)[0]
+            lam0 = self.lcp.solve(q, guess=st.force > 0.0)[0]
             if np.count_nonzero(lam0):
                 self.G.subtract_from(A, lam0)
                 pa = pa - self.W.dot(lam0)
@@ -125,7 +126,7 @@ class Newmark(ContactScheme):
             s0 = dt * f_mean
             closed = self._closed(pu, lam0)
             if np.count_nonzero(closed):
-                res = impact_correction(self.D, closed, s0, pv_star, st.normal_velocity, pa, lam0, ops.restitution)
+                res = impact_correction(self.carnot, closed, s0, pv_star, st.normal_velocity, pa, lam0, ops.restitution)
                 force, impulse = res.force, s0 + res.lam1
                 pv, loss = self._apply_corrections(res, pv_star)
                 energy.impact_loss += loss

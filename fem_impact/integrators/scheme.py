@@ -4,11 +4,12 @@ state vectors, the initial acceleration, the energy budget of a step, the step's
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 
-from ..contact import TINY, ImpactResult, impact_correction, regularized, solve_lcp
-from .base import Columns, EnergyBudget, Operators, StepState, owned_values
+from ..contact import TINY, Delassus, ImpactResult, impact_correction, solve_lcp
+from .base import EnergyBudget, Operators, StepState, owned_values
 
 log = logging.getLogger(__name__)
 
@@ -20,7 +21,10 @@ class ContactScheme:
     ``G = S^-1 P^T``, ``H = M^-1 P^T`` and the p x p matrices ``W = P G`` and ``D = P H``.
     ``impact_rows`` are the rows that get Carnot's velocity correction and the acceleration
     projection: rigid (no static compliance, no elastic stop), with mass on their dofs, and the
-    correction switched on.
+    correction switched on. ``H`` and ``D`` are built on first use (a scheme whose rows get no
+    Carnot correction pays nothing for them). ``G`` and ``H`` are stored columns for few rows
+    and solves with the factor for many (``Operators.delassus``): either way
+    ``G.subtract_from(y, c)`` is ``y -= S^-1 P^T c``.
     """
 
     name = ""
@@ -29,13 +33,17 @@ class ContactScheme:
         alg = ops.algebra
         self.ops, self.alg, self.dt = ops, alg, dt
         self.S = S
-        self.solve_S = alg.factorize(S)
-        self.solve_M = alg.factorize(ops.mass_for_solves())
-        G = ops.solve_columns(self.solve_S)        # S^-1 P^T, owned rows (n_local x p)
-        H = ops.solve_columns(self.solve_M)        # M^-1 P^T
-        self.W = ops.project(G)                    # P S^-1 P^T (p x p, on every rank)
-        self.D = regularized(ops.project(H))       # P M^-1 P^T
-        self.G, self.H = Columns(G), Columns(H)
+        self.timings: dict[str, float] = {}   # seconds of the setup's stages (benchmarks read them)
+        clock = time.perf_counter()
+        self.solve_S = alg.factorize(S, spd=True)  # (M, C, K symmetric, M positive definite)
+        self.timings["factorize S"] = time.perf_counter() - clock
+        clock = time.perf_counter()
+        self.solve_M = alg.factorize(ops.mass_for_solves(), spd=True)
+        self.timings["factorize M"] = time.perf_counter() - clock
+        clock = time.perf_counter()
+        self.W, self.G = ops.delassus(self.solve_S)   # P S^-1 P^T (p x p, every rank); S^-1 P^T
+        self.timings["W"] = time.perf_counter() - clock
+        self._D = self._H = self._carnot = None
         static = ops.static
         rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
         self.impact_rows = rigid & (ops.stop_compliance == 0.0) & ~ops.massless_rows & bool(impact_correction)
@@ -53,6 +61,36 @@ class ContactScheme:
         self.loaded = self.track_du = True   # (known at the start)
         self.t0 = 0.0
         self.state: StepState | None = None
+
+    # -- operators of Carnot's correction, built on first use ------------------------------
+    def _build_mass_operators(self) -> None:
+        clock = time.perf_counter()
+        D, self._H = self.ops.delassus(self.solve_M)   # P M^-1 P^T; M^-1 P^T
+        self._carnot = Delassus.regularized(D)
+        self._D = self._carnot.matrix
+        self.timings["D"] = time.perf_counter() - clock
+        log.info("Carnot's correction on %d rows: D = P M^-1 P^T in %.3g s", self.ops.p, self.timings["D"])
+
+    @property
+    def D(self) -> np.ndarray:
+        """``P M^-1 P^T`` (p x p, every rank; regularized when singular)."""
+        if self._D is None:
+            self._build_mass_operators()
+        return self._D
+
+    @property
+    def H(self):
+        """``M^-1 P^T`` as corrections: ``H.subtract_from(y, c)`` is ``y -= M^-1 P^T c``."""
+        if self._H is None:
+            self._build_mass_operators()
+        return self._H
+
+    @property
+    def carnot(self) -> Delassus:
+        """LCP solver on ``D``, keeping the factor of its active block between steps."""
+        if self._carnot is None:
+            self._build_mass_operators()
+        return self._carnot
 
     # -- pieces of a step ----------------------------------------------------------------
     def _free_acceleration(self, U: np.ndarray, V: np.ndarray, solve, out: np.ndarray,
@@ -195,7 +233,10 @@ class ContactScheme:
                 self.H.subtract_from(self.A, force)
                 pa = pa - self.D @ force
             pu = pu + static.offset(t0) - static.compliance @ force
-        res = impact_correction(self.D, self._closed(pu, force), np.zeros(p), pv, pv, pa, force, ops.restitution)
+        closed = self._closed(pu, force)
+        if not np.count_nonzero(closed):   # (nothing to correct: D and H are not needed)
+            return force, np.zeros(p), pu, pv
+        res = impact_correction(self.carnot, closed, np.zeros(p), pv, pv, pa, force, ops.restitution)
         pv, energy.impact_loss = self._apply_corrections(res, pv)
         return res.force, res.lam1.copy(), pu, pv
 

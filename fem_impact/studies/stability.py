@@ -300,7 +300,7 @@ def _plot(path, rows, methods, skipped, courants, restitutions, lengths, name, l
     handles = [Patch(color=c, label=k) for k, c in COLORS.items()]
     axes[0][-1].legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
     fig.suptitle(f"{name}: outcome of each run against the {label}\ncodes: ok; error above {tolerance:g} (the "
-                 f"largest, in %); osc = force oscillation; blow-up, NaN, E+ = energy growth, pen = penetration, "
+                 f"largest, in %); osc = force oscillation; blow-up, NaN, E+ = energy created, pen = penetration, "
                  f"chat = chattering without end; n/a = not available", fontsize=8)
     save_figure(fig, path)
     plt.close(fig)

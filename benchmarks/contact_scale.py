@@ -1,0 +1,122 @@
+"""Cost of many contact rows: a plate falling face-first, every node of its face a contact row.
+
+cases/plate_drop.yaml (a 1 x 5 x 5 plate of hexahedra, n cells through the thickness and 5 n
+across, so (5 n + 1)^2 face nodes) with ``coupling: each`` (one row per face node) against the
+same plate with ``coupling: mean`` (one row on the face's mean displacement), with the default
+method (moreau_jean at the position level) or ``--method newmark`` (the paper's scheme) or
+``--method velocity`` (moreau_jean at the velocity level). Courant number 0.5, the floor reached
+at the second step, so that the timed steps are contact steps (the LCPs on all rows, Carnot's
+correction where the method has one). For each size and coupling it prints:
+the factorization of S, the building of W = P S^-1 P^T and D = P M^-1 P^T, the whole setup
+(case, mesh, assembly, factorizations, W, D, the LCP matrices), the median time of a contact
+step, and the peak memory of the process (each configuration runs in a process of its own).
+Targets (issue 10): at 1681 rows a step costs at most 2x, the setup at most 3x the one-row
+plate's; 6561 rows runs within 24 GiB.
+
+    python benchmarks/contact_scale.py [--sizes 2 4 8 16] [--steps 12] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the fem-impact command does
+
+CASE = Path(__file__).resolve().parents[1] / "cases" / "plate_drop.yaml"
+
+
+METHODS = {"moreau_jean": ["solver.method=moreau_jean"], "velocity": ["solver.method=moreau_jean", "solver.level=velocity"],
+           "newmark": ["solver.method=newmark"]}
+
+
+def measure(cells: int, coupling: str, steps: int, method: str) -> dict:
+    """One configuration, in this process."""
+    import numpy as np
+    from mpi4py import MPI
+
+    from fem_impact.case import load_case
+    from fem_impact.constraints import build_constraints
+    from fem_impact.integrators import Operators
+    from fem_impact.mesh import build_mesh
+    from fem_impact.model import build_model
+    from fem_impact.run import make_integrator
+
+    dt = 0.5 / cells
+    overrides = [f"mesh.cells={cells}", f"solver.dt={dt}", f"contacts.0.gap={1.5 * dt}",
+                 f"contacts.0.coupling={coupling}", *METHODS[method]]
+    t0 = time.perf_counter()
+    case = load_case(CASE, overrides)
+    model = build_model(case, build_mesh(case, MPI.COMM_WORLD))
+    cons = build_constraints(case, model)
+    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
+    integrator = make_integrator(case, ops)
+    integrator.start(model.U0, model.V0)
+    if method != "velocity":
+        _ = integrator.D   # (built on the first closing otherwise: count it in the setup)
+    setup = time.perf_counter() - t0
+    times, contact = [], []
+    for _ in range(min(steps, 4 * cells)):   # (the contact lasts 2 L / c = 4 n steps)
+        t0 = time.perf_counter()
+        state = integrator.step()
+        times.append(time.perf_counter() - t0)
+        contact.append(np.count_nonzero(state.force) >= 0.5 * ops.p)
+    assert all(contact[1:-1]), "the timed steps should be contact steps"
+    timings = integrator.timings
+    return {"cells": cells, "coupling": coupling, "rows": ops.p, "dofs": model.dofs,
+            "factorize_s": timings["factorize S"], "W_s": timings["W"], "D_s": timings.get("D", 0.0),
+            "setup_s": setup,
+            "first_contact_ms": 1e3 * times[1], "step_ms": 1e3 * float(np.median(times[2:-1])),
+            "peak_MiB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def run_child(cells: int, coupling: str, steps: int, method: str) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--one", str(cells), coupling, "--steps", str(steps),
+                          "--method", method],
+                         capture_output=True, text=True)
+    if out.returncode:
+        raise RuntimeError(out.stderr)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 8, 16],
+                        help="cells through the thickness (face rows (5 n + 1)^2; default 2 4 8 16)")
+    parser.add_argument("--steps", type=int, default=12, help="time steps per run (default 12; >= 4)")
+    parser.add_argument("--quick", action="store_true", help="the smallest plate only (for CI)")
+    parser.add_argument("--method", choices=sorted(METHODS), default="moreau_jean",
+                        help="moreau_jean (the default), velocity (moreau_jean, level velocity), newmark")
+    parser.add_argument("--one", nargs=2, metavar=("CELLS", "COUPLING"), help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.one:
+        print(json.dumps(measure(int(args.one[0]), args.one[1], max(4, args.steps), args.method)))
+        return
+    sizes = [2] if args.quick else args.sizes
+    header = (f"{'rows':>6}{'coupling':>9}{'unknowns':>9}{'factor s':>9}{'W s':>8}{'D s':>8}{'setup s':>9}"
+              f"{'1st ms':>9}{'step ms':>9}{'peak MiB':>9}{'step x':>8}{'setup x':>8}")
+    print(f"method: {args.method}")
+    print(header)
+    print("-" * len(header))
+    for cells in sizes:
+        mean = run_child(cells, "mean", args.steps, args.method)
+        each = run_child(cells, "each", args.steps, args.method)
+        for r in (mean, each):
+            ratios = (f"{r['step_ms'] / mean['step_ms']:>8.2f}{r['setup_s'] / mean['setup_s']:>8.2f}"
+                      if r is each else f"{'':>8}{'':>8}")
+            print(f"{r['rows']:>6}{r['coupling']:>9}{r['dofs']:>9}{r['factorize_s']:>9.2f}{r['W_s']:>8.2f}"
+                  f"{r['D_s']:>8.2f}{r['setup_s']:>9.2f}{r['first_contact_ms']:>9.1f}{r['step_ms']:>9.1f}"
+                  f"{r['peak_MiB']:>9.0f}" + ratios, flush=True)
+    print("factor: the factorization of S; W, D: P S^-1 P^T and P M^-1 P^T (with their corrections' setup);\n"
+          "setup: case to the started integrator, D included; 1st: the step in which the floor is reached;\n"
+          "step: median contact step; step x, setup x: the many-row plate against the one-row plate.")
+
+
+if __name__ == "__main__":
+    main()

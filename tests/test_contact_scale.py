@@ -1,0 +1,94 @@
+"""Many contact rows: the LCP solver at a few hundred rows, and a plate falling face-first with
+every face node a contact row against the same bar in 1D (cases/plate_drop.yaml)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import nnls
+
+from conftest import CASES
+from fem_impact.contact import Delassus, regularized, solve_lcp
+
+PLATE = CASES / "plate_drop.yaml"
+BAR_1D = ["mesh.dim=1", "initial.velocity=[-1.0]", "contacts.0.normal=[-1.0]",
+          "output.probes.left=[0.0]", "output.probes.right=[1.0]"]
+
+
+def lcp_by_nnls(A, q):
+    """The LCP with SPD ``A`` as ``min 1/2 x'Ax + q'x, x >= 0``: ``min |L'x + L^-1 q|`` (A = L L')."""
+    L = np.linalg.cholesky(A)
+    return nnls(L.T, -np.linalg.solve(L, q), maxiter=50 * q.size)[0]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_block_pivoting_matches_nnls_at_a_few_hundred_rows(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(200, 400))
+    B = rng.normal(size=(n, n // 2))
+    A = B @ B.T + 0.05 * n * np.eye(n)     # SPD, like a Delassus matrix
+    q = rng.normal(size=n)
+    guess = rng.random(n) < 0.5
+    solver = Delassus(A)
+    x, w, active = solver.solve(q, guess=guess)
+    reference = lcp_by_nnls(A, q)
+    scale = np.abs(reference).max()
+    np.testing.assert_allclose(x, reference, atol=1e-9 * scale)
+    assert np.all(x >= 0) and np.all(w >= 0) and abs(x @ w) < 1e-9 * scale * np.abs(q).max() * n
+    np.testing.assert_allclose(w, A @ x + q, atol=1e-9 * np.abs(q).max())
+    # Warm start from the solution: the kept factor, no pivoting, the same answer.
+    x2, _, active2 = solver.solve(q, guess=active)
+    np.testing.assert_array_equal(active2, active)
+    np.testing.assert_allclose(x2, x, rtol=0, atol=1e-12 * scale)
+    # The wrapper gives the same.
+    np.testing.assert_allclose(solve_lcp(A, q, guess=guess)[0], x, atol=1e-12 * scale)
+
+
+def test_lcp_on_a_principal_submatrix_shares_the_solver():
+    rng = np.random.default_rng(7)
+    n = 250
+    B = rng.normal(size=(n, n))
+    A = B @ B.T + n * np.eye(n)
+    rows = np.sort(rng.choice(n, size=120, replace=False))
+    q = rng.normal(size=rows.size)
+    x = Delassus(A).solve(q, rows=rows)[0]
+    np.testing.assert_allclose(x, lcp_by_nnls(A[np.ix_(rows, rows)], q), atol=1e-9 * np.abs(x).max())
+
+
+def test_regularized_shifts_a_singular_large_matrix_only():
+    rng = np.random.default_rng(3)
+    n = 300
+    B = rng.normal(size=(n, n))
+    A = B @ B.T + n * np.eye(n)
+    assert regularized(A) is A and Delassus.regularized(A).matrix is A
+    C = rng.normal(size=(n, n // 2))
+    singular = C @ C.T                     # rank n/2: more rows than the motion tells apart
+    shifted = regularized(singular)
+    assert shifted is not singular and np.all(np.linalg.eigvalsh(shifted) > 0)
+    np.testing.assert_allclose(Delassus.regularized(singular).matrix, shifted)
+
+
+def _plate_against_bar(run, cells: int):
+    dt = 0.5 / cells
+    common = [f"mesh.cells={cells}", f"solver.dt={dt}", "solver.t_end=2.5", "output.every=1", "output.vtk=false"]
+    _, plate = run(PLATE, *common)
+    _, bar = run(PLATE, *common, *BAR_1D)
+    assert plate["floor_impulse"].sum() > 0.9 * 2 * 25.0    # the contact happened (exact: 2 rho c A v0 = 50)
+    for name in bar.dtype.names:
+        if name in ("t", "energy_error"):
+            continue
+        scale = max(np.abs(bar[name]).max(), 1e-300)
+        assert np.abs(plate[name] - bar[name]).max() <= 1e-6 * scale, name
+    return plate
+
+
+def test_plate_with_441_contact_rows_is_the_1d_bar(run):
+    """With nu = 0 a face moving as a whole is an exact solution of the discrete 3D equations
+    (hexahedra: the element matrices are tensor products), so the plate's face forces sum to
+    the bar's force, step by step."""
+    _plate_against_bar(run, 4)
+
+
+@pytest.mark.slow
+def test_plate_with_1681_contact_rows_is_the_1d_bar(run):
+    _plate_against_bar(run, 8)
