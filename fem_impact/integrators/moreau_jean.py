@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..contact import Delassus, solve_lcp
+from ..contact import TINY, Delassus, solve_lcp
 from .base import EnergyBudget, Operators, StepState, axpy
 from .scheme import ContactScheme
 
@@ -161,7 +161,8 @@ class MoreauJean(ContactScheme):
         if p:
             step_contact_loss = float(impulse.dot(0.5 * (st.normal_velocity + pv_star)))
             if np.count_nonzero(self.carnot_rows):
-                pv, restitution_loss = self._restitution(impulse, st.normal_velocity, pv, step_contact_loss)
+                pu_end = self._pu_dyn + dt * ((1.0 - theta) * st.normal_velocity + theta * pv_star)
+                pv, restitution_loss = self._restitution(impulse, st.normal_velocity, pv, pu_end, step_contact_loss)
         np.subtract(V, A, out=A)
         A *= 1.0 / dt
         force = impulse / dt
@@ -227,7 +228,7 @@ class MoreauJean(ContactScheme):
             impulse[a] = self.lcp.solve(q[a], guess=st.impulse[a] > 0.0, rows=a)[0]
         return impulse
 
-    def _restitution(self, impulse: np.ndarray, pv0: np.ndarray, pv: np.ndarray,
+    def _restitution(self, impulse: np.ndarray, pv0: np.ndarray, pv: np.ndarray, pu: np.ndarray,
                      contact_loss: float) -> tuple[np.ndarray, float]:
         """Position level: Carnot's correction on the rigid rows held at the end of the step.
 
@@ -241,7 +242,12 @@ class MoreauJean(ContactScheme):
         the target becomes ``d = e P V*``, which loses ``(1 - e^2)/2 P V* . D^-1 P V* >= 0``
         (e the smallest on those rows): the contacts never give energy. Returns (P V+, its loss).
         """
-        rows = np.flatnonzero(self.carnot_rows & (impulse > 0.0))
+        # The rows held by an impulse, and those that end the step at the obstacle still
+        # approaching without one (a gap closing exactly at the step's end: whether round-off
+        # then gives an impulse of 1e-15 or none must not decide whether the row stops).
+        ops = self.ops
+        at_obstacle = ops.d0 - pu <= 1e-10 * (self._abs_d0 + np.abs(pu)) + TINY
+        rows = np.flatnonzero(self.carnot_rows & ((impulse > 0.0) | (at_obstacle & (pv >= 0.0))))
         if not rows.size:
             return pv, 0.0
         e = self.ops.restitution[rows]
