@@ -60,6 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary paragraph")
     run.add_argument("-v", "--verbose", action="store_true", help="log the stages of the run")
     run.add_argument("--plot", action="store_true", help="also write history.png (contact force and energies)")
+    run.add_argument("--force", action="store_true",
+                     help="run even when the estimated steps, memory or output size are beyond the limits")
 
     reduction = sub.add_parser(
         "reduction", help="table of the reduced model's errors and times against the full model",
@@ -248,7 +250,8 @@ def main(argv=None) -> int:
     from .run import describe, run_case
 
     def run():
-        summary = run_case(args.case, args.output, args.overrides, comm=_comm(), progress=not args.quiet)
+        summary = run_case(args.case, args.output, args.overrides, comm=_comm(), progress=not args.quiet,
+                           force=args.force)
         if _comm().rank == 0 and not args.quiet:
             print(describe(summary))
         if _comm().rank == 0 and args.plot:
@@ -278,9 +281,25 @@ def _guarded(action, failure: str) -> int:
         return _fail(_comm(), f"error: {err}", 2)
     except SimulationError as err:
         return _fail(_comm(), f"{failure}: {err} (the output folder was left as it was)", 3)
-    except KeyboardInterrupt:
-        return _fail(_comm(), "interrupted (the output folder was left as it was)", 130)
+    except KeyboardInterrupt as err:
+        return _interrupted(err)
+    except MemoryError:
+        return _fail(_comm(), "error: not enough memory for this case (reduce mesh.cells, or run under mpirun on "
+                              "more machines); nothing was written", 2)
     return 0
+
+
+def _interrupted(err: KeyboardInterrupt) -> int:
+    """One line for Ctrl-C, SIGTERM, SIGHUP or SIGQUIT (on its own line after a progress bar); 128 + signal."""
+    from .outdir import exit_status, signal_name
+    from .output import Progress
+
+    Progress.end_line()
+    try:
+        return _fail(_comm(), f"interrupted by {signal_name(err)} (the output folder was left as it was)",
+                     exit_status(err))
+    except OSError:   # (SIGHUP: the terminal may be gone)
+        return exit_status(err)
 
 
 def _modes(args) -> int:
@@ -376,6 +395,20 @@ def _numbers(option: str, text, kind=float, single=False):
 
 
 def _run_study(args) -> None:
+    from pathlib import Path
+
+    from .case import load_case
+    from .outdir import written_in_place
+    from .run import case_inputs
+    from .studies.common import default_outdir
+
+    args.output = Path(args.output) if args.output else default_outdir(args.case, args.study)
+    with written_in_place(args.output, _comm(), f"study {args.study}", protect=case_inputs(load_case(args.case)),
+                          source=args.case):
+        _study_in(args)
+
+
+def _study_in(args) -> None:
     from .studies.common import StudyInputError
 
     jobs = _numbers("-j", args.jobs, int, single=True)
@@ -416,12 +449,19 @@ def _run_study(args) -> None:
 def _plot(outdir: str, png) -> int:
     from pathlib import Path
 
-    from .plots import plot_history
+    from .outdir import OutputFolderError
+    from .plots import PlotError, plot_history
 
     if not (Path(outdir) / "history.csv").is_file():
         print(f"fem-impact: error: {outdir}: no history.csv (is it a run's output folder?)", file=sys.stderr)
         return 2
-    print(f"wrote {plot_history(outdir, png)}")
+    try:
+        print(f"wrote {plot_history(outdir, png)}")
+    except (PlotError, OutputFolderError) as err:
+        print(f"fem-impact: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as err:
+        return _interrupted(err)
     return 0
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import sys
 import time
 from dataclasses import dataclass
@@ -214,6 +215,8 @@ class RunStatistics:
 class Progress:
     """A one-line progress bar on stderr, only on an interactive terminal and on rank 0."""
 
+    open_line = None   # the stream whose last line is an unfinished bar
+
     def __init__(self, comm: MPI.Comm, label: str = "time loop", stream=None):
         self.stream = stream or sys.stderr
         self.enabled = comm.rank == 0 and self.stream.isatty()
@@ -228,7 +231,35 @@ class Progress:
         elapsed = now - self.t_start
         eta = elapsed * (1 - frac) / frac if frac > 0 else 0.0
         bar = "#" * int(30 * frac)
-        self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% step {step}/{total} eta {eta:5.1f} s")
+        self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% step {step}/{total} eta {duration(eta)}")
+        Progress.open_line = self.stream
         if step >= total:
             self.stream.write("\n")
+            Progress.open_line = None
         self.stream.flush()
+
+    @classmethod
+    def end_line(cls) -> None:
+        """End an unfinished bar's line, so that a message (e.g. interrupted) starts on its own."""
+        if cls.open_line is not None:
+            try:
+                cls.open_line.write("\n")
+                cls.open_line.flush()
+            except (OSError, ValueError):
+                pass
+            cls.open_line = None
+
+
+def duration(seconds: float) -> str:
+    """A time left as a person reads it: 42.0 s, 12 min, 3.5 h, 250 days, 2.9e+04 years."""
+    if not math.isfinite(seconds):
+        return "unknown"
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    if seconds < 3600:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 86400:
+        return f"{seconds / 3600:.1f} h"
+    if seconds < 365 * 86400:
+        return f"{seconds / 86400:.0f} days"
+    return f"{seconds / (365.25 * 86400):.2g} years"
