@@ -291,15 +291,22 @@ def _guarded(action, failure: str) -> int:
 
 def _interrupted(err: KeyboardInterrupt) -> int:
     """One line for Ctrl-C, SIGTERM, SIGHUP or SIGQUIT (on its own line after a progress bar); 128 + signal."""
-    from .outdir import exit_status, signal_name
+    from .outdir import exit_status, ignore_signals, signal_name
     from .output import Progress
 
+    ignore_signals()
     Progress.end_line()
+    status = exit_status(err)
     try:
-        return _fail(_comm(), f"interrupted by {signal_name(err)} (the output folder was left as it was)",
-                     exit_status(err))
+        _fail(_comm(), f"interrupted by {signal_name(err)} (the output folder was left as it was)", status)
+        sys.stderr.flush()
     except OSError:   # (SIGHUP: the terminal may be gone)
-        return exit_status(err)
+        pass
+    if _comm().size > 1:
+        # The other ranks may wait in a collective call that never completes: no MPI_Finalize (it
+        # would wait for them too); mpirun ends the job when a rank exits with a non-zero status.
+        os._exit(status)
+    return status
 
 
 def _modes(args) -> int:

@@ -261,8 +261,13 @@ class OutputFolder:
                 stage.rename(self.path)
                 shutil.rmtree(old, ignore_errors=True)
                 self._created = []   # they hold the result now
-        except BaseException:
-            if comm.rank == 0:
+        except BaseException as err:
+            interrupted = isinstance(err, KeyboardInterrupt)
+            if interrupted:
+                ignore_signals()   # a second signal (mpirun sends one) must not cut the cleanup short
+            # Interrupted, every rank removes it: the signal may have reached one rank only, and mpirun
+            # then kills the others.
+            if comm.rank == 0 or interrupted:
                 shutil.rmtree(stage, ignore_errors=True)
             raise
         comm.barrier()
@@ -407,6 +412,15 @@ def install_signal_handlers() -> None:
             signal.signal(sig, _raise)
         signal.signal(signal.SIGINT, signal.default_int_handler)
     except ValueError:   # not the main thread (a study's worker): the process's owner handles signals
+        pass
+
+
+def ignore_signals() -> None:
+    """After an interruption: the process is ending, further signals wait for nothing."""
+    try:
+        for sig in (*HANDLED, signal.SIGINT):
+            signal.signal(sig, signal.SIG_IGN)
+    except ValueError:
         pass
 
 
