@@ -650,8 +650,10 @@ def main(args) -> int:
     except AnimateError as err:
         print(f"fem-impact: error: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("fem-impact: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:
+        from .outdir import exit_status, signal_name
+
+        print(f"fem-impact: interrupted by {signal_name(err)}", file=sys.stderr)
+        return exit_status(err)
     print(f"wrote {out} ({frames} frame{'s' if frames != 1 else ''}, displacement x {scale:.3g})")
     return 0

@@ -231,6 +231,9 @@ def main(argv=None) -> int:
         parser.print_help()
         return 2
     _configure_logging(getattr(args, "verbose", False))
+    from .outdir import install_signal_handlers
+
+    install_signal_handlers()   # SIGTERM, SIGHUP, SIGQUIT end every command as Ctrl-C does
     if args.command == "plot":
         return _plot(args.outdir, args.output)
     if args.command == "reduction":

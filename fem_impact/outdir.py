@@ -391,7 +391,7 @@ def atomic_file(path: Path):
 
 
 class Interrupted(KeyboardInterrupt):
-    """A run ended by a signal (SIGTERM, SIGHUP, SIGQUIT; SIGINT is Python's KeyboardInterrupt)."""
+    """A run ended by a signal (SIGTERM, SIGHUP, SIGQUIT, SIGINT): a KeyboardInterrupt with ``signum``."""
 
     def __init__(self, signum: int):
         super().__init__(signal.Signals(signum).name)
@@ -402,15 +402,17 @@ HANDLED = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 
 def _raise(signum, frame):
+    # The process is ending: a second signal (mpirun follows one with another, a user presses Ctrl-C
+    # twice) must not interrupt the cleanup. The next claim() installs the handlers again.
+    ignore_signals()
     raise Interrupted(signum)
 
 
 def install_signal_handlers() -> None:
-    """SIGTERM, SIGHUP and SIGQUIT raise :class:`Interrupted` (in the main thread; else nothing)."""
+    """SIGTERM, SIGHUP, SIGQUIT and SIGINT raise :class:`Interrupted` (in the main thread; else nothing)."""
     try:
-        for sig in HANDLED:
+        for sig in (*HANDLED, signal.SIGINT):
             signal.signal(sig, _raise)
-        signal.signal(signal.SIGINT, signal.default_int_handler)
     except ValueError:   # not the main thread (a study's worker): the process's owner handles signals
         pass
 
