@@ -234,6 +234,12 @@ def main(argv=None) -> int:
     from .outdir import install_signal_handlers
 
     install_signal_handlers()   # SIGTERM, SIGHUP, SIGQUIT end every command as Ctrl-C does
+    if not getattr(args, "verbose", False):
+        # Overflow on the way to a blow-up: the run detects it and says so in one line (status 3);
+        # numpy's warnings (with source lines, once per rank) would only add noise. Shown with -v.
+        import warnings
+
+        warnings.filterwarnings("ignore", category=RuntimeWarning)
     if args.command == "plot":
         return _plot(args.outdir, args.output)
     if args.command == "reduction":

@@ -155,3 +155,16 @@ def _drop_repeated_pieces(pvd: Path) -> None:
             kept.append(line)
         if len(kept) < len(lines):
             pvtu.write_text("".join(kept))
+
+
+def distance_to_mesh(msh: Mesh, point: np.ndarray, tol: float) -> float:
+    """Distance from ``point`` (3 coordinates) to this rank's cells when within ``tol``, else inf."""
+    from dolfinx import geometry
+
+    tdim = msh.topology.dim
+    tree = geometry.BoundingBoxTree(msh, tdim, padding=tol)
+    candidates = geometry.compute_collisions(tree, point.reshape(1, 3)).links(0)
+    if len(candidates) == 0:
+        return np.inf
+    cells = geometry.squared_distance(msh, tdim, candidates, np.tile(point, (len(candidates), 1)))
+    return float(np.sqrt(np.min(cells)))

@@ -108,12 +108,30 @@ def find_probes(case, model: Model) -> Probes:
         else:
             mine = (np.inf, -1)
         best = min(comm.allgather(mine))  # nearest node; ties go to the lowest global index
+        _check_inside(case, model, key, point)
         local = best[1] - model.first_node
         owned = 0 <= local < model.n_owned_nodes and best[1] >= 0
         names.append(name)
         dofs.append([local * bs + c if owned else -1 for c in range(dim)])
         distances.append(best[0])
     return Probes(names, np.array(dofs, dtype=np.int64).reshape(-1, dim), np.array(distances), dim)
+
+
+def _check_inside(case, model: Model, key, point) -> None:
+    """A probe farther from the mesh than 1e-6 of its size is a mistake (a unit, a sign), not the nearest node."""
+    coords = model.node_coords[:, : model.meshdata.dim]
+    lo = model.comm.allreduce(coords.min(axis=0) if coords.size else np.full(model.meshdata.dim, np.inf), op=MPI.MIN)
+    hi = model.comm.allreduce(coords.max(axis=0) if coords.size else np.full(model.meshdata.dim, -np.inf),
+                              op=MPI.MAX)
+    tol = 1e-6 * float(np.max(hi - lo))
+    lo, hi = (np.where(np.abs(b) < tol, 0.0, b) for b in (lo, hi))   # (round-off of the mesh generator)
+    full = np.zeros(3)
+    full[: len(point)] = point
+    distance = model.comm.allreduce(dx.distance_to_mesh(model.meshdata.mesh, full, tol), op=MPI.MIN)
+    if distance > tol:
+        box = ", ".join(f"[{a:g}, {b:g}]" for a, b in zip(lo, hi, strict=True))
+        raise case.error(key, f"the point {[float(v) for v in point]} is outside the mesh (which spans {box}); a probe "
+                              "must lie on the structure")
 
 
 class HistoryWriter:
