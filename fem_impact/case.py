@@ -362,7 +362,8 @@ def _error(file, lines, overrides, path, message):
     """CaseError for `path`: its line (or the nearest ancestor's), or the --set option that gave it."""
     for prefix, option in overrides.items():
         if path[:len(prefix)] == prefix:
-            return CaseError(file, _dotted(path) or None, None, f"{message} (from --set {option})")
+            shown = option if option.isprintable() else repr(option)   # (one line: no raw newline)
+            return CaseError(file, _dotted(path) or None, None, f"{message} (from --set {shown})")
     line = next((lines[path[:n]] for n in range(len(path), 0, -1) if path[:n] in lines), None)
     return CaseError(file, _dotted(path) or None, line, message)
 
