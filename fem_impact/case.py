@@ -578,7 +578,7 @@ def _case_name(value, path):
 def _mesh(value, path, folder):
     f = _fields(value, path, {
         "shape": (_choice(*SHAPES), None), "file": (_string, None), "dim": (_integer(1, 3), None),
-        "length": (_real(gt=0), 1.0), "cells": (_integer(1), 100),
+        "length": (_real(gt=0), 1.0), "cells": (_integer(1, 2**31 - 1), 100),   # (PETSc's 32-bit indices)
         "height": (_real(gt=0), None), "width": (_real(gt=0), None)})
     if f["shape"] is None and f["file"] is None:
         raise _Invalid(path, f"give 'shape' (a built-in shape: {', '.join(SHAPES)}) or 'file' (a Gmsh file)")

@@ -55,22 +55,24 @@ def _nodes(case: Case) -> tuple[int, int]:
     height = spec.height if spec.height is not None else spec.length / 20.0
     width = spec.width if spec.width is not None else height
     cells = spec.cells
-    across = [max(1, round(cells * size / spec.length)) for size in (height, width)[: dim - 1]]
+    across = [max(1, round(min(cells * size / spec.length, 1e15))) for size in (height, width)[: dim - 1]]
     return math.prod([cells + 1, *(a + 1 for a in across)]), dim
 
 
 def estimate(case: Case, ranks: int = 1) -> Estimate:
     """What the run would take, from the case alone (before the mesh is built)."""
     solver = case.solver
-    steps = max(1, math.ceil(solver.t_end / solver.dt - 1e-9))
+    ratio = solver.t_end / solver.dt
+    steps = max(1, math.ceil(ratio - 1e-9)) if ratio < 1e300 else 10**300   # (1e300 / 1e-300 overflows)
     nodes, dim = _nodes(case)
+    nodes = min(nodes, 10**300)   # (a mistyped cells: 1e400 must not overflow the floats below)
     dofs = nodes * dim
-    memory = BASE_MEMORY * ranks + BYTES_PER_DOF[dim] * dofs
+    memory = BASE_MEMORY * ranks + BYTES_PER_DOF[dim] * float(dofs)
     columns = 1 + 3 * len(case.contacts) + 2 * dim * len(case.output.probes) + 7 + dim * max(
         1, len(case.materials or {}))
-    history = (steps + 1) * columns * HISTORY_BYTES_PER_VALUE
+    history = (float(steps) + 1) * columns * HISTORY_BYTES_PER_VALUE
     frames = steps // case.output.every + 2 if case.output.vtk else 0
-    vtk = frames * (nodes * VTK_BYTES_PER_NODE[dim] + 2000 * ranks)
+    vtk = float(frames) * (float(nodes) * VTK_BYTES_PER_NODE[dim] + 2000 * ranks)
     return Estimate(steps, nodes, dofs, memory, history, frames, vtk)
 
 
