@@ -230,3 +230,18 @@ def test_size_guard_estimate_and_force():
     # every case of the project passes the guard as written
     for path in sorted(CASES.glob("*.yaml")):
         check_limits(load_case(path), Path("/tmp/x"), MPI.COMM_SELF)
+
+
+def test_memory_exhaustion_during_setup_is_one_line(tmp_path):
+    """Past the guard (--force) with too little memory (an address-space limit of 3 GB): one line, status 2."""
+    import resource
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (3 * 10**9, 3 * 10**9))
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    result = subprocess.run([sys.executable, "-m", "fem_impact", "run", str(CASES / "impacting_bar.yaml"), "-o",
+                             str(tmp_path / "out"), "--set", "mesh.cells=200000000", "--force", "-q"],
+                            capture_output=True, text=True, env=env, preexec_fn=limit, timeout=300)
+    refused(result, "not enough memory")
+    assert list(tmp_path.iterdir()) == []
