@@ -120,9 +120,9 @@ def find_probes(case, model: Model) -> Probes:
 def _check_inside(case, model: Model, key, point) -> None:
     """A probe farther from the mesh than 1e-6 of its size is a mistake (a unit, a sign), not the nearest node."""
     coords = model.node_coords[:, : model.meshdata.dim]
-    lo = model.comm.allreduce(coords.min(axis=0) if coords.size else np.full(model.meshdata.dim, np.inf), op=MPI.MIN)
-    hi = model.comm.allreduce(coords.max(axis=0) if coords.size else np.full(model.meshdata.dim, -np.inf),
-                              op=MPI.MAX)
+    dim = model.meshdata.dim
+    lo = np.min(model.comm.allgather(coords.min(axis=0) if coords.size else np.full(dim, np.inf)), axis=0)
+    hi = np.max(model.comm.allgather(coords.max(axis=0) if coords.size else np.full(dim, -np.inf)), axis=0)
     tol = 1e-6 * float(np.max(hi - lo))
     lo, hi = (np.where(np.abs(b) < tol, 0.0, b) for b in (lo, hi))   # (round-off of the mesh generator)
     full = np.zeros(3)
