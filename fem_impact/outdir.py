@@ -269,6 +269,9 @@ class OutputFolder:
             # then kills the others.
             if comm.rank == 0 or interrupted:
                 shutil.rmtree(stage, ignore_errors=True)
+            if interrupted and comm.rank != 0:   # (rank 0, if stuck, is killed with the lock file left)
+                with contextlib.suppress(OSError):
+                    os.unlink(self._lock_path)
             raise
         comm.barrier()
 
