@@ -572,6 +572,12 @@ def animate(outdir, field: str = "v", scale: float | None = None, output=None, f
         raise AnimateError(f"--time {when}: must be a number")
     if not out.parent.is_dir():
         raise AnimateError(f"-o {out}: no folder {out.parent}")
+    from .outdir import OutputFolderError, atomic_file, check_file
+
+    try:
+        out = check_file(out)
+    except OutputFolderError as err:
+        raise AnimateError(str(err)) from None
     if frame is not None:
         n = len(read_pvd(outdir / "results.pvd"))
         if not -n <= frame < n:
@@ -585,7 +591,11 @@ def animate(outdir, field: str = "v", scale: float | None = None, output=None, f
             selected = [int(np.argmin(np.abs(series.times - when)))]
         else:
             selected = [(frame if frame is not None else -1) % len(series.times)]
-    render(series, out, field, s, fps, size, _Progress("rendering", enabled=progress), frames=selected)
+    try:
+        with atomic_file(out) as tmp:   # an interrupted rendering leaves no half-written file
+            render(series, tmp, field, s, fps, size, _Progress("rendering", enabled=progress), frames=selected)
+    except OutputFolderError as err:
+        raise AnimateError(str(err)) from None
     return out, s, len(selected) if selected is not None else len(series.times)
 
 
@@ -640,8 +650,10 @@ def main(args) -> int:
     except AnimateError as err:
         print(f"fem-impact: error: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("fem-impact: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:
+        from .outdir import exit_status, signal_name
+
+        print(f"fem-impact: interrupted by {signal_name(err)}", file=sys.stderr)
+        return exit_status(err)
     print(f"wrote {out} ({frames} frame{'s' if frames != 1 else ''}, displacement x {scale:.3g})")
     return 0

@@ -96,6 +96,7 @@ class Initial:
 class Support:
     nodes: str
     fix: list[int]
+    all_components: bool = False   # fix: all (every component the mesh's dimension has)
 
 
 @dataclass
@@ -187,7 +188,7 @@ class Case:
         data["damping"] = dataclasses.asdict(self.damping)
         data["initial"] = {"displacement": _body_values_data(self.initial.displacement),
                            "velocity": _body_values_data(self.initial.velocity)}
-        data["supports"] = [{"nodes": s.nodes, "fix": [COMPONENTS[i] for i in s.fix]}
+        data["supports"] = [{"nodes": s.nodes, "fix": "all" if s.all_components else [COMPONENTS[i] for i in s.fix]}
                             for s in self.supports]
         data["loads"] = [{key: _sources(value) if key in ("force", "acceleration") else value
                           for key, value in vars(load).items() if value is not None}
@@ -258,19 +259,51 @@ _Loader.add_constructor(_TAG + "int", lambda loader, node: int(loader.construct_
 
 
 def yaml_value(text: str):
-    """One value typed as in a case file (YAML 1.2: ``2.5e3`` is a number); raises yaml.YAMLError."""
-    return yaml.load(text, Loader=_Loader)
+    """One value typed as in a case file (YAML 1.2: ``2.5e3`` is a number); raises yaml.YAMLError.
+
+    The same guards as a case file: no duplicate keys, no deep nesting, no alias bombs.
+    """
+    try:
+        return _parse_yaml(text, "--set")[0]
+    except CaseError as exc:
+        raise yaml.YAMLError(f"{exc.key}: {exc.message}" if exc.key else exc.message) from None
+
+
+# A case file is a few hundred values a few levels deep: far beyond these, it is a mistake or an attack.
+MAX_DEPTH = 64
+MAX_VALUES = 100_000
+
+
+def _expanded_size(node, memo) -> int:
+    """Values a node stands for once its aliases are expanded (an alias counts as often as it is used)."""
+    key = id(node)
+    if key not in memo:
+        memo[key] = 0   # (a recursive alias counts nothing the second time)
+        if isinstance(node, yaml.MappingNode):
+            memo[key] = 1 + sum(_expanded_size(k, memo) + _expanded_size(v, memo) for k, v in node.value)
+        elif isinstance(node, yaml.SequenceNode):
+            memo[key] = 1 + sum(_expanded_size(item, memo) for item in node.value)
+        else:
+            memo[key] = 1
+    return memo[key]
 
 
 def _parse_yaml(text, file):
     """Return (node tree, data) of a YAML document; syntax errors become CaseError with the line."""
-    loader = _Loader(text)
+    loader = None
     try:
+        loader = _Loader(text)
         node = loader.get_single_node()
         lines = {}
         if node is not None:
             _record_lines(node, (), lines, set(), file)  # before construction flattens merge keys
+            size = _expanded_size(node, {})
+            if size > MAX_VALUES:
+                raise CaseError(file, None, None, f"the document stands for {size:.3g} values once its aliases "
+                                                  f"(*name) are expanded, more than {MAX_VALUES}")
         return loader.construct_document(node) if node is not None else None, lines
+    except RecursionError:
+        raise CaseError(file, None, None, f"the YAML is nested too deeply (at most {MAX_DEPTH} levels)") from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         problem = " ".join(str(exc.problem or exc.context).split())
@@ -279,7 +312,8 @@ def _parse_yaml(text, file):
     except yaml.YAMLError as exc:
         raise CaseError(file, None, None, f"invalid YAML: {' '.join(str(exc).split())}") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 def _record_lines(node, path, lines, seen, file):
@@ -287,6 +321,9 @@ def _record_lines(node, path, lines, seen, file):
     if id(node) in seen:  # an alias: its lines were recorded where the anchor is
         return
     seen.add(id(node))
+    if len(path) > MAX_DEPTH:
+        raise CaseError(file, _dotted(path[:3]) + ".(...)", node.start_mark.line + 1,
+                        f"nested more than {MAX_DEPTH} levels deep")
     if isinstance(node, yaml.MappingNode):
         keys = set()
         for key_node, value_node in node.value:
@@ -332,7 +369,8 @@ def _error(file, lines, overrides, path, message):
     """CaseError for `path`: its line (or the nearest ancestor's), or the --set option that gave it."""
     for prefix, option in overrides.items():
         if path[:len(prefix)] == prefix:
-            return CaseError(file, _dotted(path) or None, None, f"{message} (from --set {option})")
+            shown = option if option.isprintable() else repr(option)   # (one line: no raw newline)
+            return CaseError(file, _dotted(path) or None, None, f"{message} (from --set {shown})")
     line = next((lines[path[:n]] for n in range(len(path), 0, -1) if path[:n] in lines), None)
     return CaseError(file, _dotted(path) or None, line, message)
 
@@ -547,11 +585,18 @@ def _case_name(value, path):
 def _mesh(value, path, folder):
     f = _fields(value, path, {
         "shape": (_choice(*SHAPES), None), "file": (_string, None), "dim": (_integer(1, 3), None),
-        "length": (_real(gt=0), 1.0), "cells": (_integer(1), 100),
+        "length": (_real(gt=0), 1.0), "cells": (_integer(1, 2**31 - 1), 100),   # (PETSc's 32-bit indices)
         "height": (_real(gt=0), None), "width": (_real(gt=0), None),
         "elements": (_choice(*BAR_ELEMENTS), "simplex")})
-    if (f["shape"] is None) == (f["file"] is None):
+    if f["shape"] is None and f["file"] is None:
+        raise _Invalid(path, f"give 'shape' (a built-in shape: {', '.join(SHAPES)}) or 'file' (a Gmsh file)")
+    if f["shape"] is not None and f["file"] is not None:
         raise _Invalid(path, f"give either 'shape' ({', '.join(SHAPES)}) or 'file', not both")
+    for key, dims in (("height", (2, 3)), ("width", (3,))):
+        if f[key] is not None and (f["file"] is not None or (f["dim"] or 1) not in dims):
+            where = "a mesh file" if f["file"] is not None else f"{f['dim'] or 1}D"
+            raise _Invalid(path + (key,), f"applies to the built-in bar in {' and '.join(f'{d}D' for d in dims)} "
+                                          f"only; it has no effect in {where}: remove it")
     if f["file"] is not None:
         f["file"] = Path(os.path.abspath(folder / f["file"]))
         if not f["file"].is_file():
@@ -590,13 +635,19 @@ def _fix(value, path):
     if value == "all":
         return [0, 1, 2]
     names = [value] if isinstance(value, str) else value
-    if not isinstance(names, list) or not names or not all(n in COMPONENTS for n in names):
+    if not isinstance(names, list) or not names:
         raise _Invalid(path, f"expected 'all' or a list of x, y, z; got {_show(value)}")
+    for index, name in enumerate(names):
+        if name not in COMPONENTS:
+            raise _Invalid(path + (index,) if isinstance(value, list) else path,
+                           f"unknown component {_show(name)}; expected 'all' or a list of x, y, z")
     return sorted({COMPONENTS.index(n) for n in names})
 
 
 def _support(value, path):
-    return Support(**_fields(value, path, {"nodes": (_string, _REQUIRED), "fix": (_fix, "all")}))
+    f = _fields(value, path, {"nodes": (_string, _REQUIRED), "fix": (_fix, "all")})
+    fixed = value.get("fix", "all") if isinstance(value, dict) else "all"
+    return Support(**f, all_components=fixed in ("all", None))
 
 
 def _load(value, path, parameters):

@@ -64,6 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="stop with status 3 as soon as the contacts create energy (E above E0 + W_ext by more "
                           "than 1e-6 of the energy scale); without it the run goes on, warns at the end and "
                           "records energy_created in summary.json")
+    run.add_argument("--force", action="store_true",
+                     help="run even when the estimated steps, memory or output size are beyond the limits")
 
     reduction = sub.add_parser(
         "reduction", help="table of the reduced model's errors and times against the full model",
@@ -233,6 +235,15 @@ def main(argv=None) -> int:
         parser.print_help()
         return 2
     _configure_logging(getattr(args, "verbose", False))
+    from .outdir import install_signal_handlers
+
+    install_signal_handlers()   # SIGTERM, SIGHUP, SIGQUIT end every command as Ctrl-C does
+    if not getattr(args, "verbose", False):
+        # Overflow on the way to a blow-up: the run detects it and says so in one line (status 3);
+        # numpy's warnings (with source lines, once per rank) would only add noise. Shown with -v.
+        import warnings
+
+        warnings.filterwarnings("ignore", category=RuntimeWarning)
     if args.command == "plot":
         return _plot(args.outdir, args.output)
     if args.command == "reduction":
@@ -253,7 +264,7 @@ def main(argv=None) -> int:
 
     def run():
         summary = run_case(args.case, args.output, args.overrides, comm=_comm(), progress=not args.quiet,
-                           stop_on_energy_gain=args.stop_on_energy_gain)
+                           stop_on_energy_gain=args.stop_on_energy_gain, force=args.force)
         if _comm().rank == 0 and not args.quiet:
             print(describe(summary))
         warning = energy_warning(summary)
@@ -286,9 +297,32 @@ def _guarded(action, failure: str) -> int:
         return _fail(_comm(), f"error: {err}", 2)
     except SimulationError as err:
         return _fail(_comm(), f"{failure}: {err} (the output folder was left as it was)", 3)
-    except KeyboardInterrupt:
-        return _fail(_comm(), "interrupted (the output folder was left as it was)", 130)
+    except KeyboardInterrupt as err:
+        return _interrupted(err)
+    except MemoryError:
+        return _fail(_comm(), "error: not enough memory for this case (reduce mesh.cells, or run under mpirun on "
+                              "more machines); nothing was written", 2)
     return 0
+
+
+def _interrupted(err: KeyboardInterrupt) -> int:
+    """One line for Ctrl-C, SIGTERM, SIGHUP or SIGQUIT (on its own line after a progress bar); 128 + signal."""
+    from .outdir import exit_status, ignore_signals, signal_name
+    from .output import Progress
+
+    ignore_signals()
+    Progress.end_line()
+    status = exit_status(err)
+    try:
+        _fail(_comm(), f"interrupted by {signal_name(err)} (the output folder was left as it was)", status)
+        sys.stderr.flush()
+    except OSError:   # (SIGHUP: the terminal may be gone)
+        pass
+    if _comm().size > 1:
+        # The other ranks may wait in a collective call that never completes: no MPI_Finalize (it
+        # would wait for them too); mpirun ends the job when a rank exits with a non-zero status.
+        os._exit(status)
+    return status
 
 
 def _modes(args) -> int:
@@ -384,6 +418,20 @@ def _numbers(option: str, text, kind=float, single=False):
 
 
 def _run_study(args) -> None:
+    from pathlib import Path
+
+    from .case import load_case
+    from .outdir import written_in_place
+    from .run import case_inputs
+    from .studies.common import default_outdir
+
+    args.output = Path(args.output) if args.output else default_outdir(args.case, args.study)
+    with written_in_place(args.output, _comm(), f"study {args.study}", protect=case_inputs(load_case(args.case)),
+                          source=args.case):
+        _study_in(args)
+
+
+def _study_in(args) -> None:
     from .studies.common import StudyInputError
 
     jobs = _numbers("-j", args.jobs, int, single=True)
@@ -424,12 +472,19 @@ def _run_study(args) -> None:
 def _plot(outdir: str, png) -> int:
     from pathlib import Path
 
-    from .plots import plot_history
+    from .outdir import OutputFolderError
+    from .plots import PlotError, plot_history
 
     if not (Path(outdir) / "history.csv").is_file():
         print(f"fem-impact: error: {outdir}: no history.csv (is it a run's output folder?)", file=sys.stderr)
         return 2
-    print(f"wrote {plot_history(outdir, png)}")
+    try:
+        print(f"wrote {plot_history(outdir, png)}")
+    except (PlotError, OutputFolderError) as err:
+        print(f"fem-impact: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as err:
+        return _interrupted(err)
     return 0
 
 

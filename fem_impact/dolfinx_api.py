@@ -13,6 +13,12 @@ from dolfinx.io import gmshio
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from .outdir import install_signal_handlers
+
+# PETSc, initialized by the imports above, installs its own handlers for SIGHUP and SIGQUIT (a page
+# of text and MPI_Abort): a run ends on them as on Ctrl-C instead (fem_impact.outdir).
+install_signal_handlers()
+
 # FFCx logs every JIT compilation at INFO level on the root logger: keep it quiet.
 for _name in ("ffcx", "UFL", "FFC", "dijitso"):
     logging.getLogger(_name).setLevel(logging.WARNING)
@@ -151,3 +157,16 @@ def _drop_repeated_pieces(pvd: Path) -> None:
             kept.append(line)
         if len(kept) < len(lines):
             pvtu.write_text("".join(kept))
+
+
+def distance_to_mesh(msh: Mesh, point: np.ndarray, tol: float) -> float:
+    """Distance from ``point`` (3 coordinates) to this rank's cells when within ``tol``, else inf."""
+    from dolfinx import geometry
+
+    tdim = msh.topology.dim
+    tree = geometry.BoundingBoxTree(msh, tdim, padding=tol)
+    candidates = geometry.compute_collisions(tree, point.reshape(1, 3)).links(0)
+    if len(candidates) == 0:
+        return np.inf
+    cells = geometry.squared_distance(msh, tdim, candidates, np.tile(point, (len(candidates), 1)))
+    return float(np.sqrt(np.min(cells)))

@@ -335,6 +335,8 @@ def _fixed_dofs(case: Case, meshdata: MeshData, V, bs: int) -> np.ndarray:
         owned = nodes.local_node[nodes.local_node >= 0]
         for comp in support.fix:
             if comp >= meshdata.dim:
+                if support.all_components:   # fix: all -> the components this dimension has
+                    continue
                 raise case.error(("supports", i, "fix"), f"component {AXES[comp]} does not exist in {meshdata.dim}D")
             fixed.append(owned * bs + comp)
     return np.unique(np.concatenate(fixed)).astype(np.int64) if fixed else np.zeros(0, dtype=np.int64)

@@ -346,16 +346,22 @@ def run_modes(path, outdir=None, overrides=(), n: int | None = None, comm: MPI.C
     that does not fit the model raises :class:`ModeCountError`; a bad ``solver.modes``, a
     ``CaseError``. Returns a summary with the table (``columns``, ``rows``).
     """
-    from .case import CaseError, load_case
-    from .mesh import build_mesh
-    from .model import build_model
-    from .run import staged_directory
+    from .case import load_case
+    from .outdir import claim
+    from .run import case_inputs
 
     t_start = time.perf_counter()
     case = load_case(path, overrides)
     outdir = Path(outdir) if outdir is not None else default_outdir(case)
-    if outdir.exists() and not outdir.is_dir():
-        raise CaseError(str(outdir), None, None, "the output path exists and is not a folder")
+    with claim(outdir, comm, "modes", protect=case_inputs(case), source=case.path) as out:
+        return _run_modes(case, out, n, comm, t_start)
+
+
+def _run_modes(case, out, n, comm, t_start) -> dict:
+    from .mesh import build_mesh
+    from .model import build_model
+
+    outdir = out.path
     meshdata = build_mesh(case, comm)
     model = build_model(case, meshdata)
     available = free_dof_count(model)
@@ -374,7 +380,7 @@ def run_modes(path, outdir=None, overrides=(), n: int | None = None, comm: MPI.C
                + ["residual"])
     rows = [[i + 1, float(modes.frequency_hz[i]), "rigid" if modes.rigid[i] else "elastic",
              *(100.0 * fractions[i]).tolist(), float(modes.residual[i])] for i in range(n)]
-    with staged_directory(outdir, comm) as stage:
+    with out.staged() as stage:
         series = VTKSeries(comm, stage / "modes.pvd", model.V, ["mode"])
         try:
             for i in range(n):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import sys
 import time
 from dataclasses import dataclass
@@ -107,12 +108,30 @@ def find_probes(case, model: Model) -> Probes:
         else:
             mine = (np.inf, -1)
         best = min(comm.allgather(mine))  # nearest node; ties go to the lowest global index
+        _check_inside(case, model, key, point)
         local = best[1] - model.first_node
         owned = 0 <= local < model.n_owned_nodes and best[1] >= 0
         names.append(name)
         dofs.append([local * bs + c if owned else -1 for c in range(dim)])
         distances.append(best[0])
     return Probes(names, np.array(dofs, dtype=np.int64).reshape(-1, dim), np.array(distances), dim)
+
+
+def _check_inside(case, model: Model, key, point) -> None:
+    """A probe farther from the mesh than 1e-6 of its size is a mistake (a unit, a sign), not the nearest node."""
+    coords = model.node_coords[:, : model.meshdata.dim]
+    dim = model.meshdata.dim
+    lo = np.min(model.comm.allgather(coords.min(axis=0) if coords.size else np.full(dim, np.inf)), axis=0)
+    hi = np.max(model.comm.allgather(coords.max(axis=0) if coords.size else np.full(dim, -np.inf)), axis=0)
+    tol = 1e-6 * float(np.max(hi - lo))
+    lo, hi = (np.where(np.abs(b) < tol, 0.0, b) for b in (lo, hi))   # (round-off of the mesh generator)
+    full = np.zeros(3)
+    full[: len(point)] = point
+    distance = model.comm.allreduce(dx.distance_to_mesh(model.meshdata.mesh, full, tol), op=MPI.MIN)
+    if distance > tol:
+        box = ", ".join(f"[{a:g}, {b:g}]" for a, b in zip(lo, hi, strict=True))
+        raise case.error(key, f"the point {[float(v) for v in point]} is outside the mesh (which spans {box}); a probe "
+                              "must lie on the structure")
 
 
 class HistoryWriter:
@@ -214,6 +233,8 @@ class RunStatistics:
 class Progress:
     """A one-line progress bar on stderr, only on an interactive terminal and on rank 0."""
 
+    open_line = None   # the stream whose last line is an unfinished bar
+
     def __init__(self, comm: MPI.Comm, label: str = "time loop", stream=None):
         self.stream = stream or sys.stderr
         self.enabled = comm.rank == 0 and self.stream.isatty()
@@ -228,7 +249,35 @@ class Progress:
         elapsed = now - self.t_start
         eta = elapsed * (1 - frac) / frac if frac > 0 else 0.0
         bar = "#" * int(30 * frac)
-        self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% step {step}/{total} eta {eta:5.1f} s")
+        self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% step {step}/{total} eta {duration(eta)}")
+        Progress.open_line = self.stream
         if step >= total:
             self.stream.write("\n")
+            Progress.open_line = None
         self.stream.flush()
+
+    @classmethod
+    def end_line(cls) -> None:
+        """End an unfinished bar's line, so that a message (e.g. interrupted) starts on its own."""
+        if cls.open_line is not None:
+            try:
+                cls.open_line.write("\n")
+                cls.open_line.flush()
+            except (OSError, ValueError):
+                pass
+            cls.open_line = None
+
+
+def duration(seconds: float) -> str:
+    """A time left as a person reads it: 42.0 s, 12 min, 3.5 h, 250 days, 2.9e+04 years."""
+    if not math.isfinite(seconds):
+        return "unknown"
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    if seconds < 3600:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 86400:
+        return f"{seconds / 3600:.1f} h"
+    if seconds < 365 * 86400:
+        return f"{seconds / 86400:.0f} days"
+    return f"{seconds / (365.25 * 86400):.2g} years"

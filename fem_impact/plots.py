@@ -14,10 +14,22 @@ ENERGY_TERMS = (
 )
 
 
+class PlotError(ValueError):
+    """A history that cannot be plotted (a damaged or foreign history.csv): one line, status 2."""
+
+
 def read_history(path: Path) -> tuple[list[str], np.ndarray]:
-    with open(path) as f:
-        columns = f.readline().strip().split(",")
-    return columns, np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    try:
+        with open(path, encoding="utf-8") as f:
+            columns = f.readline().strip().split(",")
+        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise PlotError(f"{path}: cannot read it: {err}") from None
+    except ValueError as err:   # a cell that is not a number, a short row
+        raise PlotError(f"{path}: not a history that fem-impact wrote: {' '.join(str(err).split())}") from None
+    if data.shape[1] != len(columns) and data.size:
+        raise PlotError(f"{path}: {len(columns)} column names but {data.shape[1]} values a row")
+    return columns, data
 
 
 def history_columns(outdir: Path) -> dict[str, np.ndarray]:
@@ -33,10 +45,21 @@ def plot_history(outdir, png=None, units: dict | None = None) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .outdir import OutputFolderError, atomic_file, check_file
+
     outdir = Path(outdir)
-    png = Path(png) if png else outdir / "history.png"
+    png = check_file(png if png is not None else outdir / "history.png", protect=[outdir / "history.csv"])
     columns, data = read_history(outdir / "history.csv")
     col = {name: data[:, i] for i, name in enumerate(columns)}
+    missing = [c for c in ("t", *(k for k, _ in ENERGY_TERMS), "energy_error") if c not in col]
+    if missing or not len(data):
+        raise PlotError(f"{outdir / 'history.csv'}: not a run's history (no rows, or no column "
+                        f"{', '.join(missing)})")
+    fmt = png.suffix.lower().lstrip(".")
+    if fmt not in plt.figure().canvas.get_supported_filetypes():
+        plt.close("all")
+        raise OutputFolderError(f"-o {png}", f"unknown picture format '{fmt}'; write .png, .pdf or .svg")
+    plt.close("all")
     t = col["t"]
     units = units or {}
     fig, (ax_f, ax_e) = plt.subplots(2, 1, figsize=(8, 7), sharex=True, constrained_layout=True)
@@ -60,8 +83,13 @@ def plot_history(outdir, png=None, units: dict | None = None) -> Path:
     ax_e.legend(loc="center right", fontsize=8)
     ax_e.grid(alpha=0.3)
     summary = outdir / "summary.json"
-    fig.suptitle(json.loads(summary.read_text()).get("case", outdir.name) if summary.is_file() else outdir.name)
-    fig.savefig(png, dpi=110)
+    try:
+        title = json.loads(summary.read_text()).get("case", outdir.name) if summary.is_file() else outdir.name
+    except (OSError, ValueError, AttributeError):
+        title = outdir.name
+    fig.suptitle(str(title))
+    with atomic_file(png) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return png
 

@@ -5,8 +5,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,7 +12,9 @@ from pathlib import Path
 from mpi4py import MPI
 
 from . import __version__
-from .case import Case, CaseError, load_case
+from .case import Case, load_case
+from .limits import check_limits
+from .outdir import claim
 
 log = logging.getLogger(__name__)
 
@@ -64,47 +64,41 @@ def default_outdir(case: Case) -> Path:
 
 
 @contextlib.contextmanager
-def staged_directory(outdir: Path, comm: MPI.Comm):
-    """Write into a hidden sibling folder; move it over ``outdir`` only when the run completes.
+def staged_directory(outdir: Path, comm: MPI.Comm, command: str = "run", protect=()):
+    """Claim ``outdir`` (fem_impact.outdir: policy, lock) and write it atomically: yields the staging folder.
 
     A failed or interrupted run removes its staging folder and leaves ``outdir`` as it was.
     """
-    outdir = outdir.resolve()
-    stage = outdir.parent / f".{outdir.name}.partial-{os.getpid() if comm.rank == 0 else 0}"
-    stage = Path(comm.bcast(str(stage), root=0))
-    if comm.rank == 0:
-        stage.mkdir(parents=True, exist_ok=False)
-    comm.barrier()
-    try:
+    with claim(outdir, comm, command, protect) as out, out.staged() as stage:
         yield stage
-    except BaseException:
-        if comm.rank == 0:
-            shutil.rmtree(stage, ignore_errors=True)
-        raise
-    comm.barrier()
-    if comm.rank == 0:
-        old = outdir.parent / f".{outdir.name}.old-{os.getpid()}"
-        if outdir.exists():
-            outdir.rename(old)
-        stage.rename(outdir)
-        shutil.rmtree(old, ignore_errors=True)
-    comm.barrier()
 
 
 def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, progress=True,
-             stop_on_energy_gain: bool = False) -> dict:
+             stop_on_energy_gain: bool = False, force: bool = False) -> dict:
     """Run a case file end to end; returns the summary (also written to ``summary.json``).
 
     ``progress``: True for the time loop's progress bar (on a terminal), False for none, or a
     callable ``(step, total)`` of the caller's own (e.g. an ``output.Progress`` with a label).
     ``stop_on_energy_gain``: stop with an EnergyCreated error as soon as the contacts create
     energy; otherwise the summary records it (``energy_created``, ``energy_created_at``).
+    ``force``: run even when the size estimate is beyond the limits (fem_impact.limits).
+    The output folder is claimed (checked and locked, fem_impact.outdir) before anything is built.
     """
     t_start = time.perf_counter()
     case = load_case(path, overrides)
     outdir = Path(outdir) if outdir is not None else default_outdir(case)
-    if outdir.exists() and not outdir.is_dir():
-        raise CaseError(str(outdir), None, None, "the output path exists and is not a folder")
+    with claim(outdir, comm, "run", protect=case_inputs(case), source=case.path) as out:
+        return _run(case, out, comm, progress, force, t_start, stop_on_energy_gain)
+
+
+def case_inputs(case: Case) -> tuple:
+    """The files a case reads: their folders are never output folders."""
+    return (case.path, case.mesh.file)
+
+
+def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float, stop_on_energy_gain: bool) -> dict:
+    outdir = out.path
+    check_limits(case, outdir, comm, force)
     # dolfinx and PETSc load in about a second: only once the case file is known to be sound.
     from .constraints import build_constraints, check_initial_state
     from .integrators import EnergyWatch, integrate, steps_for
@@ -128,7 +122,7 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
 
-    with staged_directory(outdir, comm) as stage:
+    with out.staged() as stage:
         fields = system.fields
         momenta = BodyMomenta(model, fields)
         history = HistoryWriter(stage / "history.csv", cons, probes, comm, fields, momenta=momenta)

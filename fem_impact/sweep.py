@@ -128,7 +128,7 @@ def run_sweep(case_path, vary: str, target: Target | None = None, outdir=None, o
     Raises SweepError or CaseError on bad input before anything runs or is written.
     """
     from .output import Progress
-    from .run import run_case, staged_directory
+    from .run import case_inputs, run_case, staged_directory
 
     case_path = Path(case_path)
     key, texts, values = parse_vary(vary)
@@ -136,10 +136,8 @@ def run_sweep(case_path, vary: str, target: Target | None = None, outdir=None, o
     target = check(case_path, key, texts, overrides, target, comm)
     case = load_case(case_path, overrides)
     outdir = Path(outdir) if outdir is not None else Path.cwd() / "results" / f"{case.name}-sweep"
-    if outdir.exists() and not outdir.is_dir():
-        raise CaseError(str(outdir), None, None, "the output path exists and is not a folder")
     rows = []
-    with staged_directory(outdir, comm) as stage:
+    with staged_directory(outdir, comm, "sweep", protect=case_inputs(case)) as stage:
         for i, (text, value) in enumerate(zip(texts, values, strict=True)):
             label = f"[{i + 1}/{len(texts)}] {key}={text}"
             run_dir = stage / f"run{i + 1:02d}"

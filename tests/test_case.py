@@ -240,7 +240,7 @@ def test_missing_required_keys(tmp_path):
     assert "either 'material'" in str(error_of(tmp_path, BASE.replace("material:\n  E: 1.0\n  rho: 1.0\n", "")))
     both = BASE + "materials: {a: {E: 1, rho: 1}}\n"
     assert "not both" in str(error_of(tmp_path, both))
-    assert "either 'shape'" in str(error_of(tmp_path, BASE.replace("  shape: bar\n", "  dim: 1\n")))
+    assert "give 'shape'" in str(error_of(tmp_path, BASE.replace("  shape: bar\n", "  dim: 1\n")))
 
 
 def test_missing_mesh_file(tmp_path):

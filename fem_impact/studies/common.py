@@ -35,9 +35,11 @@ def default_outdir(case_path, study: str) -> Path:
     return Path.cwd() / "results" / f"{name}-{study}"
 
 
-def check_outdir(outdir: Path) -> None:
-    if outdir.exists() and not outdir.is_dir():
-        raise StudyInputError(f"{outdir}: the output path exists and is not a folder")
+def check_outdir(outdir: Path, case_path=None) -> None:
+    """The output-folder policy (fem_impact.outdir); the command line also locks the folder."""
+    from ..outdir import check
+
+    check(outdir, protect=(case_path,))
 
 
 def write_csv(path: Path, columns, rows) -> Path:

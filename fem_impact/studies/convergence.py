@@ -142,7 +142,7 @@ def convergence_study(case_path, vary_options, courant=None, dt=None, method=Non
     vary = parse_vary(vary_options)
     p = plan(case_path, vary, courant, dt, method, overrides, against)
     outdir = Path(outdir) if outdir else default_outdir(case_path, "convergence")
-    check_outdir(outdir)
+    check_outdir(outdir, case_path)
     outcomes = run_levels(case_path, p["levels"], outdir, jobs, allow_failure, stream=stream, quiet=quiet)
     finest = outcomes[p["finest"]]
     rows = []

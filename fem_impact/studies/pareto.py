@@ -116,7 +116,7 @@ def pareto_study(case_path, methods=None, courant=None, rungs=None, time_axis="w
     chosen = registry.parse_methods(methods)
     base = load_case(case_path, overrides)
     outdir = Path(outdir) if outdir else default_outdir(case_path, "pareto")
-    check_outdir(outdir)
+    check_outdir(outdir, case_path)
     levels, notes, skipped = [], [], {}
     for method in chosen:
         why = registry.availability(method, case_path, overrides)

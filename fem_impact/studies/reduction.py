@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from ..case import MODAL_SCHEMES
+from ..case import MODAL_SCHEMES, load_case
 from ..plots import history_columns, plot_reduction
-from ..run import run_case, staged_directory
+from ..run import case_inputs, run_case, staged_directory
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +75,7 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe
     case = Path(case)
     outdir = Path(outdir or Path.cwd() / "results" / f"{case.stem}-reduction")
     rows = []
-    with staged_directory(outdir, comm) as stage:
+    with staged_directory(outdir, comm, "reduction", protect=case_inputs(load_case(case, overrides))) as stage:
         full_summary = run_case(case, stage / "full", [*overrides, "output.vtk=false"], comm=comm, progress=False)
         full = history_columns(stage / "full")
         u_col = _probe_component(full, probe)

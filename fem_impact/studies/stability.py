@@ -154,7 +154,7 @@ def stability_study(case_path, methods=None, courants=None, restitutions=None, l
     if any(not 0 <= e <= 1 for e in restitutions):
         raise StudyInputError("--restitution: every value must be in [0, 1]")
     outdir = Path(outdir) if outdir else default_outdir(case_path, "stability")
-    check_outdir(outdir)
+    check_outdir(outdir, case_path)
     e_case = base.contacts[0].restitution if base.contacts else None
     same_e = all(c.restitution == e_case for c in base.contacts)
 

@@ -1,0 +1,438 @@
+"""The output folder's policy, shared by every command that writes: which folders may be written or
+replaced, the staging folder, the lock against a concurrent run, stale debris, and interruption.
+
+- A folder is replaced only when it holds an earlier fem-impact result (the marker file
+  ``.fem-impact.json`` that every command writes, or the files of a result written before the
+  marker existed); any other folder that is not empty is refused, and left as it was.
+- The home folder, the current folder and its parents, the case file's folder and its parents
+  (and the mesh file's) are never output folders.
+- Results are written into a hidden sibling ``.NAME.partial-PID`` and moved into place when
+  complete. A lock (``.NAME.lock`` beside the folder, ``flock``: released by the kernel when the
+  process dies) makes a second run into the same folder refuse; whoever holds the lock removes
+  staging folders that a killed process left behind.
+- SIGTERM, SIGHUP and SIGQUIT end a run as Ctrl-C does (:class:`Interrupted`, a KeyboardInterrupt):
+  the staging folder is removed and the command exits with 128 + the signal number.
+
+Errors are :class:`OutputFolderError`, a CaseError: one line and status 2, like other bad input.
+Under MPI, rank 0 decides and does the file work; every rank raises the same error.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import json
+import os
+import shutil
+import signal
+from pathlib import Path
+
+from .case import CaseError
+
+MARKER = ".fem-impact.json"
+# Leave room for ".partial-PID" and ".lock" around the folder's name (NAME_MAX is 255 bytes).
+MAX_NAME_BYTES = 255 - len("..partial-4194304")
+
+
+class OutputFolderError(CaseError):
+    """An output folder or file that cannot or must not be written (bad input: status 2)."""
+
+    def __init__(self, where, message):
+        super().__init__(where, None, None, message)
+
+
+# --- which folders ---------------------------------------------------------------------------
+
+
+def _real(path) -> Path:
+    return Path(os.path.realpath(path))
+
+
+def _protected(protect=()) -> dict[Path, str]:
+    """Folders that are never output folders, with what they are (for the message)."""
+    places: dict[Path, str] = {}
+
+    def add_with_parents(folder: Path, label: str, parent_label: str):
+        places.setdefault(folder, label)
+        for parent in folder.parents:
+            places.setdefault(parent, parent_label)
+
+    for item in protect:
+        if item is not None:
+            add_with_parents(_real(item).parent, "the folder of " + Path(item).name,
+                             "a folder that holds " + Path(item).name)
+    add_with_parents(_real(os.getcwd()), "the current folder", "a parent of the current folder")
+    home = os.path.expanduser("~")
+    if home not in ("~", "/"):
+        places[_real(home)] = "the home folder"
+    return places
+
+
+def is_result(folder: Path) -> bool:
+    """True when ``folder`` holds a fem-impact result (marker, or the files of an earlier version)."""
+    folder = Path(folder)
+    if (folder / MARKER).is_file():
+        return True
+    try:
+        if "fem_impact_version" in json.loads((folder / "summary.json").read_text()):
+            return True
+    except (OSError, ValueError, TypeError):
+        pass
+    legacy = [("case.resolved.yaml",), ("study.json",), ("level.json",), ("sweep.csv", "run01"),
+              ("reduction.csv", "full")]
+    return any(all((folder / name).exists() for name in names) for names in legacy)
+
+
+def check(outdir, protect=(), option: str = "-o") -> Path:
+    """The absolute output folder if the policy allows writing it; raises OutputFolderError.
+
+    ``protect``: files (the case, the mesh) whose folders and their parents must not be replaced.
+    """
+    text = os.fspath(outdir)
+    shown = text
+    if not text.strip():
+        raise OutputFolderError(f"{option} {text!r}", "give a folder name")
+    if "\0" in text:
+        raise OutputFolderError(f"{option} {text!r}", "a folder name cannot hold a NUL character")
+    path = Path(os.path.abspath(text))
+    real = _real(path)
+    what = _protected(protect).get(real)
+    if what is not None:
+        raise OutputFolderError(shown, f"is {what}: it cannot be an output folder (the results replace the "
+                                       "folder's contents); choose a folder of its own, e.g. results/NAME")
+    if len(os.fsencode(path.name)) > MAX_NAME_BYTES:
+        raise OutputFolderError(shown[:60] + "...", f"the folder name is too long ({len(os.fsencode(path.name))} "
+                                                    f"bytes; at most {MAX_NAME_BYTES})")
+    ancestor = path.parent
+    while not ancestor.exists():
+        if ancestor.is_symlink():
+            raise OutputFolderError(shown, f"{ancestor} is a broken symbolic link")
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise OutputFolderError(shown, f"{ancestor} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise OutputFolderError(shown, f"cannot write into {ancestor} (permission denied)")
+    if path.is_symlink():
+        raise OutputFolderError(shown, "is a symbolic link; give the folder itself")
+    if path.exists():
+        if not path.is_dir():
+            raise OutputFolderError(shown, "the output path exists and is not a folder")
+        try:
+            entries = sorted(p.name for p in path.iterdir())
+        except OSError as err:
+            raise OutputFolderError(shown, f"cannot read the folder: {err.strerror}") from None
+        if entries and not is_result(path):
+            example = ", ".join(repr(e) for e in entries[:3]) + (", ..." if len(entries) > 3 else "")
+            raise OutputFolderError(shown, f"the folder holds files that are not a fem-impact result ({len(entries)} "
+                                           f"entries: {example}); it is left as it was. Choose a new or empty "
+                                           "folder (an earlier result of fem-impact is replaced)")
+    return path
+
+
+# --- the claim: lock, stale debris, staging ---------------------------------------------------
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove_stale(parent: Path, name: str) -> list[Path]:
+    """Staging and replaced folders of ``name`` left by processes that no longer exist."""
+    removed = []
+    for kind in ("partial", "old"):
+        for p in parent.glob(f".{_glob_escape(name)}.{kind}-*"):
+            pid = p.name.rsplit("-", 1)[1]
+            if pid.isdigit() and (int(pid) == 0 or not _alive(int(pid))):
+                shutil.rmtree(p, ignore_errors=True)
+                removed.append(p)
+    return removed
+
+
+def _glob_escape(name: str) -> str:
+    return "".join(f"[{c}]" if c in "*?[" else c for c in name)
+
+
+class OutputFolder:
+    """A claimed output folder: checked, locked; ``staged()`` writes it atomically."""
+
+    def __init__(self, path: Path, comm, command: str, source=None):
+        self.path, self.comm, self.command, self.source = path, comm, command, source
+        self._lock_fd = None
+        self._lock_path = path.parent / f".{path.name}.lock"
+        self._created: list[Path] = []
+        self.stale: list[Path] = []
+
+    # rank 0 only
+    def _acquire(self) -> None:
+        missing = []
+        p = self.path.parent
+        while not p.exists():
+            missing.append(p)
+            p = p.parent
+        try:
+            for folder in reversed(missing):
+                folder.mkdir()
+                self._created.append(folder)
+            while True:
+                fd = os.open(self._lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError as err:
+                    holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+                    os.close(fd)
+                    if err.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
+                        raise OutputFolderError(str(self.path), f"another fem-impact process (pid {holder}) is "
+                                                                "writing this folder; wait for it to finish or "
+                                                                "choose another folder") from None
+                    raise
+                # The holder before us may have removed the file after we opened it: lock the file in place.
+                try:
+                    same = os.fstat(fd).st_ino == os.stat(self._lock_path).st_ino
+                except FileNotFoundError:
+                    same = False
+                if same:
+                    break
+                os.close(fd)
+            self._lock_fd = fd
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            self.stale = _remove_stale(self.path.parent, self.path.name)
+        except OSError as err:
+            self._release()
+            raise OutputFolderError(str(self.path), f"cannot create the output folder: "
+                                                    f"{err.strerror or err}") from None
+        except BaseException:
+            self._release()
+            raise
+
+    def _release(self, failed: bool = True) -> None:
+        if self._lock_fd is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(self._lock_path)
+            os.close(self._lock_fd)
+            self._lock_fd = None
+        if failed:   # folders made for the output that stayed empty
+            for folder in reversed(self._created):
+                with contextlib.suppress(OSError):
+                    folder.rmdir()
+        self._created = []
+
+    def write_marker(self, folder: Path) -> None:
+        from . import __version__
+
+        data = {"written_by": f"fem-impact {self.command}", "fem_impact_version": __version__,
+                "source": None if self.source is None else str(self.source)}
+        (Path(folder) / MARKER).write_text(json.dumps(data, indent=2) + "\n")
+
+    @contextlib.contextmanager
+    def staged(self):
+        """Write into ``.NAME.partial-PID`` beside the folder; move it over the folder when complete.
+
+        A failed or interrupted body removes the staging folder and leaves the folder as it was.
+        """
+        comm = self.comm
+        install_signal_handlers()   # again: PETSc, imported meanwhile, installs its own
+        stage = self.path.parent / f".{self.path.name}.partial-{os.getpid()}"
+        error = None
+        if comm.rank == 0:
+            try:
+                stage.mkdir()
+            except OSError as err:
+                error = f"cannot create the staging folder {stage}: {err.strerror}"
+        error = comm.bcast(error, root=0)
+        if error:
+            raise OutputFolderError(str(self.path), error)
+        stage = Path(comm.bcast(str(stage), root=0))
+        try:
+            yield stage
+            comm.barrier()
+            if comm.rank == 0:
+                self.write_marker(stage)
+                old = self.path.parent / f".{self.path.name}.old-{os.getpid()}"
+                if self.path.exists():
+                    self.path.rename(old)
+                stage.rename(self.path)
+                shutil.rmtree(old, ignore_errors=True)
+                self._created = []   # they hold the result now
+        except BaseException as err:
+            interrupted = isinstance(err, KeyboardInterrupt)
+            if interrupted:
+                ignore_signals()   # a second signal (mpirun sends one) must not cut the cleanup short
+            # Interrupted, every rank removes it: the signal may have reached one rank only, and mpirun
+            # then kills the others.
+            if comm.rank == 0 or interrupted:
+                shutil.rmtree(stage, ignore_errors=True)
+            if interrupted and comm.rank != 0:   # (rank 0, if stuck, is killed with the lock file left)
+                with contextlib.suppress(OSError):
+                    os.unlink(self._lock_path)
+            raise
+        comm.barrier()
+
+
+@contextlib.contextmanager
+def claim(outdir, comm, command: str, protect=(), source=None):
+    """Check and lock ``outdir`` for the body; yields an :class:`OutputFolder`.
+
+    Raises OutputFolderError (on every rank) when the policy refuses the folder or another
+    process holds it. On leaving, the lock is released; on failure, parent folders this claim
+    created are removed again if empty.
+    """
+    install_signal_handlers()
+    out = None
+    error = None
+    if comm.rank == 0:
+        try:
+            path = check(outdir, protect)
+            out = OutputFolder(path, comm, command, source)
+            out._acquire()
+        except OutputFolderError as err:
+            error = (err.file, err.message)
+    error = comm.bcast(error, root=0)
+    if error:
+        raise OutputFolderError(*error)
+    if comm.rank != 0:
+        out = OutputFolder(Path(os.path.abspath(outdir)), comm, command, source)
+    ok = False
+    try:
+        yield out
+        ok = True
+    finally:
+        if comm.rank == 0:
+            out._release(failed=not ok)
+
+
+@contextlib.contextmanager
+def written_in_place(outdir, comm, command: str, protect=(), source=None):
+    """Claim ``outdir`` for a command that writes into it directly (a study: completed levels are kept
+    for a rerun); the marker is written first, so that an interrupted study's folder is recognized."""
+    with claim(outdir, comm, command, protect, source) as out:
+        new = not out.path.exists()
+        if comm.rank == 0:
+            out.path.mkdir(exist_ok=True)
+            out.write_marker(out.path)
+            for cache in out.path.glob(".cache-*"):   # a killed study's private cache (we hold the lock)
+                shutil.rmtree(cache, ignore_errors=True)
+        comm.barrier()
+        try:
+            yield out
+        except BaseException:
+            # Refused before anything ran (or interrupted before a level completed): no empty folder left.
+            if comm.rank == 0 and new and [p.name for p in out.path.iterdir()] in ([MARKER], [MARKER, "levels"]):
+                with contextlib.suppress(OSError):
+                    (out.path / MARKER).unlink()
+                    if (out.path / "levels").exists():
+                        (out.path / "levels").rmdir()
+                    out.path.rmdir()
+            raise
+
+
+# --- single files (plot, animate) ------------------------------------------------------------
+
+_MAGIC = {".png": (b"\x89PNG",), ".gif": (b"GIF8",), ".jpg": (b"\xff\xd8",), ".jpeg": (b"\xff\xd8",),
+          ".pdf": (b"%PDF",), ".svg": (b"<?xml", b"<svg"), ".mp4": (b"ftyp",)}
+
+
+def check_file(output, protect=(), option: str = "-o") -> Path:
+    """An output file (a picture, an animation): its folder must exist; an existing file is replaced
+    only when it is a picture of the same kind, never a folder or another file."""
+    text = os.fspath(output)
+    if not text.strip():
+        raise OutputFolderError(f"{option} {text!r}", "give a file name")
+    if "\0" in text:
+        raise OutputFolderError(f"{option} {text!r}", "a file name cannot hold a NUL character")
+    path = Path(os.path.abspath(text))
+    if len(os.fsencode(path.name)) > MAX_NAME_BYTES:
+        raise OutputFolderError(f"{option} {text[:60]}...", "the file name is too long")
+    if not path.parent.is_dir():
+        raise OutputFolderError(f"{option} {text}", f"no folder {path.parent}" if not path.parent.exists()
+                                else f"{path.parent} is not a folder")
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise OutputFolderError(f"{option} {text}", f"cannot write into {path.parent} (permission denied)")
+    if any(_real(path) == _real(p) for p in protect if p is not None):
+        raise OutputFolderError(f"{option} {text}", "is an input of this command; choose another file")
+    if path.is_dir():
+        raise OutputFolderError(f"{option} {text}", "is a folder; give a file name")
+    if path.exists():
+        magic = _MAGIC.get(path.suffix.lower(), ())
+        try:
+            with open(path, "rb") as f:
+                head = f.read(12)
+        except OSError as err:
+            raise OutputFolderError(f"{option} {text}", f"cannot read the existing file: {err.strerror}") from None
+        if not any(head.startswith(m) or m in head[:12] for m in magic):
+            raise OutputFolderError(f"{option} {text}", f"the file exists and is not a {path.suffix or 'picture'} "
+                                                        "picture; it is left as it was (choose another name)")
+    return path
+
+
+@contextlib.contextmanager
+def atomic_file(path: Path):
+    """Yields a temporary name beside ``path`` (same suffix); it replaces ``path`` when the body completes."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise OutputFolderError(str(path), f"cannot write the file: {err.strerror or err}") from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
+# --- interruption ----------------------------------------------------------------------------
+
+
+class Interrupted(KeyboardInterrupt):
+    """A run ended by a signal (SIGTERM, SIGHUP, SIGQUIT, SIGINT): a KeyboardInterrupt with ``signum``."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+HANDLED = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+
+
+def _raise(signum, frame):
+    # The process is ending: a second signal (mpirun follows one with another, a user presses Ctrl-C
+    # twice) must not interrupt the cleanup. The next claim() installs the handlers again.
+    ignore_signals()
+    raise Interrupted(signum)
+
+
+def install_signal_handlers() -> None:
+    """SIGTERM, SIGHUP, SIGQUIT and SIGINT raise :class:`Interrupted` (in the main thread; else nothing)."""
+    try:
+        for sig in (*HANDLED, signal.SIGINT):
+            signal.signal(sig, _raise)
+    except ValueError:   # not the main thread (a study's worker): the process's owner handles signals
+        pass
+
+
+def ignore_signals() -> None:
+    """After an interruption: the process is ending, further signals wait for nothing."""
+    try:
+        for sig in (*HANDLED, signal.SIGINT):
+            signal.signal(sig, signal.SIG_IGN)
+    except ValueError:
+        pass
+
+
+def exit_status(err: KeyboardInterrupt) -> int:
+    """128 + the signal number: 130 for Ctrl-C, 143 for SIGTERM, 129 for SIGHUP, 131 for SIGQUIT."""
+    return 128 + getattr(err, "signum", signal.SIGINT)
+
+
+def signal_name(err: KeyboardInterrupt) -> str:
+    return signal.Signals(getattr(err, "signum", signal.SIGINT)).name
