@@ -32,7 +32,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the fem-impact command 
 CASE = Path(__file__).resolve().parents[1] / "cases" / "plate_drop.yaml"
 
 
-METHODS = {"moreau_jean": ["solver.method=moreau_jean"], "velocity": ["solver.method=moreau_jean", "solver.level=velocity"],
+METHODS = {"moreau_jean": ["solver.method=moreau_jean"],
+           "velocity": ["solver.method=moreau_jean", "solver.level=velocity"],
            "newmark": ["solver.method=newmark"]}
 
 

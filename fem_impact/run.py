@@ -96,7 +96,8 @@ def case_inputs(case: Case) -> tuple:
     return (case.path, case.mesh.file)
 
 
-def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float, stop_on_energy_gain: bool) -> dict:
+def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
+         stop_on_energy_gain: bool) -> dict:
     outdir = out.path
     check_limits(case, outdir, comm, force)
     # dolfinx and PETSc load in about a second: only once the case file is known to be sound.

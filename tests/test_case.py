@@ -226,9 +226,11 @@ def test_integral_float_accepted_for_int(tmp_path):
     ("shape: bar", "shape: bar\n  length: 0", "mesh.length", "must be > 0"),
     ("dt: 0.01", "dt: 0.01\n  tolerance: 1", "solver.tolerance", "must be in (0, 1)"),
     ("dt: 0.01", "dt: 0.01\n  modes: 0", "solver.modes", "'auto' or an integer >= 1"),
-    ("dt: 0.01", "dt: 0.01\n  method: explicit", "solver.method", "one of moreau_jean, newmark, central_difference, modal"),
+    ("dt: 0.01", "dt: 0.01\n  method: explicit", "solver.method",
+     "one of moreau_jean, newmark, central_difference, modal"),
         ("dt: 0.01", "dt: 0.01\n  gamma: 0.4", "solver.gamma", "must be >= 0.5"),
-        ("dt: 0.01", "dt: 0.01\n  method: modal\n  mass: redistributed", "solver.mass", "needs method moreau_jean or newmark"),
+        ("dt: 0.01", "dt: 0.01\n  method: modal\n  mass: redistributed", "solver.mass",
+         "needs method moreau_jean or newmark"),
 ])
 def test_out_of_range(tmp_path, old, new, key, message):
     err = error_of(tmp_path, BASE.replace(old, new))

@@ -11,7 +11,8 @@ from conftest import CASES
 from fem_impact.contact import Delassus, regularized, solve_lcp
 
 PLATE = CASES / "plate_drop.yaml"
-BAR_1D = ["mesh.dim=1", "initial.velocity=[-1.0]", "contacts.0.normal=[-1.0]",
+BAR_1D = ["mesh.dim=1", "mesh.height=null", "mesh.width=null", "mesh.elements=simplex", "initial.velocity=[-1.0]",
+          "contacts.0.normal=[-1.0]",
           "output.probes.left=[0.0]", "output.probes.right=[1.0]"]
 
 

@@ -1,6 +1,7 @@
 """Time integrators, chosen by name from a registry (``solver.method`` in the case file)."""
 
-from .base import EnergyBudget, EnergyCreated, EnergyWatch, Operators, SimulationError, StepState, integrate, steps_for
+from .base import (EnergyBudget, EnergyCreated, EnergyWatch, Operators, SimulationError, StepState, integrate,
+                   steps_for)
 from .central_difference import CentralDifference
 from .moreau_jean import MoreauJean
 from .newmark import Newmark
@@ -9,5 +10,5 @@ from .newmark import Newmark
 # with the one its solver.scheme names.
 METHODS = {MoreauJean.name: MoreauJean, Newmark.name: Newmark, CentralDifference.name: CentralDifference}
 
-__all__ = ["METHODS", "CentralDifference", "MoreauJean", "EnergyBudget", "EnergyCreated", "EnergyWatch", "Newmark", "Operators", "SimulationError", "StepState",
-           "integrate", "steps_for"]
+__all__ = ["METHODS", "CentralDifference", "EnergyBudget", "EnergyCreated", "EnergyWatch", "MoreauJean", "Newmark",
+           "Operators", "SimulationError", "StepState", "integrate", "steps_for"]
