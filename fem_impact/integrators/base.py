@@ -396,8 +396,8 @@ class Operators:
         if p >= INVERSE_ENTRIES_FROM and hasattr(solve, "inverse_block"):
             block = solve.inverse_block(dofs)
             if block is not None:
-                Pd = self._P[:, dofs].toarray()
-                return Pd @ block @ Pd.T, SolvedColumns(self, solve)
+                Pd = self._P[:, dofs]   # sparse (a few entries a row): two products of p m nnz, not 2 p m^2
+                return np.asarray(Pd @ np.asarray(Pd @ block).T), SolvedColumns(self, solve)
         W = np.empty((p, p))
         block = max(16, min(RHS_BLOCK, RHS_ENTRIES // max(N, 1)))
         for j0 in range(0, p, block):

@@ -133,7 +133,7 @@ class MoreauJean(ContactScheme):
 
         # rhs = M V0 + dt R_theta - dt (1 - theta) C V0 - dt K U0 - theta (1 - theta) dt^2 K V0
         # (M V0 is the previous step's M V1; R_theta = theta R1 + (1 - theta) R0).
-        np.multiply(self.MV, 1.0, out=rhs)
+        np.copyto(rhs, self.MV)
         if self.loaded:
             axpy(rhs, dt * (1.0 - theta), self.R)
             self._evaluate_load(t1)
