@@ -43,7 +43,7 @@ from .scheme import ContactScheme
 
 CHECK_EVERY = 32   # steps: K U and K V by products with K instead of from the step's identity
 LEVELS = ("velocity", "position")
-ROUND_OFF = 1e-12   # a velocity change below this fraction of the impulse's own is no correction
+ROUND_OFF = 1e-12   # a velocity change below this fraction of the step's impulse's is no correction
 
 
 class MoreauJean(ContactScheme):
@@ -149,6 +149,7 @@ class MoreauJean(ContactScheme):
         p = ops.p
         impulse = np.zeros(p)
         pu, pv = st.normal_displacement, st.normal_velocity
+        jump = 0.0   # the largest change of a normal velocity the impulse made
         if p:
             pv_free = ops.project_many(V)[0]
             impulse = self._impulse(st, pv_free, t1)
@@ -156,14 +157,16 @@ class MoreauJean(ContactScheme):
             if np.count_nonzero(impulse):
                 self.G.subtract_from(V, impulse)
                 ops.subtract_transpose(rhs, impulse)   # the step's equation with the impulse, for K V1
-                pv = pv_free - self.W.dot(impulse)
+                Wp = self.W.dot(impulse)
+                pv, jump = pv_free - Wp, float(np.abs(Wp).max())
         axpy(U, dt * theta, V)
         pv_star, restitution_loss = pv, 0.0
         if p:
             step_contact_loss = float(impulse.dot(0.5 * (st.normal_velocity + pv_star)))
             if np.count_nonzero(self.carnot_rows):
                 pu_end = self._pu_dyn + dt * ((1.0 - theta) * st.normal_velocity + theta * pv_star)
-                pv, restitution_loss = self._restitution(impulse, st.normal_velocity, pv, pu_end, step_contact_loss)
+                pv, restitution_loss = self._restitution(impulse, st.normal_velocity, pv, pu_end, step_contact_loss,
+                                                         jump)
         np.subtract(V, A, out=A)
         A *= 1.0 / dt
         force = impulse / dt
@@ -230,7 +233,7 @@ class MoreauJean(ContactScheme):
         return impulse
 
     def _restitution(self, impulse: np.ndarray, pv0: np.ndarray, pv: np.ndarray, pu: np.ndarray,
-                     contact_loss: float) -> tuple[np.ndarray, float]:
+                     contact_loss: float, jump: float) -> tuple[np.ndarray, float]:
         """Position level: Carnot's correction on the rigid rows held at the end of the step.
 
         A row held by a position-level impulse leaves the trapezoidal step with a spurious
@@ -261,7 +264,7 @@ class MoreauJean(ContactScheme):
         target = -e * np.maximum(pv0[rows], 0.0)
         # In a persisting contact the held rows end the step at rest to round-off (P V* = -P V0
         # = 0): no correction, and no solve with M (a face of 1681 rows: a third of the step).
-        if np.abs(x - target).max() <= ROUND_OFF * np.abs(carnot.dot(impulse)).max():
+        if np.abs(x - target).max() <= ROUND_OFF * jump:
             return pv, 0.0
         lam_a, loss = loss_for(target)
         if contact_loss + loss < 0.0 and np.count_nonzero(e):
