@@ -19,6 +19,19 @@ ROOT = Path(__file__).resolve().parents[1]
 CASES = ROOT / "cases"
 
 
+class ConstantLoad:
+    """A load vector constant in time, for integrators on tiny systems (``Operators.load``)."""
+
+    time_dependent = False
+
+    def __init__(self, value):
+        self.value = value
+
+    def evaluate(self, t, out):
+        out[:] = self.value
+        return out
+
+
 def read_history(outdir: Path) -> np.ndarray:
     """history.csv as a structured array; dots in column names become underscores."""
     with open(outdir / "history.csv") as f:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from petsc4py import PETSc
 
+from conftest import ConstantLoad
 from fem_impact.contact import solve_lcp
 from fem_impact.integrators import MoreauJean, Newmark, Operators, integrate
 
@@ -54,17 +55,6 @@ def test_lcp_without_contact_returns_the_free_gap():
 
 
 # --- B0: a point mass dropped on a rigid floor (BENCHMARKS.md) ---------------------------
-
-class ConstantLoad:
-    time_dependent = False
-
-    def __init__(self, value):
-        self.value = value
-
-    def evaluate(self, t, out):
-        out[:] = self.value
-        return out
-
 
 def one_by_one(value):
     A = PETSc.Mat().createAIJ([1, 1], nnz=1, comm=PETSc.COMM_SELF)

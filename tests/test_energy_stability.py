@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import CASES, run_case_file, run_cli
+from conftest import CASES, ConstantLoad, run_case_file, run_cli
 from fem_impact.case import Solver
 from fem_impact.integrators import EnergyWatch, MoreauJean, Newmark, Operators, integrate
 
@@ -45,17 +45,6 @@ def assert_holds(summary, h):
 
 
 # --- the mechanism, on two masses -----------------------------------------------------------
-
-class ConstantLoad:
-    time_dependent = False
-
-    def __init__(self, value):
-        self.value = value
-
-    def evaluate(self, t, out):
-        out[:] = self.value
-        return out
-
 
 def two_masses(restitution=0.0):
     """Unit masses joined by a spring k = 1e4 (omega = 141), the first against a wall 0.1 away,

@@ -197,10 +197,7 @@ class MoreauJean(ContactScheme):
             if ops.static:
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
         self._energies(energy)
-        self._book_stops(energy, st.force, force)
-        if ops.static:
-            energy.strain += ops.static.energy(t1, force)
-            energy.external_work += ops.static.work(st.t, t1, st.force, force, theta)
+        self._book_stored(energy, st, force, t1, theta)
         self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, impulse, energy, pu, pv)
         return self.state
 

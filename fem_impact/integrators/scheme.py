@@ -154,6 +154,15 @@ class ContactScheme:
         energy.contact_loss -= stored - self._stop_energy(force_prev)
         energy.strain += stored
 
+    def _book_stored(self, energy: EnergyBudget, st: StepState, force: np.ndarray, t1: float, weight: float) -> None:
+        """What the step stores off the structure's own dofs: the elastic stops' springs and a static
+        part's energy, with the loads' work on the static part (``weight``: the scheme's for t1)."""
+        self._book_stops(energy, st.force, force)
+        static = self.ops.static
+        if static:
+            energy.strain += static.energy(t1, force)
+            energy.external_work += static.work(st.t, t1, st.force, force, weight)
+
     def _quadratic_energies(self) -> tuple[float, float]:
         """Kinetic and strain energy from products with M and K; sets ``MV`` and ``MA`` (at the start)."""
         ops, alg = self.ops, self.alg
