@@ -47,7 +47,6 @@ class CentralDifference(ContactScheme):
         super().__init__(ops, dt, S, impact_correction=False)
         stops = np.diag(ops.stop_compliance)   # elastic stops: g = d0 - P U + c lam >= 0
         self.lcp = Delassus.regularized(dt * dt * self.W + stops)
-        self.lcp_matrix = self.lcp.matrix
         self.start_matrix = None   # (built at the start if a contact needs it: it takes D)
         self.critical_dt = critical_time_step(ops)
         if dt > self.critical_dt * (1.0 + 1e-9):

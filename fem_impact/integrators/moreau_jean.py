@@ -161,7 +161,7 @@ class MoreauJean(ContactScheme):
                 pv, jump = pv_free - Wp, float(np.abs(Wp).max())
         axpy(U, dt * theta, V)
         pv_star, restitution_loss = pv, 0.0
-        if p:
+        if p:   # the work of the impulse with the step's mean velocity (exact for theta = 1/2)
             step_contact_loss = float(impulse.dot(0.5 * (st.normal_velocity + pv_star)))
             if np.count_nonzero(self.carnot_rows):
                 pu_end = self._pu_dyn + dt * ((1.0 - theta) * st.normal_velocity + theta * pv_star)
@@ -191,7 +191,6 @@ class MoreauJean(ContactScheme):
             pu = self._pu_dyn = ops.project_many(U)[0]
             if ops.static:
                 pu = pu + ops.static.offset(t1) - ops.static.compliance.dot(force)
-            # The work of the impulse with the step's mean velocity (exact for theta = 1/2).
             energy.contact_loss += step_contact_loss
             energy.impact_loss += restitution_loss
             if ops.static:

@@ -51,7 +51,6 @@ class Newmark(ContactScheme):
         static = ops.static
         self.lcp = Delassus.regularized(beta * dt * dt * self.W + (static.compliance if static else 0.0)
                                         + np.diag(ops.stop_compliance))
-        self.lcp_matrix = self.lcp.matrix
         self._check_stop_stiffness()
 
     def _check_stop_stiffness(self) -> None:
