@@ -14,6 +14,7 @@ from pathlib import Path
 
 import yaml
 
+from .errors import CaseError
 from .expressions import RESERVED, Expression, ExpressionError, parse_expression
 
 SHAPES = ("bar",)
@@ -28,30 +29,6 @@ COMPONENTS = ("x", "y", "z")
 SPACE = ("x", "y", "z")  # variables of initial fields
 TIME = ("t",)  # variables of loads
 _CSV_NAME = re.compile(r"[A-Za-z0-9_-]+")
-
-
-class CaseError(Exception):
-    """Bad input: names the file, the key (dotted path), the line where known, and what is wrong.
-
-    Parameters
-    ----------
-    file : str
-        The case file as shown to the user (or ``"--set"``).
-    key : str or None
-        Dotted key path, e.g. ``"contacts[0].normal"``.
-    line : int or None
-        1-based line in `file`.
-    message : str
-        What is wrong.
-    """
-
-    def __init__(self, file, key, line, message):
-        super().__init__(file, key, line, message)
-        self.file, self.key, self.line, self.message = str(file), key, line, message
-
-    def __str__(self):
-        where = f"{self.file}:{self.line}" if self.line else self.file
-        return f"{where}: {self.key}: {self.message}" if self.key else f"{where}: {self.message}"
 
 
 @dataclass

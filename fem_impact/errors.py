@@ -1,7 +1,46 @@
-"""Errors that end a run after its input was accepted (importable without dolfinx or PETSc)."""
+"""The errors fem-impact raises on purpose (importable without dolfinx or PETSc).
+
+Every one derives from :class:`FemImpactError`, so a script can catch them all at once:
+
+- :class:`CaseError`: bad input, found before anything runs (names the key, and the file and
+  line when the case came from a file);
+- :class:`SimulationError`: the run itself cannot go on (blow-up, NaN, a contact problem
+  without solution, energy created when asked to stop on it).
+"""
 
 
-class SimulationError(RuntimeError):
+class FemImpactError(Exception):
+    """Base class of every error fem-impact raises on purpose."""
+
+
+class CaseError(FemImpactError):
+    """Bad input: names the key (dotted path), and where known the file and line, and what is wrong.
+
+    Parameters
+    ----------
+    file : str or None
+        The case file as shown to the user, ``"--set"`` for a command-line option, or None
+        for a case built in Python (``Case.from_dict``).
+    key : str or None
+        Dotted key path, e.g. ``"contacts[0].normal"``.
+    line : int or None
+        1-based line in `file`.
+    message : str
+        What is wrong.
+    """
+
+    def __init__(self, file, key, line, message):
+        super().__init__(file, key, line, message)
+        self.file = None if file is None else str(file)
+        self.key, self.line, self.message = key, line, message
+
+    def __str__(self):
+        where = (f"{self.file}:{self.line}" if self.line else self.file) if self.file else None
+        text = f"{self.key}: {self.message}" if self.key else self.message
+        return f"{where}: {text}" if where else text
+
+
+class SimulationError(FemImpactError, RuntimeError):
     """The run cannot go on (blow-up, NaN, a contact problem without solution)."""
 
 

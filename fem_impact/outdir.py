@@ -28,7 +28,7 @@ import shutil
 import signal
 from pathlib import Path
 
-from .case import CaseError
+from .errors import CaseError
 
 MARKER = ".fem-impact.json"
 # Leave room for ".partial-PID" and ".lock" around the folder's name (NAME_MAX is 255 bytes).
