@@ -47,7 +47,7 @@ def measure(cells: int, coupling: str, steps: int, method: str) -> dict:
     from fem_impact.integrators import Operators
     from fem_impact.mesh import build_mesh
     from fem_impact.model import build_model
-    from fem_impact.run import make_integrator
+    from fem_impact.pipeline import make_integrator
 
     dt = 0.5 / cells
     overrides = [f"mesh.cells={cells}", f"solver.dt={dt}", f"contacts.0.gap={1.5 * dt}",

@@ -66,7 +66,7 @@ def main(argv):
     from fem_impact.integrators import Operators, integrate
     from fem_impact.mesh import build_mesh
     from fem_impact.model import build_model
-    from fem_impact.run import make_integrator
+    from fem_impact.pipeline import make_integrator
 
     case = load_case(case_path, sets)
     if case.damping.alpha or case.damping.beta or any(c.stiffness for c in case.contacts):

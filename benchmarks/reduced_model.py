@@ -27,7 +27,7 @@ from fem_impact.mesh import build_mesh  # noqa: E402
 from fem_impact.model import build_model  # noqa: E402
 from fem_impact.modes import compute_modes  # noqa: E402
 from fem_impact.reduce import build_reduced  # noqa: E402
-from fem_impact.run import full_model  # noqa: E402
+from fem_impact.pipeline import full_model  # noqa: E402
 
 CASE = Path(__file__).resolve().parents[1] / "cases" / "beam_stop.yaml"
 

@@ -1,3 +1,31 @@
-"""fem-impact: dynamics of elastic structures with unilateral constraints (impacts), on FEniCSx."""
+"""fem-impact: dynamics of elastic structures with unilateral constraints (impacts), on FEniCSx.
+
+The Python API (the command ``fem-impact`` is a thin layer over it)::
+
+    import fem_impact
+
+    case = fem_impact.load_case("cases/impacting_bar.yaml")          # or Case.from_dict({...})
+    result = fem_impact.run(case.with_changes({"solver.dt": 1e-3}))  # nothing written to disk
+    result.history["wall.force"], result.summary["max_penetration"]
+
+- :func:`load_case`, :meth:`Case.from_dict`, :meth:`Case.with_changes`: validated cases;
+- :func:`run` -> :class:`Result` (``summary``, ``history``, ``outdir``);
+- :class:`FemImpactError`, the base of :class:`CaseError` (bad input, names the key) and
+  :class:`SimulationError` (a run that cannot go on).
+"""
 
 __version__ = "0.1.0"
+
+from .case import Case, load_case  # noqa: E402  (after __version__, which the modules read)
+from .errors import CaseError, FemImpactError, SimulationError  # noqa: E402
+
+__all__ = ["Case", "CaseError", "FemImpactError", "Result", "SimulationError", "__version__", "load_case", "run"]
+
+
+def __getattr__(name):
+    # run and Result need MPI: imported on first use, so that `import fem_impact` stays light.
+    if name in ("run", "Result"):
+        from . import pipeline
+
+        return getattr(pipeline, name)
+    raise AttributeError(f"module 'fem_impact' has no attribute {name!r}")

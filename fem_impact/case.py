@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import difflib
 import keyword
@@ -9,6 +10,7 @@ import math
 import operator
 import os
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -129,7 +131,7 @@ class Case:
     """
 
     name: str
-    path: Path
+    path: Path | None   # the case file; None for a case built in Python (Case.from_dict)
     mesh: MeshSpec
     material: Material | None
     materials: dict[str, Material] | None
@@ -144,10 +146,64 @@ class Case:
     lines: dict[tuple, int] = field(default_factory=dict)
     overrides: dict[tuple, str] = field(default_factory=dict)
     reference: str | None = None   # name of a known exact solution (fem_impact.references)
+    source: dict = field(default_factory=dict, repr=False)   # the data as given (with the changes), unvalidated
+    base_dir: Path = field(default_factory=Path.cwd, repr=False)   # where relative paths in `source` start
+
+    @classmethod
+    def from_dict(cls, data, base_dir=None) -> Case:
+        """Validate a case given as a mapping, exactly as a case file with the same content.
+
+        Parameters
+        ----------
+        data : mapping
+            The case as a case file's YAML would give it (numbers as numbers, expressions as
+            strings); it is not modified.
+        base_dir : path-like, optional
+            The folder that relative paths in `data` (``mesh.file``) start from; default the
+            current folder.
+
+        Raises
+        ------
+        CaseError
+            On bad input; its ``key`` is the dotted key path (``material.E``), its ``file`` None.
+        """
+        folder = Path(os.path.abspath(base_dir if base_dir is not None else Path.cwd()))
+        if not isinstance(data, Mapping):
+            raise CaseError(None, None, None, f"expected a mapping of keys, got {type(data).__name__}")
+        return _validated(copy.deepcopy(dict(data)), None, folder, None, {}, {})
+
+    def with_changes(self, changes) -> Case:
+        """A copy of the case with keys changed, validated again (this case is not modified).
+
+        Parameters
+        ----------
+        changes : mapping or iterable of str
+            ``{"solver.dt": 1e-3, "contacts.0.restitution": 0.5}`` (dotted key paths to values;
+            list items by their index), or ``--set`` options ``["solver.dt=1e-3"]`` (values
+            read as YAML). Changing ``solver.method`` drops the keys of the previous method
+            that the new one does not take (its valid keys are then checked as usual).
+
+        Raises
+        ------
+        CaseError
+            When a change does not fit the case; the message names the change.
+        """
+        data = copy.deepcopy(self.source)
+        if isinstance(changes, Mapping):
+            origins = {_set_key(data, str(key), value, f"the change {key}={value!r}"): f"the change {key}={value!r}"
+                       for key, value in changes.items()}
+        else:
+            origins = {_apply_override(data, option): f"--set {option}" for option in changes}
+        return _validated(data, self.path, self.base_dir, self.lines, {**self.overrides, **origins}, origins)
+
+    @property
+    def file(self) -> str | None:
+        """The case file as shown in messages (None for a case built in Python)."""
+        return None if self.path is None else _display(self.path)
 
     def error(self, key_path, message) -> CaseError:
         """Build a CaseError for `key_path` (e.g. ``("contacts", 0, "nodes")``) with its line."""
-        return _error(_display(self.path), self.lines, self.overrides, tuple(key_path), message)
+        return _error(self.file, self.lines, self.overrides, tuple(key_path), message)
 
     def resolved(self) -> dict:
         """Return the whole case as plain data with every default filled in.
@@ -344,10 +400,10 @@ def _display(path):
 
 def _error(file, lines, overrides, path, message):
     """CaseError for `path`: its line (or the nearest ancestor's), or the --set option that gave it."""
-    for prefix, option in overrides.items():
+    for prefix, origin in overrides.items():
         if path[:len(prefix)] == prefix:
-            shown = option if option.isprintable() else repr(option)   # (one line: no raw newline)
-            return CaseError(file, _dotted(path) or None, None, f"{message} (from --set {shown})")
+            shown = origin if origin.isprintable() else repr(origin)   # (one line: no raw newline)
+            return CaseError(file, _dotted(path) or None, None, f"{message} (from {shown})")
     line = next((lines[path[:n]] for n in range(len(path), 0, -1) if path[:n] in lines), None)
     return CaseError(file, _dotted(path) or None, line, message)
 
@@ -366,18 +422,30 @@ def _apply_override(data, option):
     except yaml.YAMLError as exc:
         raise CaseError("--set", key, None, f"cannot read the value {text!r}: "
                         f"{' '.join(str(getattr(exc, 'problem', exc)).split())}") from None
+    return _set_key(data, key.strip(), value, "--set")
+
+
+def _set_key(data, key: str, value, origin: str):
+    """Set the dotted ``key`` of `data` (in place) to `value`; returns the key path.
+
+    Missing mappings on the way are created; a list item is named by its index. `origin`
+    names the change in errors (``"--set"``, or the change of ``Case.with_changes``).
+    """
+    segments = key.split(".")
+    if not all(segments):
+        raise CaseError(origin, None, None, f"expected a dotted key path, got {key!r}")
     target, path = data, ()
     for depth, segment in enumerate(segments, 1):
         if isinstance(target, list):
             if not segment.isdigit() or int(segment) >= len(target):
-                raise CaseError("--set", _dotted(path + (segment,)), None,
+                raise CaseError(origin, _dotted(path + (segment,)), None,
                                 f"no item {segment}: {_dotted(path)} has {len(target)} items")
             segment = int(segment)
         elif not isinstance(target, dict):
-            raise CaseError("--set", _dotted(path), None, f"is not a mapping or a list; cannot set {key}")
+            raise CaseError(origin, _dotted(path), None, f"is not a mapping or a list; cannot set {key}")
         path += (segment,)
         if depth == len(segments):
-            target[segment] = value
+            target[segment] = copy.deepcopy(value)
         else:
             if isinstance(target, dict) and target.get(segment) is None:
                 target[segment] = {}
@@ -739,13 +807,13 @@ def _reference(value, path):
     return value
 
 
-def _case(data, case_path):
+def _case(data, folder: Path, default_name: str):
     """Validate the whole case mapping (lines and overrides are added by the caller)."""
     # The parameters first: every expression of the other sections may use them.
     parameters = _parameters(data.get("parameters"), ("parameters",)) if isinstance(data, dict) else {}
     f = _fields(data, (), {
-        "name": (_case_name, case_path.stem),
-        "mesh": (lambda value, path: _mesh(value, path, case_path.parent), _REQUIRED),
+        "name": (_case_name, default_name),
+        "mesh": (lambda value, path: _mesh(value, path, folder), _REQUIRED),
         "material": (_material, None), "materials": (_mapping_of(_material), None),
         "damping": (_damping, Damping()),
         "initial": (lambda value, path: _initial(value, path, parameters), Initial()),
@@ -758,7 +826,7 @@ def _case(data, case_path):
                        "give either 'material' (for every body) or 'materials' (per body), not both")
     if f["materials"] == {}:
         raise _Invalid(("materials",), "must give at least one body")
-    return Case(path=case_path, **f)
+    return Case(path=None, **f)
 
 
 def load_case(path, overrides=()) -> Case:
@@ -792,22 +860,31 @@ def load_case(path, overrides=()) -> Case:
     if not isinstance(data, dict):
         raise CaseError(file, None, None, "the file is empty" if data is None
                         else "expected a mapping of keys at the top level")
-    options = {_apply_override(data, option): option for option in overrides}
+    options = {_apply_override(data, option): f"--set {option}" for option in overrides}
+    return _validated(data, case_path, case_path.parent, lines, options, options)
+
+
+def _validated(data: dict, case_path: Path | None, folder: Path, lines, overrides: dict, changed: dict) -> Case:
+    """Validate `data` into a Case; `overrides` maps changed key paths to their origin (for messages),
+    `changed` those of this very call (a parameter they set must be used)."""
+    file = None if case_path is None else _display(case_path)
+    source = copy.deepcopy(data)
     try:
-        case = _case(data, case_path)
+        case = _case(data, folder, case_path.stem if case_path is not None else "case")
     except _Invalid as exc:
-        raise _error(file, lines, options, exc.path, exc.message) from None
-    case.lines, case.overrides = lines, options
-    _check_set_parameters(case)
+        raise _error(file, lines or {}, overrides, exc.path, exc.message) from None
+    case.path, case.base_dir, case.source = case_path, folder, source
+    case.lines, case.overrides = dict(lines or {}), dict(overrides)
+    _check_set_parameters(case, changed)
     return case
 
 
-def _check_set_parameters(case: Case) -> None:
-    """A parameter given with --set that no expression uses is a typo, not a silent no-op."""
+def _check_set_parameters(case: Case, changed) -> None:
+    """A parameter set with --set (or a change) that no expression uses is a typo, not a silent no-op."""
     used = set()
     for _, expr in case.expressions():
         used |= expr.constants
-    for path in case.overrides:
+    for path in changed:
         names = [path[1]] if len(path) == 2 and path[0] == "parameters" else (
             sorted(case.parameters) if path == ("parameters",) else [])
         for name in names:

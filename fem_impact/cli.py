@@ -260,7 +260,7 @@ def main(argv=None) -> int:
         return animate_main(args)
 
     # Heavy imports (dolfinx, PETSc) only once the arguments are known to be sound.
-    from .run import describe, energy_warning, run_case
+    from .pipeline import describe, energy_warning, run_case
 
     def run():
         summary = run_case(args.case, args.output, args.overrides, comm=_comm(), progress=not args.quiet,
@@ -422,7 +422,7 @@ def _run_study(args) -> None:
 
     from .case import load_case
     from .outdir import written_in_place
-    from .run import case_inputs
+    from .pipeline import case_inputs
     from .studies.common import default_outdir
 
     args.output = Path(args.output) if args.output else default_outdir(args.case, args.study)

@@ -8,6 +8,7 @@ run's memory to the megabyte.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import shutil
@@ -106,8 +107,11 @@ def _size(n: float) -> str:
 FORCE = "; pass --force to run it anyway"
 
 
-def check_limits(case: Case, outdir: Path, comm, force: bool = False) -> Estimate:
-    """Refuse (CaseError on the key to change) a run beyond the limits; returns the estimate."""
+def check_limits(case: Case, outdir: Path | None, comm, force: bool = False) -> Estimate:
+    """Refuse (CaseError on the key to change) a run beyond the limits; returns the estimate.
+
+    ``outdir`` None: a run that writes nothing (its history is held in memory).
+    """
     est = estimate(case, comm.size)
     if force:
         return est
@@ -117,6 +121,8 @@ def check_limits(case: Case, outdir: Path, comm, force: bool = False) -> Estimat
                                            f"{MAX_STEPS:.0e}{FORCE}")
     key = ("mesh", "file") if case.mesh.file is not None else ("mesh", "cells")
     memory = available_memory()
+    if outdir is None:   # a run that writes nothing keeps its history in memory, and writes no frame
+        est = dataclasses.replace(est, memory=est.memory + est.history, frames=0, vtk=0.0)
     if est.memory > memory:
         raise case.error(key, f"the run would need about {_size(est.memory)} of memory ({est.dofs:.3g} unknowns), "
                               f"more than the {_size(memory)} available{FORCE}")
@@ -125,7 +131,7 @@ def check_limits(case: Case, outdir: Path, comm, force: bool = False) -> Estimat
                                               f"steps, a frame every {case.output.every}), more than the limit "
                                               f"{MAX_FRAMES:.0e}: raise output.every or set output.vtk: false"
                                               f"{FORCE}")
-    disk = free_disk(outdir.parent)
+    disk = free_disk(outdir.parent) if outdir is not None else math.inf
     if est.output > disk:
         raise case.error(("output", "every") if est.vtk > est.history else ("solver", "dt"),
                          f"the run would write about {_size(est.output)} (history {_size(est.history)}, VTK "

@@ -348,7 +348,7 @@ def run_modes(path, outdir=None, overrides=(), n: int | None = None, comm: MPI.C
     """
     from .case import load_case
     from .outdir import claim
-    from .run import case_inputs
+    from .pipeline import case_inputs
 
     t_start = time.perf_counter()
     case = load_case(path, overrides)

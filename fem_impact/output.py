@@ -135,9 +135,12 @@ def _check_inside(case, model: Model, key, point) -> None:
 
 
 class HistoryWriter:
-    """``history.csv``: one row for t = 0 and one per step (INTERFACE.md)."""
+    """``history.csv``: one row for t = 0 and one per step (INTERFACE.md).
 
-    def __init__(self, path: Path, cons: Constraints, probes: Probes, comm: MPI.Comm, fields,
+    With ``path`` None nothing is written: the rows are kept (on rank 0) for :meth:`columns_data`.
+    """
+
+    def __init__(self, path: Path | None, cons: Constraints, probes: Probes, comm: MPI.Comm, fields,
                  flush_every: int = 2000, momenta: BodyMomenta | None = None):
         self.cons, self.probes, self.comm, self.fields = cons, probes, comm, fields
         self.momenta = momenta
@@ -149,7 +152,8 @@ class HistoryWriter:
         # Body momenta come last, after the energies: columns added since INTERFACE.md keep the
         # positions of the earlier ones.
         self.columns += probes.columns() + list(ENERGY_COLUMNS) + (momenta.columns() if momenta else [])
-        self._file = open(path, "w", newline="") if comm.rank == 0 else None
+        self._keep = comm.rank == 0
+        self._file = open(path, "w", newline="") if comm.rank == 0 and path is not None else None
         if self._file:
             self._csv = csv.writer(self._file)
             self._csv.writerow(self.columns)
@@ -164,9 +168,9 @@ class HistoryWriter:
         row += [e.kinetic, e.strain, e.external_work, e.damping_loss, e.impact_loss, e.contact_loss, e.error]
         if self.momenta is not None:
             row += self.momenta.values(state).tolist()
-        if self._file:
+        if self._keep:
             self.rows.append(row)
-            if len(self.rows) >= self.flush_every:
+            if self._file and len(self.rows) >= self.flush_every:
                 self.flush()
 
     def flush(self) -> None:
@@ -178,6 +182,13 @@ class HistoryWriter:
         self.flush()
         if self._file:
             self._file.close()
+
+    def columns_data(self) -> dict[str, np.ndarray] | None:
+        """The kept rows as columns by name (a writer without a file; None on ranks other than 0)."""
+        if not self._keep or self._file is not None:
+            return None
+        data = np.array(self.rows, dtype=float).reshape(len(self.rows), len(self.columns))
+        return {name: data[:, i].copy() for i, name in enumerate(self.columns)}
 
 
 class VTKWriter:

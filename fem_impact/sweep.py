@@ -128,7 +128,7 @@ def run_sweep(case_path, vary: str, target: Target | None = None, outdir=None, o
     Raises SweepError or CaseError on bad input before anything runs or is written.
     """
     from .output import Progress
-    from .run import case_inputs, run_case, staged_directory
+    from .pipeline import case_inputs, run_case, staged_directory
 
     case_path = Path(case_path)
     key, texts, values = parse_vary(vary)

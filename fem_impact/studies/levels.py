@@ -242,7 +242,7 @@ def _run_in_process(case_path, todo, root, prints, cases, jobs, allow_failure, p
     from mpi4py import MPI
 
     from ..errors import SimulationError
-    from ..run import run_case
+    from ..pipeline import run_case
 
     saved = os.environ.get("FEM_IMPACT_CACHE")
     os.environ["FEM_IMPACT_CACHE"] = str(cache)
@@ -278,7 +278,7 @@ def _warm_up(case_path, todo, cases, cache) -> None:
     from mpi4py import MPI
 
     from ..errors import SimulationError
-    from ..run import run_case
+    from ..pipeline import run_case
 
     if any(c.solver.method == "modal" for c in cases.values()):
         from .. import modes  # noqa: F401  (SLEPc)

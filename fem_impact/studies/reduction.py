@@ -13,7 +13,7 @@ from mpi4py import MPI
 
 from ..case import MODAL_SCHEMES, load_case
 from ..plots import history_columns, plot_reduction
-from ..run import case_inputs, run_case, staged_directory
+from ..pipeline import case_inputs, run_case, staged_directory
 
 log = logging.getLogger(__name__)
 

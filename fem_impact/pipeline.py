@@ -9,6 +9,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from mpi4py import MPI
 
 from . import __version__
@@ -73,32 +74,93 @@ def staged_directory(outdir: Path, comm: MPI.Comm, command: str = "run", protect
         yield stage
 
 
-def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, progress=True,
-             stop_on_energy_gain: bool = False, force: bool = False) -> dict:
-    """Run a case file end to end; returns the summary (also written to ``summary.json``).
+@dataclass
+class Result:
+    """What a run gives back (:func:`run`).
 
-    ``progress``: True for the time loop's progress bar (on a terminal), False for none, or a
-    callable ``(step, total)`` of the caller's own (e.g. an ``output.Progress`` with a label).
-    ``stop_on_energy_gain``: stop with an EnergyCreated error as soon as the contacts create
-    energy; otherwise the summary records it (``energy_created``, ``energy_created_at``).
-    ``force``: run even when the size estimate is beyond the limits (fem_impact.limits).
-    The output folder is claimed (checked and locked, fem_impact.outdir) before anything is built.
+    Attributes
+    ----------
+    summary : dict
+        The run's summary, as ``summary.json`` holds it (plus ``outdir``).
+    outdir : Path or None
+        The output folder; None when nothing was written.
+    history : dict of str to numpy.ndarray
+        ``history.csv``'s columns by name (``t``, ``wall.force``, ``kinetic``, ...): one value
+        for t = 0 and one per step.
+    """
+
+    summary: dict
+    outdir: Path | None
+    _history: dict | None = None
+
+    @property
+    def history(self) -> dict[str, np.ndarray]:
+        if self._history is None:
+            from .plots import history_columns
+
+            self._history = history_columns(self.outdir)
+        return self._history
+
+
+def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
+        stop_on_energy_gain: bool = False, force: bool = False) -> Result:
+    """Run a case: the public entry point (``fem-impact run`` is a thin layer over it).
+
+    Parameters
+    ----------
+    case : Case
+        From :func:`fem_impact.load_case` or :meth:`fem_impact.Case.from_dict`.
+    outdir : path-like, optional
+        None (the default): nothing is written to disk, the history is kept in memory. A
+        folder: exactly what ``fem-impact run -o OUTDIR`` writes (results.pvd, history.csv,
+        summary.json, case.resolved.yaml), atomically, under the output-folder policy of
+        :mod:`fem_impact.outdir` (a folder that is not an earlier result is never replaced).
+    progress : bool or callable
+        True for the time loop's progress bar (on a terminal, rank 0), or a callable
+        ``(step, total)`` of the caller's own.
+    comm : mpi4py communicator, optional
+        Default ``MPI.COMM_WORLD``.
+    stop_on_energy_gain : bool
+        Raise :class:`~fem_impact.integrators.EnergyCreated` (a SimulationError) as soon as the
+        scheme creates energy; by default the summary records it (``energy_created_at``).
+    force : bool
+        Run even when the size estimate is beyond the limits (:mod:`fem_impact.limits`).
+
+    Raises
+    ------
+    CaseError
+        The case does not fit the mesh or the limits (before anything is written).
+    SimulationError
+        The run could not go on (an output folder is then left as it was).
     """
     t_start = time.perf_counter()
-    case = load_case(path, overrides)
-    outdir = Path(outdir) if outdir is not None else default_outdir(case)
-    with claim(outdir, comm, "run", protect=case_inputs(case), source=case.path) as out:
+    comm = MPI.COMM_WORLD if comm is None else comm
+    if outdir is None:
+        return _run(case, None, comm, progress, force, t_start, stop_on_energy_gain)
+    with claim(Path(outdir), comm, "run", protect=case_inputs(case), source=case.path) as out:
         return _run(case, out, comm, progress, force, t_start, stop_on_energy_gain)
+
+
+def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, progress=True,
+             stop_on_energy_gain: bool = False, force: bool = False) -> dict:
+    """Run a case file into ``outdir`` (default ``results/<name>``); returns the summary.
+
+    The command's path: :func:`load_case` with the ``--set`` overrides, then :func:`run`.
+    """
+    case = load_case(path, overrides)
+    return run(case, outdir if outdir is not None else default_outdir(case), progress, comm,
+               stop_on_energy_gain, force).summary
 
 
 def case_inputs(case: Case) -> tuple:
     """The files a case reads: their folders are never output folders."""
-    return (case.path, case.mesh.file)
+    return tuple(p for p in (case.path, case.mesh.file) if p is not None)
 
 
 def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
-         stop_on_energy_gain: bool) -> dict:
-    outdir = out.path
+         stop_on_energy_gain: bool) -> Result:
+    """The pipeline; ``out`` is the claimed output folder, or None to write nothing."""
+    outdir = out.path if out is not None else None
     check_limits(case, outdir, comm, force)
     # dolfinx and PETSc load in about a second: only once the case file is known to be sound.
     from .constraints import build_constraints, check_initial_state
@@ -123,14 +185,14 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
 
-    with out.staged() as stage:
+    with out.staged() if out is not None else contextlib.nullcontext(None) as stage:
         fields = system.fields
         momenta = BodyMomenta(model, fields)
-        history = HistoryWriter(stage / "history.csv", cons, probes, comm, fields, momenta=momenta)
+        history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta)
         stats = RunStatistics(cons)
         observers = [history, stats]
         vtk = None
-        if case.output.vtk:
+        if case.output.vtk and stage is not None:
             vtk = VTKWriter(stage / "results.pvd", model, fields, case.output.every, n_steps)
             observers.append(vtk)
         t_loop = time.perf_counter()
@@ -178,15 +240,16 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "vtk_frames": vtk.frames if vtk else 0,
             "fem_impact_version": __version__,
         }
-        if comm.rank == 0:
+        if comm.rank == 0 and stage is not None:
             (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
             case.write_resolved(stage / "case.resolved.yaml")
             if vtk is not None:
                 from .paraview_view import write_view_script
 
                 write_view_script(stage, meshdata.dim, final_dir=outdir)
-    summary["outdir"] = str(outdir.resolve())
-    return summary
+    summary["outdir"] = str(outdir.resolve()) if outdir is not None else None
+    columns = None if outdir is not None else comm.bcast(history.columns_data(), root=0)
+    return Result(summary, outdir.resolve() if outdir is not None else None, columns)
 
 
 def energy_warning(summary: dict) -> str | None:
