@@ -6,24 +6,27 @@ import copy
 import dataclasses
 import difflib
 import keyword
+import logging
 import math
 import operator
 import os
 import re
+import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
+from pydantic import ValidationError
 
 from .errors import CaseError
 from .expressions import RESERVED, Expression, ExpressionError, parse_expression
+from .integrators.parameters import (DEFAULT_METHOD, METHODS, MODAL_SCHEMES, SCHEMAS, SOLVER, KeyProblem,
+                                     SolverParameters, valid_keys)
+from .integrators.parameters import tag as _schema_tag
 
 SHAPES = ("bar",)
 BAR_ELEMENTS = ("simplex", "hex")   # triangles/tetrahedra, or quadrilaterals/hexahedra (2D/3D bar)
-METHODS = ("moreau_jean", "newmark", "central_difference", "modal")
-# Time schemes of the reduced model (method modal).
-MODAL_SCHEMES = ("moreau_jean", "newmark")
 MASS_MATRICES = ("consistent", "lumped", "redistributed")
 CONTACT_TYPES = ("obstacle", "pair")
 CONTACT_COUPLINGS = ("each", "mean")
@@ -31,6 +34,7 @@ COMPONENTS = ("x", "y", "z")
 SPACE = ("x", "y", "z")  # variables of initial fields
 TIME = ("t",)  # variables of loads
 _CSV_NAME = re.compile(r"[A-Za-z0-9_-]+")
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -98,23 +102,6 @@ class Contact:
     stiffness: float | None = None   # N/m per row: an elastic stop (None: rigid)
 
 
-@dataclass(kw_only=True)  # keyword-only, so the required dt and t_end can follow method
-class Solver:
-    method: str = "moreau_jean"
-    theta: float = 0.5
-    level: str = "position"
-    scheme: str = "moreau_jean"
-    beta: float = 0.25
-    gamma: float = 0.5
-    dt: float
-    t_end: float
-    mass: str = "consistent"
-    impact_correction: bool = True
-    modes: int | str | None = None
-    static_correction: bool = True
-    tolerance: float = 0.01
-
-
 @dataclass
 class Output:
     every: int = 10
@@ -140,7 +127,7 @@ class Case:
     supports: list[Support]
     loads: list[Load]
     contacts: list[Contact]
-    solver: Solver
+    solver: SolverParameters   # the schema of its method (fem_impact.integrators.parameters)
     output: Output
     parameters: dict[str, float] = field(default_factory=dict)
     lines: dict[tuple, int] = field(default_factory=dict)
@@ -189,11 +176,13 @@ class Case:
             When a change does not fit the case; the message names the change.
         """
         data = copy.deepcopy(self.source)
+        before = _solver_tag(data)
         if isinstance(changes, Mapping):
             origins = {_set_key(data, str(key), value, f"the change {key}={value!r}"): f"the change {key}={value!r}"
                        for key, value in changes.items()}
         else:
             origins = {_apply_override(data, option): f"--set {option}" for option in changes}
+        _follow_method_change(data, before, origins)
         return _validated(data, self.path, self.base_dir, self.lines, {**self.overrides, **origins}, origins)
 
     @property
@@ -226,9 +215,12 @@ class Case:
         data["loads"] = [{key: _sources(value) if key in ("force", "acceleration") else value
                           for key, value in vars(load).items() if value is not None}
                          for load in self.loads]
-        data["contacts"] = [dict(dataclasses.asdict(c), nodes=c.nodes[0] if c.type == "obstacle"
-                                 else list(c.nodes)) for c in self.contacts]
-        data["solver"] = dataclasses.asdict(self.solver)
+        data["contacts"] = [{key: value for key, value in dataclasses.asdict(c).items()
+                             if not (key == "restitution" and c.stiffness is not None)}   # (an elastic stop's)
+                            | {"nodes": c.nodes[0] if c.type == "obstacle" else list(c.nodes)}
+                            for c in self.contacts]
+        solver = self.solver.model_dump()
+        data["solver"] = {key: solver[key] for key in valid_keys(type(self.solver))}   # (method and scheme first)
         data["output"] = dataclasses.asdict(self.output)
         return data
 
@@ -522,13 +514,17 @@ _BOUNDS = {"gt": (operator.gt, ">", "("), "ge": (operator.ge, ">=", "["),
            "lt": (operator.lt, "<", ")"), "le": (operator.le, "<=", "]")}
 
 
-def _real(**bounds):
-    """Converter for a finite number within `bounds` (keywords gt, ge, lt, le)."""
+def _range_text(bounds) -> str:
+    """``{"gt": 0, "lt": 1}`` -> ``"in (0, 1)"``; ``{"ge": 0}`` -> ``">= 0"``."""
     if len(bounds) == 2:
         (low, a), (high, b) = bounds.items()
-        text = f"in {_BOUNDS[low][2]}{a:g}, {b:g}{_BOUNDS[high][2]}"
-    else:
-        text = " ".join(f"{_BOUNDS[name][1]} {bound:g}" for name, bound in bounds.items())
+        return f"in {_BOUNDS[low][2]}{a:g}, {b:g}{_BOUNDS[high][2]}"
+    return " ".join(f"{_BOUNDS[name][1]} {bound:g}" for name, bound in bounds.items())
+
+
+def _real(**bounds):
+    """Converter for a finite number within `bounds` (keywords gt, ge, lt, le)."""
+    text = _range_text(bounds)
 
     def convert(value, path):
         number = _number(value, path)
@@ -733,7 +729,16 @@ def _contact(value, path):
     if length == 0.0:
         raise _Invalid(path + ("normal",), "must have a nonzero length")
     f["normal"] = [component / length for component in f["normal"]]
+    if f["stiffness"] is not None and value.get("restitution") is not None:
+        # Its spring stores the approach and gives it back: no impact law, so no restitution.
+        keys = ", ".join(key for key in CONTACT_KEYS if key != "restitution")
+        raise _Invalid(path + ("restitution",), f"an elastic stop (stiffness given) does not use 'restitution': "
+                                                f"its spring gives back what it stores; keys of an elastic stop: "
+                                                f"{keys} (or remove stiffness for a rigid contact)")
     return Contact(**f)
+
+
+CONTACT_KEYS = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness")
 
 
 def _contacts(value, path):
@@ -755,26 +760,90 @@ def _modes(value, path):
 
 
 def _solver(value, path):
-    f = _fields(value, path, {
-        "dt": (_real(gt=0), _REQUIRED), "t_end": (_real(gt=0), _REQUIRED),
-        "method": (_choice(*METHODS), "moreau_jean"), "theta": (_real(ge=0.5, le=1.0), 0.5),
-        "level": (_choice("position", "velocity"), "position"),
-        "scheme": (_choice(*MODAL_SCHEMES), "moreau_jean"), "beta": (_real(gt=0), 0.25),
-        "gamma": (_real(ge=0), 0.5), "mass": (_choice(*MASS_MATRICES), None),
-        "impact_correction": (_boolean, True),
-        "modes": (_modes, None), "static_correction": (_boolean, True),
-        "tolerance": (_real(gt=0, lt=1), 0.01)})
-    if f["dt"] > f["t_end"]:
-        raise _Invalid(path + ("dt",), f"must be <= t_end ({f['t_end']:g}), got {f['dt']:g}")
-    # The explicit scheme is meant for the lumped (diagonal) mass: no solve per step.
-    if f["mass"] is None:
-        f["mass"] = "lumped" if f["method"] == "central_difference" else "consistent"
-    if f["mass"] == "redistributed" and f["method"] not in ("moreau_jean", "newmark"):
-        raise _Invalid(path + ("mass",), f"'redistributed' (no mass on the contact nodes) needs method moreau_jean "
-                                         f"or newmark; {f['method']} needs mass on every node")
-    if f["gamma"] < 0.5:
-        raise _Invalid(path + ("gamma",), f"must be >= 0.5 (below, Newmark amplifies every mode), got {f['gamma']:g}")
-    return Solver(**f)
+    """The solver section, validated by the schema of its method (fem_impact.integrators.parameters)."""
+    # (an explicit null means the default, as everywhere in a case file)
+    data = {key: entry for key, entry in _mapping(value, path).items() if entry is not None}
+    if data.get("method", DEFAULT_METHOD) not in METHODS:
+        raise _Invalid(path + ("method",), f"must be one of {', '.join(METHODS)}; got {_show(data['method'])}")
+    if data.get("method") == "modal" and data.get("scheme", MODAL_SCHEMES[0]) not in MODAL_SCHEMES:
+        raise _Invalid(path + ("scheme",), f"must be one of {', '.join(MODAL_SCHEMES)}; got {_show(data['scheme'])}")
+    schema = SCHEMAS[_schema_tag(data)]
+    try:
+        return SOLVER.validate_python(data)
+    except ValidationError as exc:
+        raise _from_pydantic(exc.errors()[0], path, schema) from None
+
+
+def _method_name(schema) -> str:
+    """How messages name a schema's method: ``newmark``, or ``modal (scheme newmark)``."""
+    name = next(tag for tag, s in SCHEMAS.items() if s is schema)
+    method, _, scheme = name.partition("/")
+    return f"{method} (scheme {scheme})" if scheme else method
+
+
+def _from_pydantic(error: dict, path: tuple, schema) -> _Invalid:
+    """A pydantic error as the case file reports it: the key path, and the project's own words."""
+    loc = tuple(part for part in error["loc"] if part not in SCHEMAS)   # (the union's tag is not a key)
+    kind, given, ctx = error["type"], error.get("input"), error.get("ctx") or {}
+    if isinstance(ctx.get("error"), KeyProblem):
+        return _Invalid(path + loc + (ctx["error"].key,), str(ctx["error"]))
+    key = loc[-1] if loc else None
+    field_info = schema.model_fields.get(key) if isinstance(key, str) else None
+    if kind == "extra_forbidden":
+        valid = valid_keys(schema)
+        owners = [_method_name(other) for other in dict.fromkeys(SCHEMAS.values()) if key in other.model_fields]
+        if owners:
+            return _Invalid(path + loc, f"method {_method_name(schema)} does not use '{key}' (a key of "
+                                        f"{', '.join(owners)}); its keys: {', '.join(valid)}")
+        close = difflib.get_close_matches(str(key), valid, n=1)
+        hint = f"did you mean '{close[0]}'? (" if close else "("
+        return _Invalid(path + loc, f"unknown key '{key}'; {hint}keys of method {_method_name(schema)}: "
+                                    f"{', '.join(valid)})")
+    if kind == "missing":
+        return _Invalid(path + loc, "missing required key")
+    if kind in ("float_type", "float_parsing", "int_type", "int_parsing"):
+        return _Invalid(path + loc, f"expected a number, got {_show(given)}")
+    if kind == "bool_type":
+        return _Invalid(path + loc, f"expected true or false, got {_show(given)}")
+    if kind == "finite_number":
+        return _Invalid(path + loc, f"expected a finite number, got {given}")
+    if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal") and field_info:
+        bounds = {name: getattr(item, name) for item in field_info.metadata for name in _BOUNDS
+                  if getattr(item, name, None) is not None}
+        return _Invalid(path + loc, f"must be {_range_text(bounds)}, got {given!r}")
+    if kind == "literal_error" and field_info:
+        options = typing.get_args(field_info.annotation)
+        owners = [_method_name(other) for other in dict.fromkeys(SCHEMAS.values())
+                  if key in other.model_fields and given in typing.get_args(other.model_fields[key].annotation)]
+        where = f" (a value for method {', '.join(owners)})" if owners else ""
+        return _Invalid(path + loc, f"must be one of {', '.join(options)} with method {_method_name(schema)}; "
+                                    f"got {_show(given)}{where}")
+    if kind == "value_error":
+        return _Invalid(path + loc, str(ctx.get("error", error["msg"])))
+    return _Invalid(path + loc, error["msg"])
+
+
+def _solver_tag(data):
+    solver = data.get("solver") if isinstance(data, dict) else None
+    return _schema_tag(solver) if isinstance(solver, dict) else None
+
+
+def _follow_method_change(data, before: str | None, changed) -> None:
+    """A change of solver.method (or scheme) drops the file's keys that the new method does not take.
+
+    They belonged to the method the file chose; keys the changes themselves give are kept (and
+    checked by the new method's schema as usual).
+    """
+    solver = data.get("solver") if isinstance(data, dict) else None
+    if not isinstance(solver, dict) or _schema_tag(solver) == before or _schema_tag(solver) not in SCHEMAS:
+        return
+    schema = SCHEMAS[_schema_tag(solver)]
+    dropped = [key for key in list(solver) if key not in schema.model_fields and ("solver", key) not in changed]
+    for key in dropped:
+        del solver[key]
+    if dropped:
+        log.info("solver.method %s: dropped %s (keys of the previous method)", _method_name(schema),
+                 ", ".join(dropped))
 
 
 def _output(value, path):
@@ -860,7 +929,9 @@ def load_case(path, overrides=()) -> Case:
     if not isinstance(data, dict):
         raise CaseError(file, None, None, "the file is empty" if data is None
                         else "expected a mapping of keys at the top level")
+    before = _solver_tag(data)
     options = {_apply_override(data, option): f"--set {option}" for option in overrides}
+    _follow_method_change(data, before, options)
     return _validated(data, case_path, case_path.parent, lines, options, options)
 
 

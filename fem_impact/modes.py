@@ -366,7 +366,7 @@ def _run_modes(case, out, n, comm, t_start) -> dict:
     model = build_model(case, meshdata)
     available = free_dof_count(model)
     if n is None:
-        if isinstance(case.solver.modes, int):
+        if isinstance(getattr(case.solver, "modes", None), int):   # (only the reduced model's solver has modes)
             n = case.solver.modes
             if n >= available:
                 raise case.error(("solver", "modes"), str(ModeCountError(n, available)))

@@ -49,15 +49,17 @@ def reduced_model(case: Case, model, cons) -> System:
     return System(red.operators, red.fields, red.Z0, red.Zdot0, summary)
 
 
-MODELS = {"moreau_jean": full_model, "newmark": full_model, "central_difference": full_model, "modal": reduced_model}
+def model_of(case: Case):
+    """What a method integrates: the reduced model for ``modal``, else the full model."""
+    return reduced_model if case.solver.method == "modal" else full_model
 
 
 def make_integrator(case: Case, operators):
-    """The time integrator of ``solver.method``, from the integrators' registry."""
-    from .integrators import METHODS
+    """The time integrator of ``solver.method`` (the reduced model: of its ``solver.scheme``)."""
+    from .integrators import INTEGRATORS
 
     solver = case.solver
-    return METHODS[solver.scheme if solver.method == "modal" else solver.method].from_solver(operators, solver)
+    return INTEGRATORS[solver.scheme if solver.method == "modal" else solver.method].from_solver(operators, solver)
 
 
 def default_outdir(case: Case) -> Path:
@@ -170,16 +172,12 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     from .output import BodyMomenta, HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
 
     solver = case.solver
-    if solver.method not in MODELS:
-        raise case.error(("solver", "method"), f"method '{solver.method}' is not available in this version "
-                         f"(available: {', '.join(MODELS)})")
-
     meshdata = build_mesh(case, comm)
     model = build_model(case, meshdata)
     cons = build_constraints(case, model)
     check_initial_state(case, cons, model)
     probes = find_probes(case, model)
-    system = MODELS[solver.method](case, model, cons)
+    system = model_of(case)(case, model, cons)
     integrator = make_integrator(case, system.operators)
     n_steps = steps_for(solver.t_end, solver.dt)
     setup_time = time.perf_counter() - t_start

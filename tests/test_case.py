@@ -108,10 +108,15 @@ def test_defaults(tmp_path):
     assert (case.damping.alpha, case.damping.beta) == (0.0, 0.0)
     assert case.initial.velocity == [] and case.initial.displacement == []
     assert case.supports == [] and case.loads == [] and case.contacts == []
-    solver = case.solver
-    assert (solver.method, solver.theta, solver.scheme) == ("moreau_jean", 0.5, "moreau_jean")   # one that holds
-    assert (solver.beta, solver.gamma, solver.modes) == (0.25, 0.5, None)
-    assert (solver.static_correction, solver.tolerance) == (True, 0.01)
+    solver = case.solver   # the default method, the one that holds at any step, and only its keys
+    assert solver.model_dump() == {"method": "moreau_jean", "dt": 0.01, "t_end": 1.0, "mass": "consistent",
+                                   "theta": 0.5, "level": "position"}
+    newmark = case.with_changes({"solver.method": "newmark"}).solver
+    assert (newmark.beta, newmark.gamma, newmark.impact_correction) == (0.25, 0.5, True)
+    modal = case.with_changes({"solver.method": "modal"}).solver
+    assert (modal.scheme, modal.modes, modal.static_correction, modal.tolerance) == ("moreau_jean", "auto", True, 0.01)
+    central = case.with_changes({"solver.method": "central_difference"}).solver
+    assert central.mass == "lumped"   # (explicit: no solve per step)
     assert (case.output.every, case.output.probes, case.output.vtk) == (10, {}, True)
 
 
@@ -224,13 +229,14 @@ def test_integral_float_accepted_for_int(tmp_path):
     ("t_end: 1.0", "t_end: -1", "solver.t_end", "must be > 0"),
     ("dt: 0.01", "dt: 2", "solver.dt", "must be <= t_end"),
     ("shape: bar", "shape: bar\n  length: 0", "mesh.length", "must be > 0"),
-    ("dt: 0.01", "dt: 0.01\n  tolerance: 1", "solver.tolerance", "must be in (0, 1)"),
-    ("dt: 0.01", "dt: 0.01\n  modes: 0", "solver.modes", "'auto' or an integer >= 1"),
+    ("dt: 0.01", "dt: 0.01\n  method: modal\n  tolerance: 1", "solver.tolerance", "must be in (0, 1)"),
+    ("dt: 0.01", "dt: 0.01\n  method: modal\n  modes: 0", "solver.modes", "'auto' or an integer >= 1"),
     ("dt: 0.01", "dt: 0.01\n  method: explicit", "solver.method",
      "one of moreau_jean, newmark, central_difference, modal"),
-        ("dt: 0.01", "dt: 0.01\n  gamma: 0.4", "solver.gamma", "must be >= 0.5"),
+        ("dt: 0.01", "dt: 0.01\n  method: newmark\n  gamma: 0.4", "solver.gamma", "must be >= 0.5"),
         ("dt: 0.01", "dt: 0.01\n  method: modal\n  mass: redistributed", "solver.mass",
-         "needs method moreau_jean or newmark"),
+         "must be one of consistent, lumped with method modal (scheme moreau_jean); got 'redistributed' "
+         "(a value for method moreau_jean, newmark)"),
 ])
 def test_out_of_range(tmp_path, old, new, key, message):
     err = error_of(tmp_path, BASE.replace(old, new))

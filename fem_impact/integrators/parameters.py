@@ -1,0 +1,194 @@
+"""What each time-integration method takes in the case file's ``solver`` section.
+
+One typed schema per method (pydantic): its keys, defaults, ranges, units and meaning, in one
+place. ``SOLVER`` is their union, discriminated by ``method`` (and, for the reduced model, by
+``scheme``); ``METHODS`` is the single list of methods that the case file, the pipeline and the
+studies read. A key that a method does not use is refused (``extra="forbid"``).
+
+This module is light on purpose (pydantic only, no PETSc): a case file is validated before
+anything heavy is imported.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Union
+
+from pydantic import (BaseModel, ConfigDict, Discriminator, Field, PlainValidator, Tag, TypeAdapter,
+                      field_validator, model_validator)
+
+DEFAULT_METHOD = "moreau_jean"
+
+
+class KeyProblem(ValueError):
+    """A check across keys that names the key to change (the case file reports it on that key)."""
+
+    def __init__(self, key: str, message: str):
+        super().__init__(message)
+        self.key = key
+
+
+def _number(unit: str, doc: str, default=..., **bounds):
+    return Field(default, description=doc, json_schema_extra={"unit": unit}, **bounds)
+
+
+def _count_or_auto(value):
+    """``modes``: an integer >= 1 (integral floats such as 1e2 too), or ``auto``."""
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if value == "auto" or (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+        return value
+    raise ValueError(f"expected 'auto' or an integer >= 1, got {value!r}" if not isinstance(value, (dict, list))
+                     else "expected 'auto' or an integer >= 1")
+
+
+class SolverParameters(BaseModel):
+    """Keys every method takes: the time step, the end time, the mass matrix."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False)
+
+    method: str
+    dt: float = _number("s", "time step", gt=0)
+    t_end: float = _number("s", "end time of the run", gt=0)
+    mass: Literal["consistent", "lumped", "redistributed"] = Field(
+        "consistent", description="mass matrix: consistent, lumped (row sums), or redistributed (no mass on "
+                                  "the contact nodes; Khenous, Laborde & Renard 2008)")
+
+    @model_validator(mode="after")
+    def _dt_within_t_end(self):
+        if self.dt > self.t_end:
+            raise KeyProblem("dt", f"must be <= t_end ({self.t_end:g}), got {self.dt:g}")
+        return self
+
+
+class _MoreauJeanKeys(BaseModel):
+    theta: float = _number("-", "theta of the smooth forces: 1/2 the trapezoidal rule (energy-conserving), "
+                                "1 backward Euler (dissipative)", 0.5, ge=0.5, le=1.0)
+    level: Literal["position", "velocity"] = Field(
+        "position", description="position: gaps held exactly at the end of every step, Carnot's correction "
+                                "for the restitution; velocity: Newton's impact law on the velocities, gaps "
+                                "drift by up to dt times the impact speed")
+
+
+class _NewmarkKeys(BaseModel):
+    beta: float = _number("-", "Newmark's beta (1/4: trapezoidal rule)", 0.25, gt=0)
+    gamma: float = _number("-", "Newmark's gamma (1/2: no numerical damping; above, first order)", 0.5, ge=0)
+    impact_correction: bool = Field(True, description="Carnot's velocity correction at impacts (the paper's "
+                                                      "scheme); false: position-level multipliers only")
+
+    @field_validator("gamma")
+    @classmethod
+    def _gamma_at_least_half(cls, gamma):
+        if gamma < 0.5:
+            raise ValueError(f"must be >= 0.5 (below, Newmark amplifies every mode), got {gamma:g}")
+        return gamma
+
+
+class _ReductionKeys(BaseModel):
+    modes: Annotated[int | str, PlainValidator(_count_or_auto)] = Field(
+        "auto", description="kept eigenmodes n1, or auto: the fewest whose neglected flexibility per contact "
+                            "row is at most `tolerance`")
+    static_correction: bool = Field(True, description="static compliance of the truncated modes at the "
+                                                      "contact rows (Barauskas 1992)")
+    tolerance: float = _number("-", "modes: auto: the largest neglected flexibility per contact row, as a "
+                                    "fraction of the row's static flexibility", 0.01, gt=0, lt=1)
+
+    @model_validator(mode="after")
+    def _tolerance_needs_auto(self):
+        if self.modes != "auto" and "tolerance" in self.model_fields_set:
+            raise KeyProblem("tolerance", f"applies to modes: auto only; modes is {self.modes}: remove it")
+        return self
+
+
+class MoreauJeanParameters(_MoreauJeanKeys, SolverParameters):
+    """``moreau_jean`` (default): Moreau-Jean time stepping, contact impulses at the end of each step.
+
+    Unconditionally stable; the contacts never create energy, at any time step.
+    """
+
+    method: Literal["moreau_jean"] = "moreau_jean"
+
+
+class NewmarkParameters(_NewmarkKeys, SolverParameters):
+    """``newmark``: the paper's scheme, Newmark with position-level multipliers and Carnot's correction.
+
+    Its contact forces can create energy at large steps in persistent contact (README).
+    """
+
+    method: Literal["newmark"]
+
+
+class CentralDifferenceParameters(SolverParameters):
+    """``central_difference``: explicit, with the lumped mass by default; stable for c dt / h <= 1."""
+
+    method: Literal["central_difference"]
+    mass: Literal["consistent", "lumped"] = Field("lumped", description="mass matrix: lumped (no solve per "
+                                                                        "step) or consistent")
+
+
+class ModalMoreauJeanParameters(_ReductionKeys, _MoreauJeanKeys, SolverParameters):
+    """``modal`` with ``scheme: moreau_jean`` (default): the reduced model stepped by Moreau-Jean."""
+
+    method: Literal["modal"]
+    scheme: Literal["moreau_jean"] = "moreau_jean"
+    mass: Literal["consistent", "lumped"] = Field("consistent", description="mass matrix of the modes")
+
+
+class ModalNewmarkParameters(_ReductionKeys, _NewmarkKeys, SolverParameters):
+    """``modal`` with ``scheme: newmark``: the reduced model stepped by the paper's Newmark scheme."""
+
+    method: Literal["modal"]
+    scheme: Literal["newmark"]
+    mass: Literal["consistent", "lumped"] = Field("consistent", description="mass matrix of the modes")
+
+
+# The union's tags: the method, and the reduced model's scheme.
+SCHEMAS: dict[str, type[SolverParameters]] = {
+    "moreau_jean": MoreauJeanParameters,
+    "newmark": NewmarkParameters,
+    "central_difference": CentralDifferenceParameters,
+    "modal/moreau_jean": ModalMoreauJeanParameters,
+    "modal/newmark": ModalNewmarkParameters,
+}
+# solver.method -> what it is (the single list of methods); the reduced model's time schemes.
+METHODS = {"moreau_jean": "Moreau-Jean (full model)", "newmark": "Newmark, the paper's scheme (full model)",
+           "central_difference": "explicit central difference (full model)",
+           "modal": "reduced model: kept modes plus the static correction"}
+MODAL_SCHEMES = ("moreau_jean", "newmark")
+
+
+def tag(data) -> str | None:
+    """The schema of a ``solver`` mapping: its method, and for ``modal`` its scheme."""
+    if not isinstance(data, dict):
+        return None
+    method = data.get("method") if data.get("method") is not None else DEFAULT_METHOD
+    if method == "modal":
+        scheme = data.get("scheme") if data.get("scheme") is not None else MODAL_SCHEMES[0]
+        return f"modal/{scheme}"
+    return method
+
+
+SOLVER = TypeAdapter(Annotated[Union[tuple(Annotated[schema, Tag(name)] for name, schema in SCHEMAS.items())],
+                               Discriminator(tag)])
+
+
+def schema_of(data) -> type[SolverParameters] | None:
+    """The schema class that validates a ``solver`` mapping (None when method or scheme is unknown)."""
+    return SCHEMAS.get(tag(data))
+
+
+def valid_keys(schema: type[BaseModel]) -> list[str]:
+    """The keys a schema takes, in declaration order (method first)."""
+    keys = list(schema.model_fields)
+    keys.remove("method")
+    return ["method", *(["scheme"] if "scheme" in keys else []), *(k for k in keys if k != "scheme")]
+
+
+def describe(schema: type[BaseModel]) -> str:
+    """A method's keys as text: ``name (unit, default): meaning``, one per line (for --help and docs)."""
+    lines = []
+    for name in valid_keys(schema):
+        info = schema.model_fields[name]
+        unit = (info.json_schema_extra or {}).get("unit") if isinstance(info.json_schema_extra, dict) else None
+        default = "required" if info.is_required() else f"default {info.default!r}"
+        lines.append(f"{name} ({', '.join(filter(None, [unit, default]))}): {info.description or ''}".rstrip(": "))
+    return "\n".join(lines)

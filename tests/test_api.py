@@ -1,0 +1,133 @@
+"""The Python API (issue 12): cases from files and dicts, runs that write nothing, one error hierarchy.
+
+B2a (BENCHMARKS.md) built from a dict and run in memory gives B2's exact answers; bad input raises
+CaseError naming the key; a run into a folder writes exactly what the command writes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_bar_benchmarks import assert_b2, assert_energy
+
+import fem_impact
+from conftest import CASES, run_cli
+from fem_impact import Case, CaseError, FemImpactError, SimulationError
+
+# B2a: L = E = rho = A = v0 = 1, g0 = 0.1, t_end = 4; 250 cells at Courant 0.5.
+B2A = {
+    "name": "b2a",
+    "mesh": {"shape": "bar", "dim": 1, "length": 1.0, "cells": 250},
+    "material": {"E": 1.0, "rho": 1.0, "area": 1.0},
+    "initial": {"velocity": [-1.0]},
+    "contacts": [{"name": "wall", "type": "obstacle", "nodes": "left", "normal": [-1.0], "gap": 0.1}],
+    "solver": {"dt": 0.002, "t_end": 4.0},
+    "output": {"probes": {"left": [0.0], "right": [1.0]}},
+}
+
+
+def files_under(folder: Path) -> set[str]:
+    return {str(p.relative_to(folder)) for p in folder.rglob("*")}
+
+
+def test_b2a_from_a_dict_runs_in_memory_and_writes_nothing(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    result = fem_impact.run(Case.from_dict(B2A))
+    assert result.outdir is None and result.summary["outdir"] is None
+    assert files_under(tmp_path) == set(), "a run with outdir=None wrote files"
+    h = result.history
+    assert len(h["t"]) == 2001 and isinstance(h["wall.force"], np.ndarray)
+    assert_b2(h)   # contact start, duration, force, impulse, rebound, end displacement
+    assert_energy(result.summary, h)
+    assert result.summary["method"] == "moreau_jean" and result.summary["max_penetration"] < 1e-12
+
+
+def test_a_negative_modulus_is_a_case_error_that_names_e():
+    data = {**B2A, "material": {"E": -1, "rho": 1.0}}
+    with pytest.raises(CaseError) as info:
+        Case.from_dict(data)
+    err = info.value
+    assert (err.key, err.file, err.line) == ("material.E", None, None)
+    assert str(err) == "material.E: must be > 0, got -1"
+    assert isinstance(err, FemImpactError) and issubclass(SimulationError, FemImpactError)
+    assert B2A["material"] == {"E": 1.0, "rho": 1.0, "area": 1.0}, "from_dict changed its input"
+
+
+def test_paths_in_a_dict_start_at_base_dir(tmp_path):
+    data = {**B2A, "mesh": {"file": "two_bars.msh"}}
+    with pytest.raises(CaseError, match="mesh file not found"):
+        Case.from_dict(data, base_dir=tmp_path)
+    case = Case.from_dict(data, base_dir=CASES.parent / "meshes")
+    assert case.mesh.file == (CASES.parent / "meshes" / "two_bars.msh").resolve()
+
+
+def test_with_changes_gives_a_validated_copy():
+    case = fem_impact.load_case(CASES / "impacting_bar.yaml")
+    finer = case.with_changes({"mesh.cells": 500, "solver.dt": 0.001, "contacts.0.restitution": 0.5})
+    assert (finer.mesh.cells, finer.solver.dt, finer.contacts[0].restitution) == (500, 0.001, 0.5)
+    assert (case.mesh.cells, case.solver.dt, case.contacts[0].restitution) == (250, 0.002, 0.0)
+    with pytest.raises(CaseError) as info:
+        case.with_changes({"contacts.0.restitution": 2})
+    err = info.value
+    assert (err.key, err.line) == ("contacts[0].restitution", None)
+    assert err.message == "must be in [0, 1], got 2 (from the change contacts.0.restitution=2)"
+
+
+def test_a_run_into_a_folder_writes_what_the_command_writes(tmp_path):
+    small = ["mesh.cells=40", "solver.dt=0.0125", "solver.t_end=0.5", "output.every=10"]
+    case = fem_impact.load_case(CASES / "impacting_bar.yaml", small)
+    result = fem_impact.run(case, tmp_path / "api")
+    assert result.outdir == (tmp_path / "api").resolve()
+    command = run_cli("run", str(CASES / "impacting_bar.yaml"), "-o", str(tmp_path / "cli"), "-q",
+                      *(a for s in small for a in ("--set", s)))
+    assert command.returncode == 0, command.stderr
+    assert files_under(tmp_path / "api") == files_under(tmp_path / "cli")
+    api, cli = (json.loads((tmp_path / n / "summary.json").read_text()) for n in ("api", "cli"))
+    timings = {k for k in api if k.endswith("_time_s")}
+    assert {k: v for k, v in api.items() if k not in timings} == {k: v for k, v in cli.items() if k not in timings}
+    assert (tmp_path / "api" / "history.csv").read_text() == (tmp_path / "cli" / "history.csv").read_text()
+    from fem_impact.plots import history_columns
+
+    on_disk = history_columns(tmp_path / "api")
+    assert set(result.history) == set(on_disk)
+    for name, column in on_disk.items():
+        np.testing.assert_array_equal(result.history[name], column)
+
+
+def test_a_run_that_cannot_go_on_raises_a_simulation_error(tmp_path, monkeypatch):
+    """The paper's scheme on issue 10's reproduction creates energy: with stop_on_energy_gain it stops."""
+    monkeypatch.chdir(tmp_path)
+    case = fem_impact.load_case(CASES / "beam_stop.yaml", [
+        "contacts.0.stiffness=null", "contacts.0.coupling=each", "output.vtk=false",
+        "solver.dt=2e-3", "solver.t_end=2", "solver.method=newmark"])
+    with pytest.raises(SimulationError) as info:
+        fem_impact.run(case, stop_on_energy_gain=True)
+    assert isinstance(info.value, FemImpactError) and "energy" in str(info.value)
+    assert files_under(tmp_path) == set()
+
+
+def test_public_names_are_documented():
+    for name in fem_impact.__all__:
+        obj = getattr(fem_impact, name)
+        if name != "__version__":
+            assert (obj.__doc__ or "").strip(), f"fem_impact.{name} has no docstring"
+    for method in ("from_dict", "with_changes", "resolved", "write_resolved", "error"):
+        assert getattr(Case, method).__doc__, f"Case.{method} has no docstring"
+    assert fem_impact.Result.history.__doc__ or fem_impact.Result.__doc__
+
+
+def test_importing_the_package_stays_light():
+    """``import fem_impact`` (and load_case) must not load dolfinx or PETSc: bad input fails fast."""
+    import subprocess
+    import sys
+
+    code = ("import sys, fem_impact; fem_impact.load_case(sys.argv[1]); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('dolfinx', 'petsc4py', 'ufl')))")
+    out = subprocess.run([sys.executable, "-c", code, str(CASES / "vibrodrive.yaml")], capture_output=True,
+                         text=True, env={**os.environ, "PYTHONPATH": str(Path(fem_impact.__file__).parents[1])})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
