@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import difflib
@@ -19,7 +20,7 @@ from pathlib import Path
 import yaml
 from pydantic import ValidationError
 
-from .errors import CaseError
+from .errors import CaseError, ModelInputError
 from .expressions import RESERVED, Expression, ExpressionError, parse_expression
 from .integrators.parameters import (DEFAULT_METHOD, METHODS, MODAL_SCHEMES, SCHEMAS, SOLVER, KeyProblem,
                                      SolverParameters, valid_keys)
@@ -182,13 +183,24 @@ class Case:
                        for key, value in changes.items()}
         else:
             origins = {_apply_override(data, option): f"--set {option}" for option in changes}
-        _follow_method_change(data, before, origins)
+        _follow_kind_changes(data, before, origins)
         return _validated(data, self.path, self.base_dir, self.lines, {**self.overrides, **origins}, origins)
 
     @property
     def file(self) -> str | None:
         """The case file as shown in messages (None for a case built in Python)."""
         return None if self.path is None else _display(self.path)
+
+    @contextlib.contextmanager
+    def errors_at_keys(self):
+        """Within: a ModelInputError of a model builder becomes a CaseError with the file, line and key.
+
+        The one place where the builders' domain errors meet the case file (or dict, or --set).
+        """
+        try:
+            yield self
+        except ModelInputError as err:
+            raise self.error(err.key, err.message) from None
 
     def error(self, key_path, message) -> CaseError:
         """Build a CaseError for `key_path` (e.g. ``("contacts", 0, "nodes")``) with its line."""
@@ -828,12 +840,19 @@ def _solver_tag(data):
     return _schema_tag(solver) if isinstance(solver, dict) else None
 
 
-def _follow_method_change(data, before: str | None, changed) -> None:
-    """A change of solver.method (or scheme) drops the file's keys that the new method does not take.
+def _follow_kind_changes(data, before: str | None, changed) -> None:
+    """A change of kind drops the file's keys that the new kind does not take.
 
-    They belonged to the method the file chose; keys the changes themselves give are kept (and
-    checked by the new method's schema as usual).
+    A change of solver.method (or scheme) drops the previous method's keys; a change that makes a
+    contact an elastic stop (its stiffness) drops its restitution. They belonged to what the file
+    chose; keys the changes themselves give are kept (and checked as usual).
     """
+    for path in changed:
+        if len(path) == 3 and path[0] == "contacts" and path[2] == "stiffness" \
+                and ("contacts", path[1], "restitution") not in changed:
+            contact = data["contacts"][path[1]]
+            if isinstance(contact, dict) and contact.get("stiffness") is not None:
+                contact.pop("restitution", None)
     solver = data.get("solver") if isinstance(data, dict) else None
     if not isinstance(solver, dict) or _schema_tag(solver) == before or _schema_tag(solver) not in SCHEMAS:
         return
@@ -931,7 +950,7 @@ def load_case(path, overrides=()) -> Case:
                         else "expected a mapping of keys at the top level")
     before = _solver_tag(data)
     options = {_apply_override(data, option): f"--set {option}" for option in overrides}
-    _follow_method_change(data, before, options)
+    _follow_kind_changes(data, before, options)
     return _validated(data, case_path, case_path.parent, lines, options, options)
 
 

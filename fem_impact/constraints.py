@@ -10,6 +10,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from .case import Case
+from .errors import ModelInputError
 from .model import Model, NodeSet, pad_vector
 
 
@@ -90,7 +91,7 @@ def build_constraints(case: Case, model: Model) -> Constraints:
     norms = np.sqrt(model.comm.allreduce(np.asarray(P_local.power(2).sum(axis=0)).ravel(), op=MPI.SUM))
     for c in contacts:
         if np.any(norms[c.rows] == 0.0):
-            raise case.error(("contacts", c.index, "nodes"),
+            raise ModelInputError(("contacts", c.index, "nodes"),
                              "acts on nodes whose normal direction is fixed by a support")
     return cons
 
@@ -112,7 +113,7 @@ def match_pairs(case: Case, key: tuple, a: NodeSet, b: NodeSet, normal: np.ndarr
     """For each node of ``a``, the index of the node of ``b`` facing it along ``normal``."""
     dim = normal.size
     if len(a) != len(b):
-        raise case.error(
+        raise ModelInputError(
             key + ("nodes",),
             f"pair groups '{a.name}' ({_nodes(len(a))}) and '{b.name}' ({_nodes(len(b))}) do not match up",
         )
@@ -126,7 +127,7 @@ def match_pairs(case: Case, key: tuple, a: NodeSet, b: NodeSet, normal: np.ndarr
     dist, order = cKDTree(tb).query(ta)
     if np.any(dist > 1e-6 * scale) or len(np.unique(order)) != len(order):
         worst = int(np.argmax(dist))
-        raise case.error(
+        raise ModelInputError(
             key + ("nodes",),
             f"pair groups '{a.name}' and '{b.name}' do not match up along the normal: node at "
             f"{np.round(a.coords[worst, :dim], 6).tolist()} has no partner (off by {dist[worst]:.3g})",
@@ -143,7 +144,7 @@ def check_initial_state(case: Case, cons: Constraints, model: Model) -> None:
     for c in cons.contacts:
         worst = violation[c.rows].max()
         if worst > 1e-9 * scale:
-            raise case.error(
+            raise ModelInputError(
                 ("contacts", c.index),
                 f"the initial state violates contact '{c.name}': penetration {worst:.4g} at t = 0 "
                 "(check the gap, the normal and initial.displacement)",

@@ -40,6 +40,21 @@ class CaseError(FemImpactError):
         return f"{where}: {text}" if where else text
 
 
+class ModelInputError(FemImpactError):
+    """Input that does not fit the model, found while building it (a node group the mesh lacks, a
+    vector with a component the mesh has not): raised by the model builders with the key path of
+    the case that gave it; the front end (``Case.errors_at_keys``) turns it into a CaseError with
+    the file and line.
+    """
+
+    def __init__(self, key, message):
+        super().__init__(key, message)
+        self.key, self.message = tuple(key), message
+
+    def __str__(self):
+        return f"{'.'.join(map(str, self.key))}: {self.message}" if self.key else self.message
+
+
 class SimulationError(FemImpactError, RuntimeError):
     """The run cannot go on (blow-up, NaN, a contact problem without solution)."""
 

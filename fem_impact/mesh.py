@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 
 from . import dolfinx_api as dx
 from .case import Case, MeshSpec
+from .errors import ModelInputError
 
 log = logging.getLogger(__name__)
 
@@ -96,21 +97,21 @@ def _read_gmsh(case: Case, comm: MPI.Comm) -> MeshData:
     if "error" in info:
         if comm.rank == 0:
             gmsh.finalize()
-        raise case.error(("mesh", "file"), f"cannot read Gmsh file {path}: {info['error']}")
+        raise ModelInputError(("mesh", "file"), f"cannot read Gmsh file {path}: {info['error']}")
     dim = info["dim"]
     if dim < 1:
         if comm.rank == 0:
             gmsh.finalize()
-        raise case.error(("mesh", "file"), f"{path.name} has only point (0-dimensional) physical groups: name the "
+        raise ModelInputError(("mesh", "file"), f"{path.name} has only point (0-dimensional) physical groups: name the "
                                            "bodies (physical groups of the mesh's dimension) and node groups")
     if case.mesh.dim is not None and case.mesh.dim != dim:
         if comm.rank == 0:
             gmsh.finalize()
-        raise case.error(("mesh", "dim"), f"is {case.mesh.dim} but {path.name} holds a {dim}D mesh")
+        raise ModelInputError(("mesh", "dim"), f"is {case.mesh.dim} but {path.name} holds a {dim}D mesh")
     if not info["bodies"]:
         if comm.rank == 0:
             gmsh.finalize()
-        raise case.error(("mesh", "file"), f"{path.name} has no physical group of dimension {dim} (bodies)")
+        raise ModelInputError(("mesh", "file"), f"{path.name} has no physical group of dimension {dim} (bodies)")
     msh, cell_tags = dx.gmsh_model_to_mesh(gmsh.model if comm.rank == 0 else None, comm, dim)
     if comm.rank == 0:
         gmsh.finalize()

@@ -13,7 +13,7 @@ from petsc4py import PETSc
 
 from . import dolfinx_api as dx
 from .case import BodyValue, Case, Material
-from .errors import SimulationError
+from .errors import ModelInputError, SimulationError
 from .expressions import Expression, parse_expression
 from .mesh import MeshData
 
@@ -118,7 +118,7 @@ def node_set(meshdata: MeshData, V, case: Case, name: str, key: tuple) -> NodeSe
     """Gather a node group into its global, coordinate-sorted order."""
     if name not in meshdata.node_groups:
         known = ", ".join(sorted(meshdata.node_groups)) or "none"
-        raise case.error(key, f"no node group '{name}' in the mesh (node groups: {known})")
+        raise ModelInputError(key, f"no node group '{name}' in the mesh (node groups: {known})")
     n_owned, first = dx.owned_nodes(V)
     nodes = dx.vertex_dofs(V, meshdata.node_groups[name])
     nodes = nodes[nodes < n_owned]
@@ -127,7 +127,7 @@ def node_set(meshdata: MeshData, V, case: Case, name: str, key: tuple) -> NodeSe
     all_coords = np.concatenate([c for c, _ in parts]).reshape(-1, 3)
     all_global = np.concatenate([g for _, g in parts]).astype(np.int64)
     if all_global.size == 0:
-        raise case.error(key, f"node group '{name}' has no nodes")
+        raise ModelInputError(key, f"node group '{name}' has no nodes")
     order = np.lexsort(np.round(all_coords, 12).T[::-1])
     all_coords, all_global = all_coords[order], all_global[order]
     local = np.where((all_global >= first) & (all_global < first + n_owned), all_global - first, -1)
@@ -143,7 +143,7 @@ def pad_vector(values, dim: int, case: Case, key: tuple, what: str) -> list:
         zero = parse_expression(0.0) if isinstance(values[0], Expression) else 0.0
         return values + [zero] * (dim - 1)
     wanted = "1 component" if dim == 1 else f"1 or {dim} components"
-    raise case.error(key, f"{what} has {len(values)} components; the mesh is {dim}D (give {wanted})")
+    raise ModelInputError(key, f"{what} has {len(values)} components; the mesh is {dim}D (give {wanted})")
 
 
 def build_model(case: Case, meshdata: MeshData) -> Model:
@@ -247,9 +247,9 @@ def _materials(case: Case, meshdata: MeshData) -> dict[str, Material]:
     unknown = sorted(set(case.materials) - set(meshdata.bodies))
     known = ", ".join(sorted(meshdata.bodies))
     if unknown:
-        raise case.error(("materials", unknown[0]), f"no body '{unknown[0]}' in the mesh (bodies: {known})")
+        raise ModelInputError(("materials", unknown[0]), f"no body '{unknown[0]}' in the mesh (bodies: {known})")
     if missing:
-        raise case.error(("materials",), f"no material for body '{missing[0]}' (bodies: {known})")
+        raise ModelInputError(("materials",), f"no material for body '{missing[0]}' (bodies: {known})")
     return dict(case.materials)
 
 
@@ -312,7 +312,7 @@ def _redistributed(M: PETSc.Mat, massless: np.ndarray, first_dof: int, case: Cas
     M.mult(keep, coupling)                       # s_c: row mass toward the dofs that keep theirs
     s = coupling.array_r[massless]
     if np.any(s <= 0.0):
-        raise case.error(("solver", "mass"), "mass redistribution needs every contact node to share an element "
+        raise ModelInputError(("solver", "mass"), "mass redistribution needs every contact node to share an element "
                          "with a node that is not in contact (refine the mesh near the contacts)")
     weights = contact.duplicate()
     weights.set(0.0)
@@ -337,7 +337,7 @@ def _fixed_dofs(case: Case, meshdata: MeshData, V, bs: int) -> np.ndarray:
             if comp >= meshdata.dim:
                 if support.all_components:   # fix: all -> the components this dimension has
                     continue
-                raise case.error(("supports", i, "fix"), f"component {AXES[comp]} does not exist in {meshdata.dim}D")
+                raise ModelInputError(("supports", i, "fix"), f"component {AXES[comp]} does not exist in {meshdata.dim}D")
             fixed.append(owned * bs + comp)
     return np.unique(np.concatenate(fixed)).astype(np.int64) if fixed else np.zeros(0, dtype=np.int64)
 
@@ -352,7 +352,7 @@ def _loads(case, meshdata, V, bs, materials, dim, dxm, fixed) -> LoadVector:
         if expr.is_constant:
             value = float(expr.evaluate())
             if not np.isfinite(value):
-                raise case.error(key, f"'{expr.source}' is not a finite number")
+                raise ModelInputError(key, f"'{expr.source}' is not a finite number")
             constant.axpy(value, vec)
         else:
             varying.append((expr, vec))
@@ -377,7 +377,7 @@ def _loads(case, meshdata, V, bs, materials, dim, dxm, fixed) -> LoadVector:
             if bodies is None:
                 if load.body not in meshdata.bodies:
                     known = ", ".join(sorted(meshdata.bodies))
-                    raise case.error(("loads", i, "body"), f"no body '{load.body}' in the mesh (bodies: {known})")
+                    raise ModelInputError(("loads", i, "body"), f"no body '{load.body}' in the mesh (bodies: {known})")
                 bodies = {load.body: meshdata.bodies[load.body]}
             for comp, expr in enumerate(pad_vector(load.acceleration, dim, case, key, "acceleration")):
                 if _is_zero(expr):
@@ -410,7 +410,7 @@ def _initial_field(case, which, meshdata, V, bs, coords, out: PETSc.Vec) -> None
         else:
             if entry.body not in meshdata.bodies:
                 known = ", ".join(sorted(meshdata.bodies))
-                raise case.error(key, f"no body '{entry.body}' in the mesh (bodies: {known})")
+                raise ModelInputError(key, f"no body '{entry.body}' in the mesh (bodies: {known})")
             nodes = _body_nodes(meshdata, V, entry.body, n_owned)
         comps = pad_vector(entry.value, meshdata.dim, case, key, which)
         x = coords[nodes]
@@ -418,7 +418,7 @@ def _initial_field(case, which, meshdata, V, bs, coords, out: PETSc.Vec) -> None
             values[nodes, comp] = expr.evaluate(x=x[:, 0], y=x[:, 1], z=x[:, 2], shape=len(nodes))
             if not meshdata.comm.allreduce(bool(np.isfinite(values[nodes, comp]).all()), op=MPI.LAND):
                 where = key + (comp,) if entry.body is None else key + ("value", comp)
-                raise case.error(where, f"{expr.source!r} is not finite at some nodes (inf or nan)")
+                raise ModelInputError(where, f"{expr.source!r} is not finite at some nodes (inf or nan)")
 
 
 def _body_nodes(meshdata: MeshData, V, body: str, n_owned: int) -> np.ndarray:

@@ -28,7 +28,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from .dolfinx_api import VTKSeries
-from .errors import SimulationError
+from .errors import ModelInputError, SimulationError
 
 log = logging.getLogger(__name__)
 
@@ -353,7 +353,7 @@ def run_modes(path, outdir=None, overrides=(), n: int | None = None, comm: MPI.C
     t_start = time.perf_counter()
     case = load_case(path, overrides)
     outdir = Path(outdir) if outdir is not None else default_outdir(case)
-    with claim(outdir, comm, "modes", protect=case_inputs(case), source=case.path) as out:
+    with claim(outdir, comm, "modes", protect=case_inputs(case), source=case.path) as out, case.errors_at_keys():
         return _run_modes(case, out, n, comm, t_start)
 
 
@@ -369,7 +369,7 @@ def _run_modes(case, out, n, comm, t_start) -> dict:
         if isinstance(getattr(case.solver, "modes", None), int):   # (only the reduced model's solver has modes)
             n = case.solver.modes
             if n >= available:
-                raise case.error(("solver", "modes"), str(ModeCountError(n, available)))
+                raise ModelInputError(("solver", "modes"), str(ModeCountError(n, available)))
         else:
             n = min(DEFAULT_COUNT, available - 1)
     modes = compute_modes(model, n)

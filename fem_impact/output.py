@@ -14,6 +14,7 @@ from mpi4py import MPI
 
 from . import dolfinx_api as dx
 from .constraints import Constraints
+from .errors import ModelInputError
 from .integrators import StepState
 from .model import AXES, Model, pad_vector
 
@@ -130,7 +131,7 @@ def _check_inside(case, model: Model, key, point) -> None:
     distance = model.comm.allreduce(dx.distance_to_mesh(model.meshdata.mesh, full, tol), op=MPI.MIN)
     if distance > tol:
         box = ", ".join(f"[{a:g}, {b:g}]" for a, b in zip(lo, hi, strict=True))
-        raise case.error(key, f"the point {[float(v) for v in point]} is outside the mesh (which spans {box}); a probe "
+        raise ModelInputError(key, f"the point {[float(v) for v in point]} is outside the mesh (which spans {box}); a probe "
                               "must lie on the structure")
 
 

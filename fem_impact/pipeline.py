@@ -138,8 +138,10 @@ def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
     t_start = time.perf_counter()
     comm = MPI.COMM_WORLD if comm is None else comm
     if outdir is None:
-        return _run(case, None, comm, progress, force, t_start, stop_on_energy_gain)
-    with claim(Path(outdir), comm, "run", protect=case_inputs(case), source=case.path) as out:
+        with case.errors_at_keys():
+            return _run(case, None, comm, progress, force, t_start, stop_on_energy_gain)
+    with claim(Path(outdir), comm, "run", protect=case_inputs(case), source=case.path) as out, \
+            case.errors_at_keys():
         return _run(case, out, comm, progress, force, t_start, stop_on_energy_gain)
 
 

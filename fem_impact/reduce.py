@@ -20,6 +20,7 @@ from petsc4py import PETSc
 from . import cache
 from .case import Case
 from .constraints import Constraints
+from .errors import ModelInputError
 from .integrators import Operators, StepState
 from .integrators.base import factorize
 from .model import Model, load_factor
@@ -318,7 +319,7 @@ def prepare_reduced(case: Case, model: Model, cons: Constraints) -> tuple[Reduce
             if n1 is not None:
                 break
             if n_try >= cap:
-                raise case.error(("solver", "tolerance"), f"no count of modes up to {n_try} meets it: {reason}; "
+                raise ModelInputError(("solver", "tolerance"), f"no count of modes up to {n_try} meets it: {reason}; "
                                  "loosen solver.tolerance, or use the full model (method: newmark)")
             n_try = min(cap, 2 * n_try)
     else:
@@ -328,10 +329,10 @@ def prepare_reduced(case: Case, model: Model, cons: Constraints) -> tuple[Reduce
             modes = _modes(model, n1 + 1, scene, reused)
         except ModeCountError as err:
             if err.requested != err.available + 1:
-                raise case.error(("solver", "modes"), str(err).replace(str(n1 + 1), str(n1), 1)) from None
+                raise ModelInputError(("solver", "modes"), str(err).replace(str(n1 + 1), str(n1), 1)) from None
             modes = _modes(model, n1, scene, reused)   # all modes of a small model
         if modes.n > n1 and modes.rigid[n1]:
-            raise case.error(("solver", "modes"), f"keeps {n1} modes but the model moves freely in at least "
+            raise ModelInputError(("solver", "modes"), f"keeps {n1} modes but the model moves freely in at least "
                              f"{int(modes.rigid.sum())} rigid-body modes: keep them all (modes >= "
                              f"{int(modes.rigid.sum())}), or add supports")
         columns = _flexibility(model, cons, modes, scene, reused)

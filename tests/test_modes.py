@@ -211,7 +211,7 @@ def test_cli_default_folder_and_free_body(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["-n", "0"], "-n 0: ask for at least 1 mode"),
     (["-n", "21"], "-n 21: asked for 21 modes but the model has only 20 free dofs; ask for at most 20"),
-    (["--set", "solver.modes=30"], "solver.modes: asked for 30 modes"),
+    (["--set", "solver.method=modal", "--set", "solver.modes=30"], "solver.modes: asked for 30 modes"),
     (["--set", "mesh.cells=0"], "mesh.cells"),
 ])
 def test_cli_bad_counts(tmp_path, args, message):
