@@ -131,3 +131,19 @@ def test_importing_the_package_stays_light():
                          text=True, env={**os.environ, "PYTHONPATH": str(Path(fem_impact.__file__).parents[1])})
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("solver", [{"method": "moreau_jean"}, {"method": "moreau_jean", "restitution": 0.5},
+                                    {"method": "moreau_jean", "level": "velocity"}, {"method": "newmark"},
+                                    {"method": "central_difference", "dt": 0.01},
+                                    {"method": "modal", "modes": 20}])
+def test_history_impulses_close_the_momentum_balance(solver):
+    """The free bar's momentum changes by the wall's total impulse, exactly (every impulse a step
+    applies is in the history: Carnot's correction too)."""
+    solver = dict(solver)
+    restitution = solver.pop("restitution", 0.0)
+    data = {**B2A, "mesh": {"shape": "bar", "cells": 50}, "solver": {"dt": 0.02, "t_end": 3.0, **solver},
+            "contacts": [{**B2A["contacts"][0], "restitution": restitution}]}
+    h = fem_impact.run(Case.from_dict(data)).history
+    assert h["wall.impulse"].sum() > 1.5
+    assert h["wall.impulse"].sum() == pytest.approx(h["bar.px"][-1] - h["bar.px"][0], rel=1e-9)

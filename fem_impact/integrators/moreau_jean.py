@@ -160,13 +160,15 @@ class MoreauJean(ContactScheme):
                 Wp = self.W.dot(impulse)
                 pv, jump = pv_free - Wp, float(np.abs(Wp).max())
         axpy(U, dt * theta, V)
-        pv_star, restitution_loss = pv, 0.0
+        pv_star, restitution_loss, percussion = pv, 0.0, impulse
         if p:   # the work of the impulse with the step's mean velocity (exact for theta = 1/2)
             step_contact_loss = float(impulse.dot(0.5 * (st.normal_velocity + pv_star)))
             if np.count_nonzero(self.carnot_rows):
                 pu_end = self._pu_dyn + dt * ((1.0 - theta) * st.normal_velocity + theta * pv_star)
-                pv, restitution_loss = self._restitution(impulse, st.normal_velocity, pv, pu_end, step_contact_loss,
-                                                         jump)
+                pv, restitution_loss, lam = self._restitution(impulse, st.normal_velocity, pv, pu_end,
+                                                              step_contact_loss, jump)
+                if lam is not None:   # Carnot's correction is an impulse too: the step's total (history)
+                    percussion = impulse + lam
         np.subtract(V, A, out=A)
         A *= 1.0 / dt
         force = impulse / dt
@@ -197,7 +199,7 @@ class MoreauJean(ContactScheme):
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
         self._energies(energy)
         self._book_stored(energy, st, force, t1, theta)
-        self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, impulse, energy, pu, pv)
+        self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, percussion, energy, pu, pv)
         return self.state
 
     def _impulse(self, st: StepState, pv_free: np.ndarray, t1: float) -> np.ndarray:
@@ -229,7 +231,7 @@ class MoreauJean(ContactScheme):
         return impulse
 
     def _restitution(self, impulse: np.ndarray, pv0: np.ndarray, pv: np.ndarray, pu: np.ndarray,
-                     contact_loss: float, jump: float) -> tuple[np.ndarray, float]:
+                     contact_loss: float, jump: float) -> tuple[np.ndarray, float, np.ndarray | None]:
         """Position level: Carnot's correction on the rigid rows held at the end of the step.
 
         A row held by a position-level impulse leaves the trapezoidal step with a spurious
@@ -240,7 +242,8 @@ class MoreauJean(ContactScheme):
         e = 0: the row stops). With the impulse of the step this loses ``contact_loss + lam .
         (P V* - 1/2 D lam)``; should that be negative (it is not for a point mass, nor for e = 0),
         the target becomes ``d = e P V*``, which loses ``(1 - e^2)/2 P V* . D^-1 P V* >= 0``
-        (e the smallest on those rows): the contacts never give energy. Returns (P V+, its loss).
+        (e the smallest on those rows): the contacts never give energy. Returns (P V+, its loss, the
+        correction's impulses ``lam`` per row, or None without a correction).
         """
         # The rows held by an impulse, and those that end the step at the obstacle still
         # approaching without one (a gap closing exactly at the step's end: whether round-off
@@ -249,7 +252,7 @@ class MoreauJean(ContactScheme):
         at_obstacle = ops.d0 - pu <= 1e-10 * (self._abs_d0 + np.abs(pu)) + TINY
         rows = np.flatnonzero(self.carnot_rows & ((impulse > 0.0) | (at_obstacle & (pv >= 0.0))))
         if not rows.size:
-            return pv, 0.0
+            return pv, 0.0, None
         e = self.ops.restitution[rows]
         carnot, x = self.carnot, pv[rows]   # (the solver of D keeps the factor while the rows stay)
 
@@ -261,14 +264,14 @@ class MoreauJean(ContactScheme):
         # In a persisting contact the held rows end the step at rest to round-off (P V* = -P V0
         # = 0): no correction, and no solve with M (a face of 1681 rows: a third of the step).
         if np.abs(x - target).max() <= ROUND_OFF * jump:
-            return pv, 0.0
+            return pv, 0.0, None
         lam_a, loss = loss_for(target)
         if contact_loss + loss < 0.0 and np.count_nonzero(e):
             lam_a, loss = loss_for(e.min() * x)
         lam = np.zeros(self.ops.p)
         lam[rows] = lam_a
         self.H.subtract_from(self.V, lam)
-        return pv - carnot.dot(lam), loss
+        return pv - carnot.dot(lam), loss, lam
 
     def _static_contact_loss(self, st: StepState, force: np.ndarray, t1: float) -> float:
         """What the reduced model's static part adds to the contact loss over a step.

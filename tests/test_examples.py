@@ -1,0 +1,62 @@
+"""The examples in examples/ run on a coarse setting (as scikit-fem runs its examples), and what
+each one claims holds: exact contact times, the momentum balance, the static correction's gain, the
+paper's scheme failing where Moreau-Jean holds. They write nothing into the folder they run from."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def run_example(name: str, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("FEM_IMPACT_CACHE", str(tmp_path.parent / f"{tmp_path.name}-cache"))
+    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.__doc__ and "--coarse" in module.__doc__
+    result = module.main(coarse=True)
+    assert list(tmp_path.iterdir()) == [], "the example wrote into the current folder"
+    return result
+
+
+def test_every_example_is_tested():
+    tested = {"parameter_study", "gmsh_scene", "reduced_vs_full", "large_steps"}
+    assert {p.stem for p in EXAMPLES.glob("*.py")} == tested
+
+
+def test_parameter_study_finds_the_exact_contact_times(tmp_path, monkeypatch):
+    rows = run_example("parameter_study", tmp_path, monkeypatch)
+    assert [r["length"] for r in rows] == [0.5, 1.0, 2.0]
+    for r in rows:   # 2 L / c to a step (dt = 0.01), rho c A v0 to 2 % (50 cells)
+        assert abs(r["duration"] - r["exact"]) <= 0.0101
+        assert r["force"] == pytest.approx(1.0, rel=0.02)
+
+
+def test_gmsh_scene_closes_the_momentum_balance(tmp_path, monkeypatch):
+    r = run_example("gmsh_scene", tmp_path, monkeypatch)
+    assert r["rows"] > 1 and r["impulse"] > 0
+    assert r["impulse"] == pytest.approx(r["momentum_change"] - r["weight_impulse"], rel=1e-9)
+    assert r["max_energy_ratio"] <= 1 + 1e-6
+
+
+def test_reduced_model_converges_and_the_static_correction_pays(tmp_path, monkeypatch):
+    rows = run_example("reduced_vs_full", tmp_path, monkeypatch)
+    full = rows["full"]["impulse"]
+    assert rows["10 modes + static"]["impulse"] == pytest.approx(full, rel=0.005)
+    for n1 in (2, 5, 10):
+        with_static = abs(rows[f"{n1} modes + static"]["impulse"] - full)
+        truncated = abs(rows[f"{n1} modes"]["impulse"] - full)
+        assert with_static < truncated, n1
+    errors = [abs(rows[f"{n1} modes + static"]["deflection"] / rows["full"]["deflection"] - 1) for n1 in (2, 5, 10)]
+    assert errors[0] > 5 * max(errors[1:]) and max(errors[1:]) < 1e-3   # (from 5 modes: the time step's error)
+
+
+def test_large_steps_show_the_paper_scheme_failing(tmp_path, monkeypatch):
+    ratios = run_example("large_steps", tmp_path, monkeypatch)
+    assert ratios["newmark"] > 1.5
+    assert ratios["moreau_jean"] <= 1 + 1e-6
