@@ -14,10 +14,9 @@ The Python API (the command ``fem-impact`` is a thin layer over it)::
   :class:`SimulationError` (a run that cannot go on).
 """
 
-__version__ = "0.1.0"
-
-from .case import Case, load_case  # noqa: E402  (after __version__, which the modules read)
-from .errors import CaseError, FemImpactError, SimulationError  # noqa: E402
+from ._version import __version__
+from .case import Case, load_case
+from .errors import CaseError, FemImpactError, SimulationError
 
 __all__ = ["Case", "CaseError", "FemImpactError", "Result", "SimulationError", "__version__", "load_case", "run"]
 

@@ -887,7 +887,7 @@ def _parameters(value, path):
 
 def _reference(value, path):
     """The name of a known exact solution; the solutions live in fem_impact.references."""
-    from .references import REFERENCES  # (numpy only; imported here to avoid an import cycle)
+    from .references import REFERENCES  # (numpy: loaded only when a case names a reference)
 
     if not isinstance(value, str) or value not in REFERENCES:
         raise _Invalid(path, f"unknown reference {_show(value)}; known references: "

@@ -42,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="fem-impact", description=DESCRIPTION, epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    from . import __version__
+    from ._version import __version__
 
     parser.add_argument("--version", action="version", version=f"fem-impact {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")

@@ -347,8 +347,7 @@ def run_modes(path, outdir=None, overrides=(), n: int | None = None, comm: MPI.C
     ``CaseError``. Returns a summary with the table (``columns``, ``rows``).
     """
     from .case import load_case
-    from .outdir import claim
-    from .pipeline import case_inputs
+    from .outdir import case_inputs, claim
 
     t_start = time.perf_counter()
     case = load_case(path, overrides)

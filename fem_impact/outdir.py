@@ -28,6 +28,7 @@ import shutil
 import signal
 from pathlib import Path
 
+from ._version import __version__
 from .errors import CaseError
 
 MARKER = ".fem-impact.json"
@@ -67,6 +68,11 @@ def _protected(protect=()) -> dict[Path, str]:
     if home not in ("~", "/"):
         places[_real(home)] = "the home folder"
     return places
+
+
+def case_inputs(case) -> tuple:
+    """The files a case reads (the case file, a mesh file): their folders are never output folders."""
+    return tuple(p for p in (case.path, case.mesh.file) if p is not None)
 
 
 def is_result(folder: Path) -> bool:
@@ -225,8 +231,6 @@ class OutputFolder:
         self._created = []
 
     def write_marker(self, folder: Path) -> None:
-        from . import __version__
-
         data = {"written_by": f"fem-impact {self.command}", "fem_impact_version": __version__,
                 "source": None if self.source is None else str(self.source)}
         (Path(folder) / MARKER).write_text(json.dumps(data, indent=2) + "\n")

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._version import __version__
 from .animate import AUTO_FRACTION, AnimateError, auto_scale, piece_files, read_pvd
 
 COLORS = {"u": "u", "v": "v", "a": "a", "contact": "contact_force", "contact_force": "contact_force"}
@@ -117,8 +118,6 @@ def write_view_script(outdir, dim: int | None = None, scale: float | None = None
         scale = auto_scale(ext["max_u"], ext["size"]) if ext else 1.0
     if not (np.isfinite(scale) and scale > 0):
         raise ValueError(f"scale {scale!r}: must be > 0")
-    from . import __version__
-
     text = (_TEMPLATE.replace("@VERSION@", str(__version__))
             .replace("@DIM@", repr(int(dim) if dim else 3))
             .replace("@FOLDER@", repr(str(Path(final_dir or outdir).resolve())))

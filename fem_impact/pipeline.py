@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from . import __version__
+from ._version import __version__
 from .case import Case, load_case
 from .limits import check_limits
-from .outdir import claim
+from .outdir import case_inputs, claim
 
 log = logging.getLogger(__name__)
 
@@ -154,11 +154,6 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
     case = load_case(path, overrides)
     return run(case, outdir if outdir is not None else default_outdir(case), progress, comm,
                stop_on_energy_gain, force).summary
-
-
-def case_inputs(case: Case) -> tuple:
-    """The files a case reads: their folders are never output folders."""
-    return tuple(p for p in (case.path, case.mesh.file) if p is not None)
 
 
 def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,

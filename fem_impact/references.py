@@ -44,10 +44,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .case import Case, CaseError
+from .errors import CaseError
+
+if TYPE_CHECKING:   # case.py reads the names of the references from here: no import back at run time
+    from .case import Case
 
 ERROR_MEASURES = ("err_displacement", "err_impulse", "err_force", "force_oscillation", "err_energy")
 
