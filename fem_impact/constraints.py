@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 from .case import Case
 from .errors import ModelInputError
 from .model import Model, NodeSet, pad_vector
+from .parallel import allsum
 
 
 @dataclass
@@ -42,10 +43,7 @@ class Constraints:
 
     def project(self, local_values: np.ndarray, comm: MPI.Comm) -> np.ndarray:
         """P x for a distributed vector given by its owned entries (a global sum over ranks)."""
-        part = self.P_local.T @ local_values
-        if comm.size > 1:
-            comm.Allreduce(MPI.IN_PLACE, part, op=MPI.SUM)
-        return part
+        return allsum(comm, self.P_local.T @ local_values)
 
 
 def build_constraints(case: Case, model: Model) -> Constraints:

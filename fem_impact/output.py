@@ -17,6 +17,7 @@ from .constraints import Constraints
 from .errors import ModelInputError
 from .integrators import StepState
 from .model import AXES, Model, pad_vector
+from .parallel import allsum
 
 ENERGY_COLUMNS = ("kinetic", "strain", "external_work", "damping_loss", "impact_loss", "contact_loss", "energy_error")
 
@@ -46,10 +47,7 @@ class NodalFields:
         rows = np.ascontiguousarray(rows.T)
 
         def read(state: StepState) -> np.ndarray:
-            values = rows @ state.V
-            if comm.size > 1:
-                comm.Allreduce(MPI.IN_PLACE, values, op=MPI.SUM)
-            return values
+            return allsum(comm, rows @ state.V)
         return read
 
 
@@ -68,9 +66,7 @@ class Probes:
         mine = self.owned_dofs[:, 0] >= 0
         if mine.any():
             out[mine, 0], out[mine, 1] = fields.at(state, self.owned_dofs[mine])
-        if comm.size > 1:
-            comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)
-        return out.reshape(-1)
+        return allsum(comm, out).reshape(-1)
 
     def columns(self) -> list[str]:
         return [f"{name}.{q}{AXES[c]}" for name in self.names for q in "uv" for c in range(self.dim)]

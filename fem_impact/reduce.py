@@ -25,18 +25,12 @@ from .integrators import Operators, StepState
 from .integrators.base import factorize
 from .model import Model, load_factor
 from .modes import ModeCountError, Modes, compute_modes, free_dof_count
+from .parallel import allsum
 
 log = logging.getLogger(__name__)
 
 RIGID_ROW = 1e-9   # neglected flexibility ratio below which a row counts as rigid (no compliance)
 AUTO_LIMIT = 400   # most modes `modes: auto` will consider
-
-
-def _allsum(comm: MPI.Comm, local: np.ndarray) -> np.ndarray:
-    local = np.ascontiguousarray(local, dtype=float)
-    if comm.size > 1:
-        comm.Allreduce(MPI.IN_PLACE, local, op=MPI.SUM)
-    return local
 
 
 class Flexibility:
@@ -64,9 +58,9 @@ class Flexibility:
         if not self.rigid.shape[1]:
             return local
         if use_mass_on_left:
-            coef = _allsum(self.comm, self.rigid.T @ local)
+            coef = allsum(self.comm, self.rigid.T @ local)
             return local - self._mass(self.rigid @ coef)
-        coef = _allsum(self.comm, self.rigid.T @ self._mass(local))
+        coef = allsum(self.comm, self.rigid.T @ self._mass(local))
         return local - self.rigid @ coef
 
     def _mass(self, local: np.ndarray) -> np.ndarray:
@@ -202,9 +196,9 @@ class ReducedFields:
         """A reader of ``rows^T v`` at each step for a few fixed rows (owned entries, n_local x k),
         e.g. body momenta: the rows are projected on the modes and the static columns once, so a
         step costs k x n1 operations on replicated data and no reduction."""
-        rows_Y = _allsum(comm, rows.T @ self.Y1)
-        rows_R = _allsum(comm, rows.T @ self.XR) if self.static is not None else None
-        rows_P = _allsum(comm, rows.T @ self.XP) if self.static is not None else None
+        rows_Y = allsum(comm, rows.T @ self.Y1)
+        rows_R = allsum(comm, rows.T @ self.XR) if self.static is not None else None
+        rows_P = allsum(comm, rows.T @ self.XP) if self.static is not None else None
         last = [None, None]
 
         def read(state: StepState) -> np.ndarray:
@@ -249,18 +243,18 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
     Y1 = np.ascontiguousarray(modes.Y_local[:, :n1])
     w2 = np.asarray(modes.omega2[:n1], dtype=float)
     P_local = cons.P_local
-    Pr = _allsum(comm, (P_local.T @ Y1))                       # P Y1 (p x n1)
+    Pr = allsum(comm, (P_local.T @ Y1))                       # P Y1 (p x n1)
     load = model.load
     columns = static_load_columns(model, cons)
     R_cols = [columns[:, k] for k in range(cons.p, columns.shape[1])]
-    R_modal = [_allsum(comm, Y1.T @ r) for r in R_cols]
+    R_modal = [allsum(comm, Y1.T @ r) for r in R_cols]
     modal_load = ModalLoad(R_modal[0], [(f, r) for (f, _), r in zip(load.varying, R_modal[1:], strict=True)])
 
     M_U0, M_V0 = model.M.createVecs()
     model.M.mult(model.U0, M_U0)
     model.M.mult(model.V0, M_V0)
-    Z0 = _allsum(comm, Y1.T @ M_U0.array_r)
-    Zdot0 = _allsum(comm, Y1.T @ M_V0.array_r)
+    Z0 = allsum(comm, Y1.T @ M_U0.array_r)
+    Zdot0 = allsum(comm, Y1.T @ M_V0.array_r)
 
     # Residual flexibility of the truncated modes, from static solves on the elastic subspace.
     elastic = ~modes.rigid
@@ -273,10 +267,10 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
     kept_elastic = elastic[:n1]
     Y1e, w1e = Y1[:, kept_elastic], w2[kept_elastic]
     P_dense = columns[:, : cons.p]
-    X = full - Y1e @ (_allsum(comm, Y1e.T @ columns) / w1e[:, None])
+    X = full - Y1e @ (allsum(comm, Y1e.T @ columns) / w1e[:, None])
     XP, XR = X[:, : cons.p], X[:, cons.p:]
-    flex_full = np.diag(_allsum(comm, P_dense.T @ full[:, : cons.p])) if cons.p else np.zeros(0)
-    compliance = _allsum(comm, P_dense.T @ XP)
+    flex_full = np.diag(allsum(comm, P_dense.T @ full[:, : cons.p])) if cons.p else np.zeros(0)
+    compliance = allsum(comm, P_dense.T @ XP)
     compliance = 0.5 * (compliance + compliance.T)
     # Against the whole compliance the contact sees: the structure's and an elastic stop's in series.
     seen = flex_full + cons.compliance
@@ -288,8 +282,8 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
         static = StaticCorrection(
             compliance=np.where(np.outer(rigid_rows, rigid_rows), 0.0, compliance),
             rigid_rows=rigid_rows,
-            load_offsets=_allsum(comm, P_dense.T @ XR).reshape(cons.p, XR.shape[1]),
-            load_gram=_allsum(comm, np.column_stack(R_cols).T @ XR),
+            load_offsets=allsum(comm, P_dense.T @ XR).reshape(cons.p, XR.shape[1]),
+            load_gram=allsum(comm, np.column_stack(R_cols).T @ XR),
             functions=[f for f, _ in load.varying],
         )
     # The modal equations are diagonal: M = I, K = diag(w1^2), C = diag(alpha + beta w1^2).
@@ -430,8 +424,8 @@ def choose_mode_count(modes: Modes, cons: Constraints, columns: np.ndarray, tole
     freq = np.sqrt(modes.omega2) / (2 * np.pi)
     n_rigid = int(modes.rigid.sum())
     if cons.p:
-        flex = np.diag(_allsum(comm, P.T @ columns[:, : cons.p]))
-        PY = _allsum(comm, P.T @ modes.Y_local)
+        flex = np.diag(allsum(comm, P.T @ columns[:, : cons.p]))
+        PY = allsum(comm, P.T @ modes.Y_local)
         contribution = np.where(modes.rigid, 0.0, PY**2 / np.where(modes.rigid, 1.0, modes.omega2))
         seen = flex + cons.compliance          # an elastic stop's compliance in series
         neglected = (flex[:, None] - np.cumsum(contribution, axis=1)) / np.where(seen > 0, seen, 1.0)[:, None]

@@ -21,6 +21,7 @@ from scipy import sparse
 from scipy.linalg.blas import daxpy, dgemv
 
 from ..errors import SimulationError
+from ..parallel import allsum
 from ..petsc_api import mumps_inverse_block
 
 BLOW_UP = 100.0  # kinetic + strain energy above this many times the energy put in: the run blew up
@@ -81,10 +82,8 @@ class PETScAlgebra:
         return A.getDiagonal().array_r.copy()
 
     def allsum(self, local: np.ndarray) -> np.ndarray:
-        """Sum over ranks, in place (one reduction)."""
-        if self.comm.size > 1:
-            self.comm.Allreduce(MPI.IN_PLACE, local, op=MPI.SUM)
-        return local
+        """Sum over ranks, in place for a contiguous float64 array (one reduction)."""
+        return allsum(self.comm, local)
 
 
 class DenseAlgebra:
