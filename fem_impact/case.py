@@ -49,6 +49,18 @@ class MeshSpec:
     width: float | None = None
     elements: str = "simplex"
 
+    # The built-in bar's documented defaults, defined here only: the mesh, the size estimate
+    # (limits) and the exact solutions (references) read them from the case.
+    @property
+    def bar_dim(self) -> int:
+        """The built-in bar's dimension: ``dim``, by default 1 (a rod)."""
+        return self.dim or 1
+
+    def bar_dimensions(self) -> tuple[float, float]:
+        """Cross-section (height, width) of the built-in bar: by default height length/20, width = height."""
+        height = self.height if self.height is not None else self.length / 20.0
+        return height, self.width if self.width is not None else height
+
 
 @dataclass
 class Material:

@@ -52,9 +52,8 @@ def _nodes(case: Case) -> tuple[int, int]:
         except OSError:
             size = 0
         return max(1, size // 60), dim   # an ASCII .msh holds about 60 bytes per node and its cells
-    dim = spec.dim or 1
-    height = spec.height if spec.height is not None else spec.length / 20.0
-    width = spec.width if spec.width is not None else height
+    dim = spec.bar_dim
+    height, width = spec.bar_dimensions()
     cells = spec.cells
     across = [max(1, round(min(cells * size / spec.length, 1e15))) for size in (height, width)[: dim - 1]]
     return math.prod([cells + 1, *(a + 1 for a in across)]), dim

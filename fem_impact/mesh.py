@@ -38,10 +38,8 @@ class MeshData:
 
 
 def bar_dimensions(spec: MeshSpec) -> tuple[float, float]:
-    """Cross-section (height, width) of the built-in bar, with the documented defaults."""
-    height = spec.height if spec.height is not None else spec.length / 20.0
-    width = spec.width if spec.width is not None else height
-    return height, width
+    """Cross-section (height, width) of the built-in bar (``MeshSpec.bar_dimensions``)."""
+    return spec.bar_dimensions()
 
 
 def build_mesh(case: Case, comm: MPI.Comm = MPI.COMM_WORLD) -> MeshData:
@@ -52,9 +50,9 @@ def build_mesh(case: Case, comm: MPI.Comm = MPI.COMM_WORLD) -> MeshData:
 
 
 def _builtin_bar(spec: MeshSpec, comm: MPI.Comm) -> MeshData:
-    dim = spec.dim or 1
+    dim = spec.bar_dim
     length, cells = spec.length, spec.cells
-    height, width = bar_dimensions(spec)
+    height, width = spec.bar_dimensions()
     # Cells across follow the aspect ratio so that elements stay close to square.
     across = lambda size: max(1, int(round(cells * size / length)))  # noqa: E731
     if dim == 1:

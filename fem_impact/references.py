@@ -123,15 +123,14 @@ def _bar(case: Case) -> _Bar:
     if case.material is None:
         raise _refuse(case, "needs one material for the whole bar ('material', not 'materials')")
     mat = case.material
-    dim = mesh.dim or 1
+    dim = mesh.bar_dim
     if dim > 1 and mat.nu != 0.0:
         raise _refuse(case, f"in {dim}D the strip or box behaves as the rod only with nu = 0, got nu = {mat.nu:g}")
     if case.damping.alpha or case.damping.beta:
         raise _refuse(case, "has no damping: set damping.alpha and damping.beta to 0")
     if case.loads:
         raise _refuse(case, "has no loads: remove 'loads'")
-    height = mesh.height if mesh.height is not None else mesh.length / 20.0   # mesh.bar_dimensions
-    width = mesh.width if mesh.width is not None else height
+    height, width = mesh.bar_dimensions()
     section = {1: mat.area, 2: height * mat.area, 3: height * width}[dim]
     probes = {name: float(point[0]) for name, point in case.output.probes.items()}
     return _Bar(mesh.length, mat.E, mat.rho, section, probes)
