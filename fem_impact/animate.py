@@ -20,12 +20,13 @@ from __future__ import annotations
 import math
 import os
 import sys
-import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .progress import Progress
 
 # --field NAME -> (point array, label)
 FIELDS = {
@@ -239,27 +240,6 @@ def _as3(a) -> np.ndarray:
 # --------------------------------------------------------------------------------------
 # Rendering
 # --------------------------------------------------------------------------------------
-
-class _Progress:
-    """A one-line progress bar on stderr, only on an interactive terminal."""
-
-    def __init__(self, label: str, stream=None, enabled: bool | None = None):
-        self.stream = stream or sys.stderr
-        self.enabled = self.stream.isatty() if enabled is None else enabled
-        self.label, self.last = label, 0.0
-
-    def __call__(self, k: int, total: int) -> None:
-        now = time.perf_counter()
-        if not self.enabled or (now - self.last < 0.1 and k < total):
-            return
-        self.last = now
-        frac = k / total if total else 1.0
-        bar = "#" * int(30 * frac)
-        self.stream.write(f"\r{self.label:<9} [{bar:<30}] {k}/{total}")
-        if k >= total:
-            self.stream.write("\n")
-        self.stream.flush()
-
 
 def _prepare_offscreen() -> None:
     """Without a display, go straight to EGL (VTK would try X first and print a warning)."""
@@ -583,7 +563,7 @@ def animate(outdir, field: str = "v", scale: float | None = None, output=None, f
         if not -n <= frame < n:
             raise AnimateError(f"--frame {frame}: the run stored {n} frames (0 to {n - 1}, or -1 to -{n})")
     _import_pyvista()
-    series = load_series(outdir, field, _Progress("reading", enabled=progress))
+    series = load_series(outdir, field, Progress(label="reading", unit="frame", enabled=progress))
     s = scale if scale is not None else series.auto_scale()
     selected = None
     if out.suffix.lower() == ".png":
@@ -593,7 +573,7 @@ def animate(outdir, field: str = "v", scale: float | None = None, output=None, f
             selected = [(frame if frame is not None else -1) % len(series.times)]
     try:
         with atomic_file(out) as tmp:   # an interrupted rendering leaves no half-written file
-            render(series, tmp, field, s, fps, size, _Progress("rendering", enabled=progress), frames=selected)
+            render(series, tmp, field, s, fps, size, Progress(label="rendering", unit="frame", enabled=progress), frames=selected)
     except OutputFolderError as err:
         raise AnimateError(str(err)) from None
     return out, s, len(selected) if selected is not None else len(series.times)
@@ -653,6 +633,7 @@ def main(args) -> int:
     except KeyboardInterrupt as err:
         from .outdir import exit_status, signal_name
 
+        Progress.end_line()
         print(f"fem-impact: interrupted by {signal_name(err)}", file=sys.stderr)
         return exit_status(err)
     print(f"wrote {out} ({frames} frame{'s' if frames != 1 else ''}, displacement x {scale:.3g})")

@@ -308,7 +308,7 @@ def _guarded(action, failure: str) -> int:
 def _interrupted(err: KeyboardInterrupt) -> int:
     """One line for Ctrl-C, SIGTERM, SIGHUP or SIGQUIT (on its own line after a progress bar); 128 + signal."""
     from .outdir import exit_status, ignore_signals, signal_name
-    from .output import Progress
+    from .progress import Progress
 
     ignore_signals()
     Progress.end_line()
@@ -497,6 +497,9 @@ def _configure_logging(verbose: bool) -> None:
 
 
 def _fail(comm, message: str, status: int) -> int:
+    from .progress import Progress
+
+    Progress.end_line()   # a run that failed mid-loop: the message on a line of its own
     if comm.rank == 0:
         print(f"fem-impact: {message}", file=sys.stderr)
     return status

@@ -1,11 +1,8 @@
-"""Observers of the time loop: history CSV, ParaView time series, run statistics, progress bar."""
+"""Observers of the time loop: history CSV, ParaView time series, run statistics (the progress bar: progress.py)."""
 
 from __future__ import annotations
 
 import csv
-import math
-import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +15,7 @@ from .errors import ModelInputError
 from .integrators import StepState
 from .model import AXES, Model, pad_vector
 from .parallel import allsum
+from .progress import Progress, duration  # noqa: F401  (re-exported: pipeline, sweep, cli)
 
 ENERGY_COLUMNS = ("kinetic", "strain", "external_work", "damping_loss", "impact_loss", "contact_loss", "energy_error")
 
@@ -236,56 +234,3 @@ class RunStatistics:
         self.max_energy = max(self.max_energy, e.total)
         for c in self.cons.contacts:
             self.total_impulse[c.name] += float(state.impulse[c.rows].sum())
-
-
-class Progress:
-    """A one-line progress bar on stderr, only on an interactive terminal and on rank 0."""
-
-    open_line = None   # the stream whose last line is an unfinished bar
-
-    def __init__(self, comm: MPI.Comm, label: str = "time loop", stream=None):
-        self.stream = stream or sys.stderr
-        self.enabled = comm.rank == 0 and self.stream.isatty()
-        self.label, self.t_start, self.last = label, time.perf_counter(), 0.0
-
-    def __call__(self, step: int, total: int) -> None:
-        now = time.perf_counter()
-        if not self.enabled or (now - self.last < 0.2 and step < total):
-            return
-        self.last = now
-        frac = step / total
-        elapsed = now - self.t_start
-        eta = elapsed * (1 - frac) / frac if frac > 0 else 0.0
-        bar = "#" * int(30 * frac)
-        self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% step {step}/{total} eta {duration(eta)}")
-        Progress.open_line = self.stream
-        if step >= total:
-            self.stream.write("\n")
-            Progress.open_line = None
-        self.stream.flush()
-
-    @classmethod
-    def end_line(cls) -> None:
-        """End an unfinished bar's line, so that a message (e.g. interrupted) starts on its own."""
-        if cls.open_line is not None:
-            try:
-                cls.open_line.write("\n")
-                cls.open_line.flush()
-            except (OSError, ValueError):
-                pass
-            cls.open_line = None
-
-
-def duration(seconds: float) -> str:
-    """A time left as a person reads it: 42.0 s, 12 min, 3.5 h, 250 days, 2.9e+04 years."""
-    if not math.isfinite(seconds):
-        return "unknown"
-    if seconds < 60:
-        return f"{seconds:.1f} s"
-    if seconds < 3600:
-        return f"{seconds / 60:.0f} min"
-    if seconds < 86400:
-        return f"{seconds / 3600:.1f} h"
-    if seconds < 365 * 86400:
-        return f"{seconds / 86400:.0f} days"
-    return f"{seconds / (365.25 * 86400):.2g} years"
