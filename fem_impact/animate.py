@@ -573,7 +573,8 @@ def animate(outdir, field: str = "v", scale: float | None = None, output=None, f
             selected = [(frame if frame is not None else -1) % len(series.times)]
     try:
         with atomic_file(out) as tmp:   # an interrupted rendering leaves no half-written file
-            render(series, tmp, field, s, fps, size, Progress(label="rendering", unit="frame", enabled=progress), frames=selected)
+            bar = Progress(label="rendering", unit="frame", enabled=progress)
+            render(series, tmp, field, s, fps, size, bar, frames=selected)
     except OutputFolderError as err:
         raise AnimateError(str(err)) from None
     return out, s, len(selected) if selected is not None else len(series.times)
