@@ -44,6 +44,9 @@ RIGID = 1e-11
 SHIFT = 1e-8
 #: The count check looks below ``(1 - COUNT_MARGIN)`` times the highest eigenvalue found.
 COUNT_MARGIN = 1e-6
+#: SLEPc's convergence tolerance (the default of :func:`compute_modes`) and iteration limit.
+TOLERANCE = 1e-10
+MAX_ITERATIONS = 1000
 
 
 class ModesError(SimulationError):
@@ -113,10 +116,21 @@ def free_dof_count(model) -> int:
     return model.dofs - model.comm.allreduce(int(model.fixed.size), op=MPI.SUM)
 
 
-def compute_modes(model, n: int, tol: float = 1e-10, check_count: bool = True) -> Modes:
+def solver_settings(tol: float | None = None, check_count: bool = True) -> dict:
+    """What decides the modes :func:`compute_modes` returns besides the operators: part of their
+    cache key (fem_impact.cache), so that a changed tolerance or library never reuses old modes."""
+    import slepc4py
+
+    return {"tol": TOLERANCE if tol is None else tol, "max_it": MAX_ITERATIONS, "shift": SHIFT, "rigid": RIGID,
+            "residual_limit": RESIDUAL_LIMIT, "check_count": check_count, "count_margin": COUNT_MARGIN,
+            "dense_limit": DENSE_LIMIT, "mumps": PETSc.Sys.hasExternalPackage("mumps"),
+            "petsc": PETSc.Sys.getVersion(), "slepc": slepc4py.__version__}
+
+
+def compute_modes(model, n: int, tol: float | None = None, check_count: bool = True) -> Modes:
     """The ``n`` lowest modes of ``K y = w^2 M y`` on the free dofs of ``model``.
 
-    ``tol`` is SLEPc's convergence tolerance. With ``check_count`` (and MUMPS), one more
+    ``tol`` is SLEPc's convergence tolerance (None: :data:`TOLERANCE`). With ``check_count`` (and MUMPS), one more
     factorization counts the eigenvalues below the highest mode found (Sylvester's law of
     inertia of ``K - s M``): a mode the Krylov iteration skipped, e.g. one of a multiple
     eigenvalue, is an error instead of a silent gap.
@@ -130,6 +144,7 @@ def compute_modes(model, n: int, tol: float = 1e-10, check_count: bool = True) -
         :data:`RESIDUAL_LIMIT`, or the count found modes missing.
     """
     comm = model.comm
+    tol = TOLERANCE if tol is None else tol
     available = free_dof_count(model)
     # All modes (a check of the reduction on small models) come from a dense solve; the
     # Krylov solver finds at most one fewer than the dimension.
@@ -252,7 +267,7 @@ def _solver(K: PETSc.Mat, M: PETSc.Mat, n: int, shift: float, tol: float, comm: 
     eps.setOperators(K, M)
     eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
     eps.setDimensions(nev=n)
-    eps.setTolerances(tol=tol, max_it=1000)
+    eps.setTolerances(tol=tol, max_it=MAX_ITERATIONS)
     eps.setTarget(shift)
     eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
     st = eps.getST()

@@ -22,15 +22,20 @@ from .case import Case
 from .constraints import Constraints
 from .errors import ModelInputError
 from .integrators import Operators, StepState
-from .integrators.base import factorize
+from .integrators.base import direct_solver_settings, factorize
 from .model import Model, load_factor
-from .modes import ModeCountError, Modes, compute_modes, free_dof_count
+from .modes import ModeCountError, Modes, compute_modes, free_dof_count, solver_settings
 from .parallel import allsum
 
 log = logging.getLogger(__name__)
 
 RIGID_ROW = 1e-9   # neglected flexibility ratio below which a row counts as rigid (no compliance)
 AUTO_LIMIT = 400   # most modes `modes: auto` will consider
+# Static solves of free bodies: the shift is FLEX_SHIFT times the first elastic w^2, and each of
+# the FLEX_SWEEPS sweeps divides the error by 1 + w_1^2/shift = 1001 (converged: the shift does not
+# change the result, so the first w^2 is not part of the cache key).
+FLEX_SHIFT = 1e-3
+FLEX_SWEEPS = 8
 
 
 class Flexibility:
@@ -45,7 +50,7 @@ class Flexibility:
     def __init__(self, K: PETSc.Mat, M: PETSc.Mat, rigid_local: np.ndarray, first_elastic_w2: float):
         self.M, self.rigid = M, rigid_local
         self.comm = K.getComm().tompi4py()
-        self.sigma = 1e-3 * first_elastic_w2 if rigid_local.shape[1] else 0.0
+        self.sigma = FLEX_SHIFT * first_elastic_w2 if rigid_local.shape[1] else 0.0
         A = K.copy()
         if self.sigma:
             A.axpy(self.sigma, M, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
@@ -72,7 +77,7 @@ class Flexibility:
         """K^+ f for one column (owned entries)."""
         f = self._remove_rigid(f_local, use_mass_on_left=True)
         x = np.zeros_like(f)
-        for _ in range(8 if self.sigma else 1):
+        for _ in range(FLEX_SWEEPS if self.sigma else 1):
             self.b.array[:] = f + self.sigma * self._mass(x) if self.sigma else f
             self.solve(self.b, self.x)
             x = self.x.array_r.copy()
@@ -343,15 +348,21 @@ def prepare_reduced(case: Case, model: Model, cons: Constraints) -> tuple[Reduce
     return red, summary
 
 
+def static_settings() -> dict:
+    """What decides the static solves besides the operators and the load patterns: part of their cache key."""
+    return {"shift": FLEX_SHIFT, "sweeps": FLEX_SWEEPS, **direct_solver_settings()}
+
+
 def _modes(model: Model, n: int, scene: str, reused: set) -> Modes:
     comm = model.comm
-    name = f"modes-{cache.key(comm, scene, n)}"
+    settings = solver_settings()
+    name = f"modes-{cache.key(comm, scene, n, settings)}"
     stored = cache.load(name, comm)
     if stored is not None:
         reused.add("modes")
         return Modes(stored["omega2"], stored["Y_local"], stored["residual"], stored["rigid"],
                      float(stored["scale"]), float(stored["shift"]), comm)
-    modes = compute_modes(model, n)
+    modes = compute_modes(model, n, tol=settings["tol"], check_count=settings["check_count"])
     cache.save(name, comm, omega2=modes.omega2, Y_local=modes.Y_local, residual=modes.residual,
                rigid=modes.rigid, scale=modes.scale, shift=modes.shift)
     return modes
@@ -360,7 +371,7 @@ def _modes(model: Model, n: int, scene: str, reused: set) -> Modes:
 def _flexibility(model: Model, cons: Constraints, modes: Modes, scene: str, reused: set) -> np.ndarray:
     """K^+ applied to the load and contact patterns (static solves), cached."""
     comm, columns = model.comm, static_load_columns(model, cons)
-    name = f"static-{cache.key(comm, scene, modes.Y_local[:, modes.rigid], columns)}"
+    name = f"static-{cache.key(comm, scene, modes.Y_local[:, modes.rigid], columns, static_settings())}"
     stored = cache.load(name, comm)
     if stored is not None:
         reused.add("static solves")

@@ -140,6 +140,14 @@ def factorize(A: PETSc.Mat, spd: bool = False) -> Callable[[PETSc.Vec, PETSc.Vec
     return _direct_solver(A, spd).solve
 
 
+def direct_solver_settings() -> dict:
+    """What decides the solver :func:`factorize` picks besides the matrix (for cache keys): the
+    thresholds, whether PETSc has MUMPS, the user's options with the prefix, PETSc's version."""
+    options = sorted((k, v) for k, v in PETSc.Options().getAll().items() if k.startswith(OPTIONS_PREFIX))
+    return {"mumps": PETSc.Sys.hasExternalPackage("mumps"), "mumps_from": MUMPS_FROM, "mumps_fill": MUMPS_FILL,
+            "options": options, "petsc": PETSc.Sys.getVersion()}
+
+
 def _direct_solver(A: PETSc.Mat, spd: bool) -> PETSc.KSP:
     comm = A.getComm()
     ksp = PETSc.KSP().create(comm)
