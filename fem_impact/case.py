@@ -805,6 +805,19 @@ def _method_name(schema) -> str:
     return f"{method} (scheme {scheme})" if scheme else method
 
 
+def _owners(takes) -> list[str]:
+    """The methods whose schema `takes`: ``modal`` when all its schemes do, else ``modal (scheme X)``."""
+    owners = []
+    for method in METHODS:
+        schemas = [schema for tag, schema in SCHEMAS.items() if tag.partition("/")[0] == method]
+        taking = [schema for schema in schemas if takes(schema)]
+        if taking == schemas:
+            owners.append(method)
+        else:
+            owners += [_method_name(schema) for schema in taking]
+    return owners
+
+
 def _from_pydantic(error: dict, path: tuple, schema) -> _Invalid:
     """A pydantic error as the case file reports it: the key path, and the project's own words."""
     loc = tuple(part for part in error["loc"] if part not in SCHEMAS)   # (the union's tag is not a key)
@@ -815,7 +828,7 @@ def _from_pydantic(error: dict, path: tuple, schema) -> _Invalid:
     field_info = schema.model_fields.get(key) if isinstance(key, str) else None
     if kind == "extra_forbidden":
         valid = valid_keys(schema)
-        owners = [_method_name(other) for other in dict.fromkeys(SCHEMAS.values()) if key in other.model_fields]
+        owners = _owners(lambda other: key in other.model_fields)
         if owners:
             return _Invalid(path + loc, f"method {_method_name(schema)} does not use '{key}' (a key of "
                                         f"{', '.join(owners)}); its keys: {', '.join(valid)}")
@@ -837,8 +850,8 @@ def _from_pydantic(error: dict, path: tuple, schema) -> _Invalid:
         return _Invalid(path + loc, f"must be {_range_text(bounds)}, got {given!r}")
     if kind == "literal_error" and field_info:
         options = typing.get_args(field_info.annotation)
-        owners = [_method_name(other) for other in dict.fromkeys(SCHEMAS.values())
-                  if key in other.model_fields and given in typing.get_args(other.model_fields[key].annotation)]
+        owners = _owners(lambda other: key in other.model_fields
+                         and given in typing.get_args(other.model_fields[key].annotation))
         where = f" (a value for method {', '.join(owners)})" if owners else ""
         return _Invalid(path + loc, f"must be one of {', '.join(options)} with method {_method_name(schema)}; "
                                     f"got {_show(given)}{where}")
