@@ -243,8 +243,7 @@ class Case:
                              if not (key == "restitution" and c.stiffness is not None)}   # (an elastic stop's)
                             | {"nodes": c.nodes[0] if c.type == "obstacle" else list(c.nodes)}
                             for c in self.contacts]
-        solver = self.solver.model_dump()
-        data["solver"] = {key: solver[key] for key in valid_keys(type(self.solver))}   # (method and scheme first)
+        data["solver"] = self.solver.as_case()
         data["output"] = dataclasses.asdict(self.output)
         return data
 

@@ -53,6 +53,14 @@ class SolverParameters(BaseModel):
         "consistent", description="mass matrix: consistent, lumped (row sums), or redistributed (no mass on "
                                   "the contact nodes; Khenous, Laborde & Renard 2008)")
 
+    def as_case(self) -> dict:
+        """The keys as a case file gives them (method and scheme first), to read back the same."""
+        data = self.model_dump()
+        return {key: data[key] for key in valid_keys(type(self)) if key in self._written()}
+
+    def _written(self) -> set[str]:
+        return set(type(self).model_fields)
+
     @model_validator(mode="after")
     def _dt_within_t_end(self):
         if self.dt > self.t_end:
@@ -91,6 +99,10 @@ class _ReductionKeys(BaseModel):
                                                       "contact rows (Barauskas 1992)")
     tolerance: float = _number("-", "modes: auto: the largest neglected flexibility per contact row, as a "
                                     "fraction of the row's static flexibility", 0.01, gt=0, lt=1)
+
+    def _written(self) -> set[str]:
+        keys = super()._written()
+        return keys if self.modes == "auto" else keys - {"tolerance"}   # (a count of modes takes none)
 
     @model_validator(mode="after")
     def _tolerance_needs_auto(self):
