@@ -425,13 +425,13 @@ def _run_study(args) -> None:
     from .pipeline import case_inputs
     from .studies.common import default_outdir
 
-    args.output = Path(args.output) if args.output else default_outdir(args.case, args.study)
-    with written_in_place(args.output, _comm(), f"study {args.study}", protect=case_inputs(load_case(args.case)),
-                          source=args.case):
-        _study_in(args)
+    case = load_case(args.case, args.overrides)   # the study's case: every level is a copy with changes
+    args.output = Path(args.output) if args.output else default_outdir(case, args.study)
+    with written_in_place(args.output, _comm(), f"study {args.study}", protect=case_inputs(case), source=args.case):
+        _study_in(args, case)
 
 
-def _study_in(args) -> None:
+def _study_in(args, case) -> None:
     from .studies.common import StudyInputError
 
     jobs = _numbers("-j", args.jobs, int, single=True)
@@ -442,9 +442,9 @@ def _study_in(args) -> None:
         from .studies.convergence import convergence_study, format_convergence
 
         result = convergence_study(
-            args.case, args.vary, courant=_numbers("--courant", args.courant, single=True),
-            dt=_numbers("--dt", args.dt, single=True), method=args.method, overrides=args.overrides,
-            against=args.against, outdir=args.output, jobs=jobs, allow_failure=args.allow_failure, quiet=quiet)
+            case, args.vary, courant=_numbers("--courant", args.courant, single=True),
+            dt=_numbers("--dt", args.dt, single=True), method=args.method, against=args.against,
+            outdir=args.output, jobs=jobs, allow_failure=args.allow_failure, quiet=quiet)
         if not quiet:
             print(format_convergence(result))
     elif args.study == "pareto":
@@ -452,19 +452,19 @@ def _study_in(args) -> None:
 
         levels = _numbers("--levels", args.levels, int, single=True)
         result = pareto_study(
-            args.case, methods=args.methods, courant=_numbers("--courant", args.courant, single=True),
-            rungs=levels, time_axis=args.time, overrides=args.overrides, outdir=args.output, jobs=jobs,
-            allow_failure=args.allow_failure, quiet=quiet)
+            case, methods=args.methods, courant=_numbers("--courant", args.courant, single=True),
+            rungs=levels, time_axis=args.time, outdir=args.output, jobs=jobs, allow_failure=args.allow_failure,
+            quiet=quiet)
         if not quiet:
             print(format_pareto(result))
     else:
         from .studies.stability import format_stability, stability_study
 
         result = stability_study(
-            args.case, methods=args.methods, courants=_numbers("--courant", args.courant),
+            case, methods=args.methods, courants=_numbers("--courant", args.courant),
             restitutions=_numbers("--restitution", args.restitution), lengths=_numbers("--length", args.length),
-            tolerance=_numbers("--tolerance", args.tolerance, single=True), overrides=args.overrides,
-            outdir=args.output, jobs=jobs, quiet=quiet)
+            tolerance=_numbers("--tolerance", args.tolerance, single=True), outdir=args.output, jobs=jobs,
+            quiet=quiet)
         if not quiet:
             print(format_stability(result))
 

@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from conftest import CASES
+from fem_impact.case import load_case
 from fem_impact.studies.convergence import convergence_study
 
 VIBRATION = CASES / "free_vibration.yaml"
@@ -31,8 +32,8 @@ SIGNORINI = CASES / "signorini_bar.yaml"
 DTS = [0.1, 0.05, 0.025, 0.0125]
 
 
-def study(case, tmp, vary, **options):
-    return convergence_study(case, vary, outdir=tmp, quiet=True, **options)
+def study(case, tmp, vary, overrides=(), **options):
+    return convergence_study(load_case(case, overrides), vary, outdir=tmp, quiet=True, **options)
 
 
 @pytest.fixture(scope="module")

@@ -34,7 +34,7 @@ def read_csv(path):
 
 
 def skip_unless(method):
-    return pytest.mark.skipif(not registry.available(method, BAR),
+    return pytest.mark.skipif(not registry.available(method, load_case(BAR)),
                               reason=f"{method} is not available in this version yet")
 
 
@@ -144,11 +144,11 @@ def test_reference_key_is_validated_and_resolved(tmp_path):
 
 def test_every_method_is_available_or_says_why():
     for method in registry.METHODS.values():
-        why = registry.availability(method, BAR)
+        why = registry.availability(method, load_case(BAR))
         assert why is None or why.startswith("not available in this version"), (method.name, why)
         assert method.description and method.stability and method.knob in ("mesh", "modes")
     for name in ("trapezoidal", "damped-newmark", "modal-static", "modal-truncated"):
-        assert registry.available(name, BAR), name
+        assert registry.available(name, load_case(BAR)), name
     assert registry.METHODS["central-difference"].max_courant == 1.0
     with pytest.raises(registry.UnknownMethod, match="unknown method 'verlet'"):
         registry.parse_methods("trapezoidal,verlet")
@@ -159,27 +159,31 @@ def test_every_method_is_available_or_says_why():
 
 
 def coarse(*extra):
-    return ("output.vtk=false", "mesh.cells=20", "solver.dt=0.025", "solver.t_end=2.5", *extra)
+    """A level's changes: a coarse, short B2a, and ``extra`` mappings on top."""
+    changes = {"output.vtk": False, "mesh.cells": 20, "solver.dt": 0.025, "solver.t_end": 2.5}
+    for more in extra:
+        changes.update(more)
+    return changes
 
 
 def test_levels_resume_and_rerun_what_changed(tmp_path):
-    levels = [Level("a", coarse()), Level("b", coarse("contacts.0.restitution=1.0"))]
-    first = run_levels(BAR, levels, tmp_path, quiet=True)
+    levels = [Level("a", coarse()), Level("b", coarse({"contacts.0.restitution": 1.0}))]
+    first = run_levels(load_case(BAR), levels, tmp_path, quiet=True)
     assert [o.status for o in first] == ["ok", "ok"] and not any(o.resumed for o in first)
     record = json.loads((tmp_path / "levels" / "a" / "level.json").read_text())
-    assert record["overrides"] == list(coarse()) and record["status"] == "ok"
+    assert record["changes"] == coarse() and record["status"] == "ok"
     stamp = (tmp_path / "levels" / "a" / "history.csv").stat().st_mtime_ns
-    levels[1] = Level("b", coarse("contacts.0.restitution=0.5"))   # changed: run again
-    second = run_levels(BAR, levels, tmp_path, quiet=True)
+    levels[1] = Level("b", coarse({"contacts.0.restitution": 0.5}))   # changed: run again
+    second = run_levels(load_case(BAR), levels, tmp_path, quiet=True)
     assert [o.resumed for o in second] == [True, False]
     assert (tmp_path / "levels" / "a" / "history.csv").stat().st_mtime_ns == stamp
     assert second[0].summary == first[0].summary
 
 
 def test_parallel_levels_give_the_same_history(tmp_path):
-    levels = [Level("a", coarse()), Level("b", coarse("mesh.cells=40", "solver.dt=0.0125"))]
-    serial = run_levels(BAR, levels, tmp_path / "serial", quiet=True)
-    parallel = run_levels(BAR, levels, tmp_path / "parallel", jobs=2, quiet=True)
+    levels = [Level("a", coarse()), Level("b", coarse({"mesh.cells": 40, "solver.dt": 0.0125}))]
+    serial = run_levels(load_case(BAR), levels, tmp_path / "serial", quiet=True)
+    parallel = run_levels(load_case(BAR), levels, tmp_path / "parallel", jobs=2, quiet=True)
     for s, p in zip(serial, parallel, strict=True):
         assert p.ok and not p.resumed
         hs, hp = s.history(), p.history()
@@ -192,15 +196,16 @@ def test_parallel_levels_give_the_same_history(tmp_path):
 # 1D bar with consistent mass has w_max = 2 sqrt(3) c/h, so with beta = 0.1 the limit is the Courant
 # number 1 / (2 sqrt(3) sqrt(0.15)) = 0.745.
 UNSTABLE = ("solver.beta=0.1",)
+UNSTABLE_CHANGES = {"solver.beta": 0.1}
 
 
 @pytest.mark.parametrize("jobs", [1, 2])
 def test_a_level_that_blows_up_stops_the_study_or_is_recorded(tmp_path, jobs):
     # 20 cells, Courant 2 (dt = 0.1) for 400 steps: the unstable modes overflow within the run.
-    levels = [Level("stable", coarse(*UNSTABLE, "solver.dt=0.025", "solver.t_end=40")),
-              Level("unstable", coarse(*UNSTABLE, "solver.dt=0.1", "solver.t_end=40"))]
+    levels = [Level("stable", coarse(UNSTABLE_CHANGES, {"solver.dt": 0.025, "solver.t_end": 40})),
+              Level("unstable", coarse(UNSTABLE_CHANGES, {"solver.dt": 0.1, "solver.t_end": 40}))]
     with pytest.raises(StudyStopped) as stop:
-        run_levels(BAR, levels, tmp_path, jobs=jobs, quiet=True)
+        run_levels(load_case(BAR), levels, tmp_path, jobs=jobs, quiet=True)
     assert stop.value.outcome.level.name == "unstable"
     reason = stop.value.outcome.reason
     assert "finite" in reason or "blew up" in reason
@@ -208,7 +213,7 @@ def test_a_level_that_blows_up_stops_the_study_or_is_recorded(tmp_path, jobs):
     assert record["status"] == "failed" and record["reason"] == reason
     assert not (tmp_path / "levels" / "unstable" / "history.csv").exists()   # no NaN fields written
     # A rerun keeps the failure (and the stable level, unless the failure interrupted it: -j 2).
-    outcomes = run_levels(BAR, levels, tmp_path, jobs=jobs, allow_failure=True, quiet=True)
+    outcomes = run_levels(load_case(BAR), levels, tmp_path, jobs=jobs, allow_failure=True, quiet=True)
     assert [o.status for o in outcomes] == ["ok", "failed"] and outcomes[1].resumed
     assert outcomes[0].resumed or jobs > 1
 
@@ -252,7 +257,7 @@ def test_pareto_command(tmp_path):
         assert column in rows[0], column
     got = {(r["method"], r["resolution"]) for r in rows}
     assert {("trapezoidal", "10"), ("trapezoidal", "20"), ("modal-static", "5"), ("modal-static", "10")} <= got
-    if registry.available("position-only", BAR):
+    if registry.available("position-only", load_case(BAR)):
         assert ("position-only", "10") in got
     else:
         assert "note: position-only skipped: not available in this version" in proc.stderr
@@ -331,12 +336,14 @@ def test_newmark_beyond_its_stability_limit_is_detected_unconditional_schemes_ar
     """beta = 0.1, gamma = 1/2: stable up to Courant 0.745 (derivation at UNSTABLE): 0.7 runs, 0.8 and
     above fail (energy growth, or the integrator's blow-up error). The trapezoidal rule and the damped
     Newmark (2 beta >= gamma >= 1/2) never fail up to Courant 4."""
-    result = stability_study(BAR, methods="trapezoidal", courants=[0.7, 0.8, 2.0], restitutions=[], lengths=[1],
-                             overrides=["mesh.cells=50", *UNSTABLE], outdir=tmp_path / "conditional", quiet=True)
+    result = stability_study(load_case(BAR, ["mesh.cells=50", *UNSTABLE]), methods="trapezoidal",
+                             courants=[0.7, 0.8, 2.0], restitutions=[], lengths=[1], outdir=tmp_path / "conditional",
+                             quiet=True)
     outcome = {r["value"]: r["outcome"] for r in result["rows"] if r["sweep"] == "courant"}
     assert outcome[0.7] != "failed" and outcome[0.8] == "failed" and outcome[2.0] == "failed"
-    result = stability_study(BAR, methods="trapezoidal,damped-newmark", courants=[0.1, 1.0, 4.0], restitutions=[],
-                             lengths=[1], overrides=["mesh.cells=50"], outdir=tmp_path / "unconditional", quiet=True)
+    result = stability_study(load_case(BAR, ["mesh.cells=50"]), methods="trapezoidal,damped-newmark",
+                             courants=[0.1, 1.0, 4.0], restitutions=[], lengths=[1], outdir=tmp_path / "unconditional",
+                             quiet=True)
     assert all(r["outcome"] != "failed" and r["energy_growth"] < 1e-9 for r in result["rows"])
 
 
@@ -344,8 +351,8 @@ def test_newmark_beyond_its_stability_limit_is_detected_unconditional_schemes_ar
 def test_central_difference_blows_up_above_the_cfl_limit(tmp_path):
     """Explicit central difference with a lumped mass: stable for c dt / h <= 1 (1D); above, the
     highest mode grows every step and the run stops with a blow-up that the study records."""
-    result = stability_study(BAR, methods="central-difference", courants=[0.5, 0.9, 2.0], restitutions=[],
-                             lengths=[1], overrides=["mesh.cells=100"], outdir=tmp_path, quiet=True)
+    result = stability_study(load_case(BAR, ["mesh.cells=100"]), methods="central-difference",
+                             courants=[0.5, 0.9, 2.0], restitutions=[], lengths=[1], outdir=tmp_path, quiet=True)
     outcome = {r["value"]: r for r in result["rows"] if r["sweep"] == "courant"}
     assert outcome[0.5]["outcome"] != "failed" and outcome[0.9]["outcome"] != "failed"
     assert outcome[2.0]["outcome"] == "failed" and outcome[2.0]["reason"]
@@ -363,7 +370,7 @@ def test_position_level_multipliers_alone_make_the_contact_force_oscillate(tmp_p
     redistribution 0.10 and 0.18, the ringing of the discrete bar at the ends of a contact;
     position-level multipliers alone make the force jump between 0 and about 3 times its value
     (measured 2.92 on B2a, 2.82 on B1). Threshold FORCE_OSCILLATION = 0.5."""
-    result = stability_study(case, methods=method, courants=[0.5], restitutions=[], lengths=[1],
+    result = stability_study(load_case(case), methods=method, courants=[0.5], restitutions=[], lengths=[1],
                              outdir=tmp_path, quiet=True)
     (row,) = [r for r in result["rows"] if r["sweep"] == "courant"]
     if oscillates:

@@ -1,9 +1,14 @@
 """Studies that run a case many times: convergence orders, the speed-accuracy (Pareto) chart, the
 stability map, and the reduction table (reduced against the full model).
 
-- ``methods``: the registry of integration methods compared (name -> case-file overrides);
+Every study works on a :class:`~fem_impact.case.Case` (the command line turns its ``--set`` options
+into one); each run is a copy of it with changes (``Case.with_changes``).
+
+- ``methods``: the registry of integration methods compared (name -> case changes; ``apply``);
 - ``levels``: running levels (one run each, in its own folder) in-process or in parallel
   processes, with progress, resume and failure handling;
+- ``worker``: one level's run (``fem_impact.run``) and the status it reports, in this process or
+  in a child (``python -m fem_impact.studies.worker SPEC.json``);
 - ``convergence``, ``pareto``, ``stability``: the three ``fem-impact study`` commands;
 - ``common``, ``resolution``: what they share (files, error rows, order fits; c, h, Courant number);
 - ``reduction``: ``fem-impact reduction``.

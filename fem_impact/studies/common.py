@@ -12,8 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..case import load_case
-from ..references import ERROR_MEASURES, RunReference, energy_growth, errors, from_case
+from ..references import ERROR_MEASURES, RunReference, energy_growth, errors
 from . import resolution
 from .levels import Outcome
 
@@ -30,16 +29,27 @@ class StudyInputError(ValueError):
     """Bad study options (reported like bad input: one line, status 2, nothing written)."""
 
 
-def default_outdir(case_path, study: str) -> Path:
-    name = load_case(case_path).name
-    return Path.cwd() / "results" / f"{name}-{study}"
+def default_outdir(case, study: str) -> Path:
+    return Path.cwd() / "results" / f"{case.name}-{study}"
 
 
-def check_outdir(outdir: Path, case_path=None) -> None:
+def check_outdir(outdir: Path, case) -> None:
     """The output-folder policy (fem_impact.outdir); the command line also locks the folder."""
     from ..outdir import check
+    from ..pipeline import case_inputs
 
-    check(outdir, protect=(case_path,))
+    check(outdir, protect=case_inputs(case))
+
+
+def case_record(case) -> dict:
+    """study.json's ``case`` and ``overrides``: the case file and the changes the case was given on top of it
+    (``--set`` options as written, a change as KEY=VALUE)."""
+    changes = []
+    for origin in case.overrides.values():
+        for prefix in ("--set ", "the change "):
+            if origin.startswith(prefix):
+                changes.append(origin[len(prefix):])
+    return {"case": str(Path(case.path).resolve()) if case.path is not None else None, "overrides": changes}
 
 
 def write_csv(path: Path, columns, rows) -> Path:
@@ -102,9 +112,9 @@ def fit_order(x, err) -> float:
     return float(np.polyfit(np.log(x[keep]), np.log(err[keep]), 1)[0])
 
 
-def level_row(outcome: Outcome, case_path, jobs: int) -> dict:
+def level_row(outcome: Outcome, jobs: int) -> dict:
     """The figures every study tabulates for a level: resolution, work and times."""
-    case = load_case(case_path, outcome.level.overrides)
+    case = outcome.case
     h, c = resolution.mesh_size(case), resolution.wave_speed(case)
     s = outcome.summary or {}
     return {
@@ -117,13 +127,9 @@ def level_row(outcome: Outcome, case_path, jobs: int) -> dict:
     }
 
 
-def exact_reference(case_path, overrides):
-    """The case's declared reference for a level's case (None without one); CaseError if it does not fit."""
-    return from_case(load_case(case_path, overrides))
-
-
-def run_reference(outcome: Outcome, case_path, label: str) -> RunReference:
-    case = load_case(case_path, outcome.level.overrides)
+def run_reference(outcome: Outcome, label: str) -> RunReference:
+    """A finished level as the reference of the others."""
+    case = outcome.case
     return RunReference(outcome.history(), case.output.probes, [c.name for c in case.contacts], label)
 
 

@@ -18,16 +18,16 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from ..case import CaseError, load_case
-from ..references import ERROR_MEASURES
+from ..case import CaseError, yaml_value
+from ..references import ERROR_MEASURES, from_case
 from . import methods as registry
 from . import resolution
 from .common import (
     MEASURE_LABELS,
     StudyInputError,
+    case_record,
     check_outdir,
     default_outdir,
-    exact_reference,
     fit_order,
     fmt,
     level_row,
@@ -72,10 +72,10 @@ def parse_vary(options: list[str]) -> list[tuple[str, list[str]]]:
     return out
 
 
-def plan(case_path, vary, courant=None, dt=None, method=None, overrides=(), against=None):
+def plan(case, vary, courant=None, dt=None, method=None, against=None):
     """The levels and how to read them, validated (StudyInputError or CaseError; nothing run)."""
     method = registry.get(method or registry.DEFAULT_METHOD)
-    note = registry.availability(method, case_path, overrides)
+    note = registry.availability(method, case)
     if note:
         raise StudyInputError(f"--method {method.name}: {note}")
     keys = [k for k, _ in vary]
@@ -87,31 +87,32 @@ def plan(case_path, vary, courant=None, dt=None, method=None, overrides=(), agai
         raise StudyInputError(f"--courant {courant:g}: must be > 0")
     if dt is not None and not dt > 0:
         raise StudyInputError(f"--dt {dt:g}: must be > 0")
-    base_overrides = [*method.overrides, *overrides, "output.vtk=false"]
-    base = load_case(case_path, base_overrides)
+    common = {**registry.changes_for(method, case), "output.vtk": False}
+    base = case.with_changes(common)
     n = len(vary[0][1])
-    level_overrides = []
+    varied = []   # per level: (its --vary changes, the case with them)
     for i in range(n):
-        extra = [f"{k}={values[i]}" for k, values in vary]
+        extra = {k: yaml_value(values[i]) for k, values in vary}
         try:
-            case = load_case(case_path, [*base_overrides, *extra])
+            varied.append((extra, base.with_changes(extra)))
         except CaseError as err:
-            raise StudyInputError(f"--vary {', '.join(extra)}: {err}") from None
-        level_overrides.append((extra, case))
-    sizes = [resolution.mesh_size(c) for _, c in level_overrides]
+            shown = ", ".join(f"{k}={values[i]}" for k, values in vary)
+            raise StudyInputError(f"--vary {shown}: {err}") from None
+    sizes = [resolution.mesh_size(c) for _, c in varied]
     mesh_varies = max(sizes) > min(sizes) * (1 + 1e-9)
     steps = []
     if dt is not None:
-        steps = [f"solver.dt={dt!r}"] * n
+        steps = [{"solver.dt": dt}] * n
     elif "solver.dt" not in keys and (mesh_varies or courant is not None):
         target = courant if courant is not None else resolution.courant(base)
-        steps = [f"solver.dt={resolution.dt_for(c, target)!r}" for _, c in level_overrides]
-    levels = []
-    for i, (extra, _) in enumerate(level_overrides):
-        options = [*base_overrides, *extra, *(steps[i:i + 1])]
-        label = " ".join(extra)
-        levels.append(Level(f"{i:02d}-{slug(label)}", options, {"values": [v[i] for _, v in vary]}, label))
-    cases = [load_case(case_path, lv.overrides) for lv in levels]
+        steps = [{"solver.dt": resolution.dt_for(c, target)} for _, c in varied]
+    levels, cases = [], []
+    for i, (extra, level_case) in enumerate(varied):
+        step = steps[i] if steps else {}
+        label = " ".join(f"{k}={values[i]}" for k, values in vary)
+        levels.append(Level(f"{i:02d}-{slug(label)}", {**common, **extra, **step},
+                            {"values": [v[i] for _, v in vary]}, label))
+        cases.append(level_case.with_changes(step) if step else level_case)
     if mesh_varies:
         parameter, xs = "h", [resolution.mesh_size(c) for c in cases]
     elif "solver.dt" in keys:
@@ -124,10 +125,10 @@ def plan(case_path, vary, courant=None, dt=None, method=None, overrides=(), agai
         against = "exact" if base.reference else "finest"
     if against == "exact":
         if base.reference is None:
-            raise StudyInputError(f"--against exact: {case_path} declares no reference (add 'reference:', "
-                                  "e.g. b2, or compare against the finest level)")
-        for lv in levels:
-            exact_reference(case_path, lv.overrides)   # refuses a case it does not fit (CaseError)
+            raise StudyInputError(f"--against exact: {case.file or 'the case'} declares no reference (add "
+                                  "'reference:', e.g. b2, or compare against the finest level)")
+        for c in cases:
+            from_case(c)   # refuses a case it does not fit (CaseError)
     if parameter in ("h", "dt", "1/n1"):
         finest = min(range(n), key=lambda i: xs[i])
     else:
@@ -136,28 +137,29 @@ def plan(case_path, vary, courant=None, dt=None, method=None, overrides=(), agai
             "finest": finest, "keys": keys}
 
 
-def convergence_study(case_path, vary_options, courant=None, dt=None, method=None, overrides=(), against=None,
-                      outdir=None, jobs=1, allow_failure=False, quiet=False, stream=None) -> dict:
-    """Run the study; returns {"rows", "orders", "reference", "parameter", "outdir"}."""
+def convergence_study(case, vary_options, courant=None, dt=None, method=None, against=None, outdir=None, jobs=1,
+                      allow_failure=False, quiet=False, stream=None) -> dict:
+    """Run the study on ``case`` (a :class:`~fem_impact.case.Case`); returns {"rows", "orders", "reference",
+    "parameter", "outdir"}."""
     vary = parse_vary(vary_options)
-    p = plan(case_path, vary, courant, dt, method, overrides, against)
-    outdir = Path(outdir) if outdir else default_outdir(case_path, "convergence")
-    check_outdir(outdir, case_path)
-    outcomes = run_levels(case_path, p["levels"], outdir, jobs, allow_failure, stream=stream, quiet=quiet)
+    p = plan(case, vary, courant, dt, method, against)
+    outdir = Path(outdir) if outdir else default_outdir(case, "convergence")
+    check_outdir(outdir, case)
+    outcomes = run_levels(case, p["levels"], outdir, jobs, allow_failure, stream=stream, quiet=quiet)
     finest = outcomes[p["finest"]]
     rows = []
     if p["against"] == "exact":
-        references = [exact_reference(case_path, o.level.overrides) for o in outcomes]
+        references = [from_case(o.case) for o in outcomes]
         label = references[0].label
     else:
         if not finest.ok:
             raise StudyInputError(f"the finest level ({finest.level.label}) did not finish ({finest.reason}): "
                                   "no reference to measure the other levels against")
         label = f"finest level ({finest.level.label})"
-        references = [run_reference(finest, case_path, label)] * len(outcomes)
+        references = [run_reference(finest, label)] * len(outcomes)
     for i, (o, ref, x) in enumerate(zip(outcomes, references, p["x"], strict=True)):
         row = {"level": o.level.label, **dict(zip(p["keys"], o.level.info["values"], strict=True)),
-               **level_row(o, case_path, jobs), "parameter": x, "reference": label}
+               **level_row(o, jobs), "parameter": x, "reference": label}
         is_ref = p["against"] == "finest" and i == p["finest"]
         row.update(dict.fromkeys(ERROR_MEASURES, math.nan) if is_ref else measure(o, ref))
         rows.append(row)
@@ -166,10 +168,11 @@ def convergence_study(case_path, vary_options, courant=None, dt=None, method=Non
     columns = [*COLUMNS_HEAD, *p["keys"], *COLUMNS_TAIL]
     outdir.mkdir(parents=True, exist_ok=True)
     write_csv(outdir / "convergence.csv", columns, rows)
-    _plot(outdir / "convergence.png", rows, orders, p, label, load_case(case_path).name)
+    _plot(outdir / "convergence.png", rows, orders, p, label, case.name)
+    record = case_record(case)
     write_json(outdir / "study.json", {
-        "study": "convergence", "case": str(Path(case_path).resolve()), "method": p["method"].name,
-        "vary": dict(vary), "courant": courant, "dt": dt, "overrides": list(overrides), "parameter": p["parameter"],
+        "study": "convergence", "case": record["case"], "method": p["method"].name,
+        "vary": dict(vary), "courant": courant, "dt": dt, "overrides": record["overrides"], "parameter": p["parameter"],
         "reference": label, "orders": orders, "jobs": jobs})
     return {"rows": rows, "orders": orders, "reference": label, "parameter": p["parameter"], "outdir": outdir,
             "method": p["method"].name, "keys": p["keys"]}

@@ -1,20 +1,25 @@
 """Running the levels of a study: one run per level, each in its own folder ``OUTDIR/levels/NAME``.
 
+A level is a copy of the study's case with changes (dotted key paths to values, ``Case.with_changes``);
+each is run by :func:`.worker.run_level` (:func:`fem_impact.run`), which reports a status: ok,
+failed or skipped, the reason, the error's type and the run's summary.
+
 - ``-j 1`` runs the levels one after the other in this process (after a one-step warm-up run,
-  so that imports and form compilation are not timed); ``-j N`` runs N ``fem-impact run``
-  processes at a time (their setup times then include the imports, and N runs share the cores:
-  the CSV files say how many ran at once).
+  so that imports and form compilation are not timed); ``-j N`` runs N child processes at a time
+  (``python -m fem_impact.studies.worker``: the level's case as data in, its status as JSON out;
+  their setup times then include the imports, and N runs share the cores: the CSV files say how
+  many ran at once).
 - Progress: one line per finished level on stderr, with the elapsed time and an estimate of the
   time left (from the steps of the levels still to run).
-- Resume: each finished level leaves ``level.json`` (its overrides, status, reason and a
-  fingerprint of the case file, the mesh file and the code that computes a run); a level whose
+- Resume: each finished level leaves ``level.json`` (its changes, status, reason and a
+  fingerprint of the resolved case, the mesh file and the code that computes a run); a level whose
   folder holds a matching one is not run again.
 - Failures: a run that raises SimulationError (blow-up, NaN) is a failed level with its message
   as the reason; without ``allow_failure`` the study stops (StudyStopped) once it is recorded.
   A run that refuses its input when it starts (CaseError, e.g. a method this version does not
   run) is a skipped level; a run that crashes (any other error) is a failed level with the error
-  as the reason (and, in this process, its traceback logged as a warning). The run itself never
-  writes a partial folder (run.staged_directory).
+  as the reason (and its traceback logged as a warning). The run itself never writes a partial
+  folder (run.staged_directory); Ctrl-C stops the children, which remove their staging folders.
 - Modes and static solves go to a cache private to the study run and deleted after it, so that
   the reduced model's timings include them (as on a first run of a scene).
 """
@@ -33,15 +38,15 @@ import sys
 import tempfile
 import threading
 import time
-import warnings
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..case import CaseError, load_case
+from ..case import Case
 from ..plots import history_columns
+from . import worker
 
 log = logging.getLogger(__name__)
 
@@ -54,28 +59,31 @@ _NOT_IN_FINGERPRINT = {"studies", "plots.py", "animate.py", "paraview_view.py", 
 
 @dataclass
 class Level:
-    """One run of a study: a folder name, the ``--set`` overrides, and what the study tabulates."""
+    """One run of a study: a folder name, the changes to the study's case, and what the study tabulates."""
 
     name: str
-    overrides: tuple[str, ...]
+    changes: dict
     info: dict = field(default_factory=dict)
     label: str = ""
 
     def __post_init__(self):
-        self.overrides = tuple(self.overrides)
+        self.changes = dict(self.changes)
         self.label = self.label or self.name
 
 
 @dataclass
 class Outcome:
-    """What became of a level: ``status`` ok | failed | skipped, the reason, the run's summary."""
+    """What became of a level: ``status`` ok | failed | skipped, the reason, the run's summary,
+    and the level's case (the study's case with the level's changes)."""
 
     level: Level
     status: str
     reason: str
     summary: dict | None
     folder: Path
+    case: Case | None = None
     resumed: bool = False
+    error: str | None = None   # the type of the error a failed or skipped run raised
 
     @property
     def ok(self) -> bool:
@@ -110,8 +118,10 @@ def code_fingerprint() -> str:
     return h.hexdigest()[:20]
 
 
-def _fingerprint(case_path: Path, case, code: str) -> str:
-    h = hashlib.sha256(code.encode() + case_path.read_bytes())
+def fingerprint(case: Case, code: str) -> str:
+    """What decides a level's run: the resolved case, the mesh file's bytes and the code."""
+    h = hashlib.sha256(code.encode())
+    h.update(json.dumps(case.resolved(), sort_keys=True, default=str).encode())
     if case.mesh.file is not None:
         h.update(Path(case.mesh.file).read_bytes())
     return h.hexdigest()[:20]
@@ -121,24 +131,25 @@ def _steps(case) -> int:
     return max(1, int(np.ceil(case.solver.t_end / case.solver.dt - 1e-9)))
 
 
-def _record(folder: Path, level: Level, fingerprint: str, status: str, reason: str) -> None:
-    if status != "ok":   # a failed or refused run wrote nothing: its folder holds only the record
+def _record(outcome: Outcome, fingerprint: str) -> None:
+    folder = outcome.folder
+    if outcome.status != "ok":   # a failed or refused run wrote nothing: its folder holds only the record
         if folder.exists():
             shutil.rmtree(folder)
         folder.mkdir(parents=True)
-    data = {"overrides": list(level.overrides), "fingerprint": fingerprint, "status": status, "reason": reason,
-            "info": level.info}
+    data = {"changes": outcome.level.changes, "fingerprint": fingerprint, "status": outcome.status,
+            "reason": outcome.reason, "error": outcome.error, "info": outcome.level.info}
     tmp = folder / f".{LEVEL_FILE}.tmp"
     tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
     os.replace(tmp, folder / LEVEL_FILE)
 
 
-def _resumable(folder: Path, level: Level, fingerprint: str) -> Outcome | None:
+def _resumable(folder: Path, level: Level, case: Case, fingerprint: str) -> Outcome | None:
     try:
         data = json.loads((folder / LEVEL_FILE).read_text())
     except (OSError, ValueError):
         return None
-    if data.get("overrides") != list(level.overrides) or data.get("fingerprint") != fingerprint:
+    if not isinstance(data, dict) or data.get("fingerprint") != fingerprint:
         return None
     summary = None
     if data.get("status") == "ok":
@@ -148,7 +159,8 @@ def _resumable(folder: Path, level: Level, fingerprint: str) -> Outcome | None:
             return None
         if not (folder / "history.csv").is_file():
             return None
-    return Outcome(level, data.get("status", "failed"), data.get("reason", ""), summary, folder, resumed=True)
+    return Outcome(level, data.get("status", "failed"), data.get("reason", ""), summary, folder, case,
+                   resumed=True, error=data.get("error"))
 
 
 class _Progress:
@@ -187,26 +199,25 @@ class _Progress:
         self.stream.flush()
 
 
-def run_levels(case_path, levels: list[Level], outdir, jobs: int = 1, allow_failure: bool = False,
+def run_levels(case: Case, levels: list[Level], outdir, jobs: int = 1, allow_failure: bool = False,
                stream=None, quiet: bool = False) -> list[Outcome]:
-    """Run (or resume) ``levels`` of the case into ``outdir/levels``; returns their outcomes in order.
+    """Run (or resume) ``levels`` of ``case`` into ``outdir/levels``; returns their outcomes in order.
 
-    Every level's overrides are validated first (CaseError before anything is written).
+    Every level's changes are validated first (CaseError before anything is written).
     Raises StudyStopped when a level fails and ``allow_failure`` is false.
     """
-    case_path = Path(os.path.abspath(case_path))
     stream = stream or sys.stderr
     names = [lv.name for lv in levels]
     if len(set(names)) != len(names):
         raise ValueError(f"level names must be unique: {names}")
-    cases = {lv.name: load_case(case_path, lv.overrides) for lv in levels}   # CaseError: nothing written
+    cases = {lv.name: case.with_changes(lv.changes) for lv in levels}   # CaseError: nothing written
     code = code_fingerprint()
-    prints = {name: _fingerprint(case_path, case, code) for name, case in cases.items()}
+    prints = {name: fingerprint(c, code) for name, c in cases.items()}
     root = Path(outdir) / "levels"
     outcomes: dict[str, Outcome] = {}
     todo = []
     for lv in levels:
-        kept = _resumable(root / lv.name, lv, prints[lv.name])
+        kept = _resumable(root / lv.name, lv, cases[lv.name], prints[lv.name])
         if kept is not None:
             outcomes[lv.name] = kept
         else:
@@ -220,15 +231,23 @@ def run_levels(case_path, levels: list[Level], outdir, jobs: int = 1, allow_fail
         cache = Path(tempfile.mkdtemp(prefix=".cache-", dir=outdir))
         try:
             runner = _run_in_process if jobs <= 1 else _run_in_processes
-            runner(case_path, todo, root, prints, cases, jobs, allow_failure, progress, outcomes, cache)
+            runner(todo, root, prints, cases, jobs, allow_failure, progress, outcomes, cache)
         finally:
             shutil.rmtree(cache, ignore_errors=True)
     return [outcomes[lv.name] for lv in levels]
 
 
+def _outcome(lv: Level, folder: Path, case: Case, status: dict) -> Outcome:
+    """A level's outcome from its run's status (:func:`.worker.run_level`); a crash's traceback is logged."""
+    if status.get("traceback"):
+        log.warning("level %s crashed:\n%s", lv.label, status["traceback"].rstrip())
+    return Outcome(lv, status["status"], status["reason"], status["summary"] if status["status"] == "ok" else None,
+                   folder, case, error=status.get("error"))
+
+
 def _finish(outcome: Outcome, prints, progress, outcomes, allow_failure) -> None:
     lv = outcome.level
-    _record(outcome.folder, lv, prints[lv.name], outcome.status, outcome.reason)
+    _record(outcome, prints[lv.name])
     outcomes[lv.name] = outcome
     progress(outcome)
     if outcome.status == "failed" and not allow_failure:
@@ -238,33 +257,15 @@ def _finish(outcome: Outcome, prints, progress, outcomes, allow_failure) -> None
 # --- in this process ---------------------------------------------------------------------------
 
 
-def _run_in_process(case_path, todo, root, prints, cases, jobs, allow_failure, progress, outcomes, cache):
-    from mpi4py import MPI
-
-    from ..errors import SimulationError
-    from ..pipeline import run_case
-
+def _run_in_process(todo, root, prints, cases, jobs, allow_failure, progress, outcomes, cache):
     saved = os.environ.get("FEM_IMPACT_CACHE")
     os.environ["FEM_IMPACT_CACHE"] = str(cache)
     try:
-        _warm_up(case_path, todo, cases, cache)
+        _warm_up(cases[todo[0].name], cases, cache)
         progress.restart()
         for lv in todo:
             folder = root / lv.name
-            try:
-                with warnings.catch_warnings():   # (overflow on the way to a blow-up: the run reports it)
-                    warnings.simplefilter("ignore", RuntimeWarning)
-                    run_case(case_path, folder, list(lv.overrides), comm=MPI.COMM_SELF, progress=False)
-                # (the summary as written, as a resumed or parallel level reads it)
-                outcome = Outcome(lv, "ok", "", json.loads((folder / "summary.json").read_text()), folder)
-            except SimulationError as err:
-                outcome = Outcome(lv, "failed", _one_line(str(err)), None, folder)
-            except CaseError as err:
-                outcome = Outcome(lv, "skipped", _one_line(str(err)), None, folder)
-            except Exception as err:   # a crash of the run: recorded like a failure (as a process's would be)
-                log.warning("level %s crashed", lv.label, exc_info=True)
-                outcome = Outcome(lv, "failed", _one_line(f"the run crashed: {type(err).__name__}: {err}"), None,
-                                  folder)
+            outcome = _outcome(lv, folder, cases[lv.name], worker.run_level(cases[lv.name], folder))
             _finish(outcome, prints, progress, outcomes, allow_failure)
     finally:
         if saved is None:
@@ -273,60 +274,51 @@ def _run_in_process(case_path, todo, root, prints, cases, jobs, allow_failure, p
             os.environ["FEM_IMPACT_CACHE"] = saved
 
 
-def _warm_up(case_path, todo, cases, cache) -> None:
+def _warm_up(first: Case, cases, cache) -> None:
     """One step of the first level (full model), so that imports and form compilation are not timed."""
     from mpi4py import MPI
 
-    from ..errors import SimulationError
-    from ..pipeline import run_case
+    from ..errors import CaseError, SimulationError
+    from ..pipeline import run
 
     if any(c.solver.method == "modal" for c in cases.values()):
         from .. import modes  # noqa: F401  (SLEPc)
-    first = todo[0]
-    dt = cases[first.name].solver.dt
     try:
-        run_case(case_path, cache / "warm-up", [*first.overrides, "solver.method=newmark", f"solver.t_end={dt!r}",
-                                                "output.vtk=false"], comm=MPI.COMM_SELF, progress=False)
+        warm = first.with_changes({"solver.method": "newmark", "solver.t_end": first.solver.dt, "output.vtk": False})
+        run(warm, cache / "warm-up", comm=MPI.COMM_SELF, progress=False)
     except (CaseError, SimulationError):
         pass   # the level itself will say what is wrong
     shutil.rmtree(cache / "warm-up", ignore_errors=True)
 
 
-def _one_line(text: str) -> str:
-    return " ".join(text.split())
-
-
 # --- in parallel processes -----------------------------------------------------------------------
 
-_RUN_FAILED = "fem-impact: the run failed: "
-_LEFT_AS_IT_WAS = " (the output folder was left as it was)"
-_BAD_INPUT = "fem-impact: error: "
+
+def _command(spec: Path) -> list[str]:
+    return [sys.executable, "-m", "fem_impact.studies.worker", str(spec)]
 
 
-def _command(case_path: Path, folder: Path, overrides) -> list[str]:
-    args = [sys.executable, "-m", "fem_impact", "run", str(case_path), "-o", str(folder), "-q"]
-    for option in overrides:
-        args += ["--set", option]
-    return args
+def _from_child(lv: Level, folder: Path, case: Case, returncode: int, status_file: Path, log_file: Path) -> Outcome:
+    """The outcome the child reported; a child that reported none (killed, or dead before it could) failed."""
+    status = worker.read_status(status_file)
+    if status is not None:
+        return _outcome(lv, folder, case, status)
+    how = f"killed by signal {-returncode}" if returncode < 0 else f"exited with status {returncode}"
+    try:   # what it said, for the user (the outcome does not depend on it)
+        said = log_file.read_text(errors="replace").strip()
+    except OSError:
+        said = ""
+    if said:
+        log.warning("level %s: the run %s; it wrote:\n%s", lv.label, how, "\n".join(said.splitlines()[-20:]))
+    return Outcome(lv, "failed", f"the run {how} without reporting its status", None, folder, case)
 
 
-def _from_process(lv: Level, folder: Path, status: int, stderr: str) -> Outcome:
-    lines = [line for line in stderr.strip().splitlines() if line.strip()]
-    last = lines[-1] if lines else ""
-    if status == 0:
-        return Outcome(lv, "ok", "", json.loads((folder / "summary.json").read_text()), folder)
-    if status == 3 and last.startswith(_RUN_FAILED):
-        return Outcome(lv, "failed", last[len(_RUN_FAILED):].removesuffix(_LEFT_AS_IT_WAS), None, folder)
-    if status == 2 and last.startswith(_BAD_INPUT):
-        return Outcome(lv, "skipped", last[len(_BAD_INPUT):], None, folder)
-    how = f"killed by signal {-status}" if status < 0 else f"exited with status {status}"
-    return Outcome(lv, "failed", f"the run {how}: {last}" if last else f"the run {how}", None, folder)
-
-
-def _run_in_processes(case_path, todo, root, prints, cases, jobs, allow_failure, progress, outcomes, cache):
+def _run_in_processes(todo, root, prints, cases, jobs, allow_failure, progress, outcomes, cache):
     env = dict(os.environ, FEM_IMPACT_CACHE=str(cache), OPENBLAS_NUM_THREADS="1")
     # The children import this very package, wherever it was imported from.
     env["PYTHONPATH"] = os.pathsep.join([str(PACKAGE.parent), *filter(None, [os.environ.get("PYTHONPATH")])])
+    work_dir = cache / "jobs"   # the children's specs, statuses and stderr
+    work_dir.mkdir()
     running: dict[str, subprocess.Popen] = {}
     lock = threading.Lock()
     stopping = threading.Event()
@@ -334,17 +326,22 @@ def _run_in_processes(case_path, todo, root, prints, cases, jobs, allow_failure,
     def work(lv: Level):
         if stopping.is_set():
             return None
-        folder = root / lv.name
-        proc = subprocess.Popen(_command(case_path, folder, lv.overrides), stdout=subprocess.DEVNULL,
-                                stderr=subprocess.PIPE, text=True, env=env)
-        with lock:
-            running[lv.name] = proc
-        _, stderr = proc.communicate()
+        folder, case = root / lv.name, cases[lv.name]
+        status_file, log_file = work_dir / f"{lv.name}.status.json", work_dir / f"{lv.name}.log"
+        spec = worker.write_spec(work_dir / f"{lv.name}.json", case, folder, status_file)
+        with open(log_file, "w") as stderr:
+            proc = subprocess.Popen(_command(spec), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                    stderr=stderr, env=env)
+            with lock:
+                running[lv.name] = proc
+                if stopping.is_set():   # (stop_children looked before this child was registered)
+                    proc.send_signal(signal.SIGINT)
+            proc.wait()
         with lock:
             running.pop(lv.name, None)
         if stopping.is_set():
             return None
-        return _from_process(lv, folder, proc.returncode, stderr)
+        return _from_child(lv, folder, case, proc.returncode, status_file, log_file)
 
     def stop_children():
         stopping.set()

@@ -1,17 +1,23 @@
-"""The integration methods the studies compare, by name: the case-file overrides that select each,
-what it is, its stability limit and the resolution knob its Pareto ladder turns.
+"""The integration methods the studies compare, by name: the case changes that select each, what it
+is, its stability limit and the resolution knob its Pareto ladder turns.
 
-A method is *available* when the case loads with its overrides: a key or value this version does
-not know (a CaseError) means the method has not landed yet, and studies skip it with a note. (A
-run that still refuses it when it starts, e.g. a method name the case accepts but no model runs
-yet, is recorded as a skipped level with the run's message.)
+A method is *available* when the case takes its changes: a key or value this version does not
+know (a CaseError) means the method has not landed yet, and studies skip it with a note. (A run
+that still refuses it when it starts, e.g. a method name the case accepts but no model runs yet,
+is recorded as a skipped level with the run's message.)
+
+:func:`apply` selects a method on a case; :func:`changes_for` gives the changes it makes there.
+Keys the case was given explicitly (``--set``, or :meth:`Case.with_changes`) win over the
+method's, so that ``--set solver.modes=40`` changes the modal methods' n1.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
 
-from ..case import CaseError, load_case
+from ..case import Case, CaseError
 
 
 @dataclass(frozen=True)
@@ -22,8 +28,9 @@ class Method:
     ----------
     name : str
         The name used on the command line (``--methods``) and in the CSV files.
-    overrides : tuple of str
-        ``--set`` options selecting it (on top of the case as written).
+    changes : mapping of str to value
+        The case changes selecting it, dotted key paths to values (``{"solver.method": "newmark"}``),
+        on top of the case as given; ``solver.method`` first.
     description : str
         One line: what it is.
     stability : str
@@ -37,19 +44,22 @@ class Method:
     """
 
     name: str
-    overrides: tuple[str, ...]
+    changes: Mapping[str, object] = field(hash=False)
     description: str
     stability: str
     knob: str = "mesh"
     max_courant: float | None = None
 
+    def __post_init__(self):
+        object.__setattr__(self, "changes", MappingProxyType(dict(self.changes)))
+
 
 # Newmark with gamma = 0.6 and the beta of the widest stability, (gamma + 1/2)^2 / 4 = 0.3025.
-_DAMPED = ("solver.gamma=0.6", "solver.beta=0.3025")
+_DAMPED = {"solver.gamma": 0.6, "solver.beta": 0.3025}
 # The modal methods keep 20 modes unless a ladder sets solver.modes (`modes: auto` would follow the
 # time step through the output rate, which the stability sweep varies).
-_MODAL = ("solver.method=modal", "solver.modes=20")
-_NEWMARK = ("solver.method=newmark",)
+_MODAL = {"solver.method": "modal", "solver.modes": 20}
+_NEWMARK = {"solver.method": "newmark"}
 
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("trapezoidal", _NEWMARK,
@@ -57,32 +67,32 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "correction (the paper's method)",
            "unconditionally stable without contact; its contact forces create energy at large steps in "
            "persistent contact"),
-    Method("moreau-jean", ("solver.method=moreau_jean",),
+    Method("moreau-jean", {"solver.method": "moreau_jean"},
            "Moreau-Jean theta = 1/2 at the position level: trapezoidal smooth forces, contact impulses at the "
            "end of the step holding the gaps, Carnot's correction for e (the default method)",
            "unconditionally stable; the contacts never create energy; gaps exact"),
-    Method("moreau-jean-velocity", ("solver.method=moreau_jean", "solver.level=velocity"),
+    Method("moreau-jean-velocity", {"solver.method": "moreau_jean", "solver.level": "velocity"},
            "Moreau-Jean theta = 1/2 with Newton's impact law on velocities (as Siconos)",
            "unconditionally stable; the contacts never create energy; gaps drift up to dt x impact speed"),
-    Method("position-only", (*_NEWMARK, "solver.impact_correction=false"),
+    Method("position-only", {**_NEWMARK, "solver.impact_correction": False},
            "Newmark trapezoidal with position-level multipliers only (no velocity correction)",
            "unconditionally stable without contact; the contact force oscillates"),
-    Method("damped-newmark", (*_NEWMARK, *_DAMPED),
+    Method("damped-newmark", {**_NEWMARK, **_DAMPED},
            "Newmark with numerical damping: gamma 0.6, beta 0.3025, Carnot correction",
            "unconditionally stable (2 beta >= gamma >= 1/2); first order"),
-    Method("central-difference", ("solver.method=central_difference", "solver.mass=lumped"),
+    Method("central-difference", {"solver.method": "central_difference", "solver.mass": "lumped"},
            "explicit central difference, lumped mass, forward-increment Lagrange multipliers",
            "conditionally stable: c dt / h <= 1 (1D, lumped mass)", max_courant=1.0),
-    Method("mass-redistribution", (*_NEWMARK, "solver.mass=redistributed"),
+    Method("mass-redistribution", {**_NEWMARK, "solver.mass": "redistributed"},
            "Newmark trapezoidal with no mass on the contact nodes (Khenous, Laborde & Renard 2008)",
            "unconditionally stable; no contact-force oscillation"),
-    Method("modal-static", (*_MODAL, "solver.scheme=newmark", "solver.static_correction=true"),
+    Method("modal-static", {**_MODAL, "solver.scheme": "newmark", "solver.static_correction": True},
            "reduced model: n1 modes plus the static correction of the truncated ones (trapezoidal rule)",
            "unconditionally stable; converges to the full model as n1 grows", knob="modes"),
-    Method("modal-moreau-jean", (*_MODAL, "solver.scheme=moreau_jean", "solver.static_correction=true"),
+    Method("modal-moreau-jean", {**_MODAL, "solver.scheme": "moreau_jean", "solver.static_correction": True},
            "reduced model: n1 modes plus the static correction, stepped by Moreau-Jean",
            "unconditionally stable; the contacts never create energy", knob="modes"),
-    Method("modal-truncated", (*_MODAL, "solver.scheme=newmark", "solver.static_correction=false"),
+    Method("modal-truncated", {**_MODAL, "solver.scheme": "newmark", "solver.static_correction": False},
            "reduced model: n1 modes, plain truncation (trapezoidal rule)",
            "unconditionally stable; the contact compliance is wrong whatever dt", knob="modes"),
 )}
@@ -111,19 +121,41 @@ def parse_methods(text: str | None) -> list[Method]:
     return [get(n) for n in dict.fromkeys(names)]
 
 
-def availability(method: Method | str, case_path, overrides=()) -> str | None:
-    """None when ``method`` runs on the case in this version, else why not (one line)."""
+def given(case: Case, key: str) -> bool:
+    """Whether ``key`` (a dotted path) was given explicitly to the case: by ``--set`` or a change, itself
+    or a mapping or list above it."""
+    path = tuple(key.split("."))
+    return any(tuple(str(s) for s in p) == path[:len(p)] for p in case.overrides)
+
+
+def unless_given(case: Case, changes: Mapping) -> dict:
+    """``changes`` less the keys the case was given explicitly (those win: a command line's ``--set``)."""
+    return {key: value for key, value in changes.items() if not given(case, key)}
+
+
+def changes_for(method: Method | str, case: Case) -> dict:
+    """The changes that select ``method`` on ``case``: the method's, less the keys the case was given."""
     method = get(method) if isinstance(method, str) else method
+    return unless_given(case, method.changes)
+
+
+def apply(method: Method | str, case: Case) -> Case:
+    """A copy of ``case`` that runs ``method``; CaseError when the case does not take it."""
+    return case.with_changes(changes_for(method, case))
+
+
+def availability(method: Method | str, case: Case) -> str | None:
+    """None when ``method`` runs on the case in this version, else why not (one line)."""
     try:
-        load_case(case_path, [*overrides, *method.overrides])
+        apply(method, case)
     except CaseError as err:
         return f"not available in this version ({err.key}: {err.message})" if err.key else str(err)
     return None
 
 
-def available(name: str, case_path) -> bool:
+def available(name: str, case: Case) -> bool:
     """Whether the method ``name`` runs on the case (for tests: skip until a method lands)."""
-    return availability(name, case_path) is None
+    return availability(name, case) is None
 
 
 def describe_methods() -> str:

@@ -21,16 +21,15 @@ import math
 import sys
 from pathlib import Path
 
-from ..case import load_case
-from ..references import ERROR_MEASURES
+from ..references import ERROR_MEASURES, from_case
 from . import methods as registry
 from . import resolution
 from .common import (
     MEASURE_LABELS,
     StudyInputError,
+    case_record,
     check_outdir,
     default_outdir,
-    exact_reference,
     fmt,
     level_row,
     measure,
@@ -53,14 +52,14 @@ def _rung_factor(k: int) -> float:
     return 2.0 ** (k - 3)
 
 
-def ladder(method, base, case_path, overrides, courant, rungs) -> tuple[list[Level], list[str]]:
-    """The levels of one method, and notes on the rungs left out."""
-    common = [*method.overrides, *overrides, "output.vtk=false"]
+def ladder(method, base, courant, rungs) -> tuple[list[Level], list[str]]:
+    """The levels of one method on the case ``base``, and notes on the rungs left out."""
+    common = {**registry.changes_for(method, base), "output.vtk": False}
     levels, notes = [], []
     if method.knob == "modes":
         for k in range(rungs):
             n1 = 5 * 2 ** k
-            levels.append(Level(f"{method.name}-modes-{n1}", [*common, f"solver.modes={n1}"],
+            levels.append(Level(f"{method.name}-modes-{n1}", {**common, "solver.modes": n1},
                                 {"method": method.name, "knob": "modes", "resolution": n1}, f"{method.name} n1={n1}"))
         return levels, notes
     c = resolution.wave_speed(base)
@@ -70,22 +69,22 @@ def ladder(method, base, case_path, overrides, courant, rungs) -> tuple[list[Lev
         if base.mesh.file is None:
             cells = max(2, int(round(base.mesh.cells * r)))
             dt = target * (base.mesh.length / cells) / c
-            extra, knob, value, label = [f"mesh.cells={cells}", f"solver.dt={dt!r}"], "cells", cells, f"cells={cells}"
+            extra, knob, value, label = {"mesh.cells": cells, "solver.dt": dt}, "cells", cells, f"cells={cells}"
             cfl = target
         else:
             dt = base.solver.dt / r if courant is None else target * resolution.mesh_size(base) / c / r
-            extra, knob, value, label = [f"solver.dt={dt!r}"], "dt", dt, f"dt={dt:.4g}"
+            extra, knob, value, label = {"solver.dt": dt}, "dt", dt, f"dt={dt:.4g}"
             cfl = c * dt / resolution.mesh_size(base)
         if method.max_courant is not None and cfl > method.max_courant * (1 + 1e-9):
             notes.append(f"{method.name} {label}: left out, Courant number {cfl:.3g} is above its stability "
                          f"limit {method.max_courant:g}")
             continue
-        levels.append(Level(f"{method.name}-{knob}-{k}", [*common, *extra],
+        levels.append(Level(f"{method.name}-{knob}-{k}", {**common, **extra},
                             {"method": method.name, "knob": knob, "resolution": value}, f"{method.name} {label}"))
     return levels, notes
 
 
-def _reference_level(base, case_path, overrides, courant, rungs) -> Level:
+def _reference_level(base, courant, rungs) -> Level:
     """The default method one step finer than the top rung of the full-model ladder."""
     method = registry.get(registry.DEFAULT_METHOD)
     top = _rung_factor(rungs)   # one rung beyond the last
@@ -93,18 +92,19 @@ def _reference_level(base, case_path, overrides, courant, rungs) -> Level:
     target = courant if courant is not None else resolution.courant(base)
     if base.mesh.file is None:
         cells = max(2, int(round(base.mesh.cells * top)))
-        extra = [f"mesh.cells={cells}", f"solver.dt={target * (base.mesh.length / cells) / c!r}"]
+        extra = {"mesh.cells": cells, "solver.dt": target * (base.mesh.length / cells) / c}
         label = f"cells={cells}"
     else:
         dt = (base.solver.dt if courant is None else target * resolution.mesh_size(base) / c) / top
-        extra, label = [f"solver.dt={dt!r}"], f"dt={dt:.4g}"
-    return Level("reference", [*method.overrides, *overrides, "output.vtk=false", *extra],
+        extra, label = {"solver.dt": dt}, f"dt={dt:.4g}"
+    return Level("reference", {**registry.changes_for(method, base), "output.vtk": False, **extra},
                  {"method": method.name, "knob": "reference"}, f"reference run ({method.name} {label})")
 
 
-def pareto_study(case_path, methods=None, courant=None, rungs=None, time_axis="wall", overrides=(), outdir=None,
-                 jobs=1, allow_failure=False, quiet=False, stream=None) -> dict:
-    """Run the ladders; returns {"rows", "fronts", "reference", "skipped", "outdir"}."""
+def pareto_study(case, methods=None, courant=None, rungs=None, time_axis="wall", outdir=None, jobs=1,
+                 allow_failure=False, quiet=False, stream=None) -> dict:
+    """Run the ladders on ``case`` (a :class:`~fem_impact.case.Case`); returns {"rows", "fronts", "reference",
+    "skipped", "outdir"}."""
     stream = stream or sys.stderr
     rungs = DEFAULT_RUNGS if rungs is None else rungs
     if rungs < 2:
@@ -114,16 +114,16 @@ def pareto_study(case_path, methods=None, courant=None, rungs=None, time_axis="w
     if time_axis not in ("wall", "loop"):
         raise StudyInputError(f"--time {time_axis}: wall or loop")
     chosen = registry.parse_methods(methods)
-    base = load_case(case_path, overrides)
-    outdir = Path(outdir) if outdir else default_outdir(case_path, "pareto")
-    check_outdir(outdir, case_path)
+    base = case
+    outdir = Path(outdir) if outdir else default_outdir(base, "pareto")
+    check_outdir(outdir, base)
     levels, notes, skipped = [], [], {}
     for method in chosen:
-        why = registry.availability(method, case_path, overrides)
+        why = registry.availability(method, base)
         if why:
             skipped[method.name] = why
             continue
-        lv, nt = ladder(method, base, case_path, overrides, courant, rungs)
+        lv, nt = ladder(method, base, courant, rungs)
         levels += lv
         notes += nt
     if not levels:
@@ -131,36 +131,37 @@ def pareto_study(case_path, methods=None, courant=None, rungs=None, time_axis="w
     exact = base.reference is not None
     if exact:
         for lv in levels:
-            exact_reference(case_path, lv.overrides)   # CaseError if the case does not fit its reference
+            from_case(base.with_changes(lv.changes))   # CaseError if the case does not fit its reference
     else:
-        levels.append(_reference_level(base, case_path, overrides, courant, rungs))
+        levels.append(_reference_level(base, courant, rungs))
     if not quiet:
         for name, why in skipped.items():
             stream.write(f"note: {name} skipped: {why}\n")
         for note in notes:
             stream.write(f"note: {note}\n")
-    outcomes = run_levels(case_path, levels, outdir, jobs, allow_failure, stream=stream, quiet=quiet)
+    outcomes = run_levels(base, levels, outdir, jobs, allow_failure, stream=stream, quiet=quiet)
     if exact:
-        label = exact_reference(case_path, levels[0].overrides).label
-        references = [exact_reference(case_path, o.level.overrides) for o in outcomes]
+        references = [from_case(o.case) for o in outcomes]
+        label = references[0].label
     else:
         ref_outcome = outcomes.pop()
         if not ref_outcome.ok:
             raise StudyInputError(f"the reference run did not finish ({ref_outcome.reason})")
         label = ref_outcome.level.label
-        references = [run_reference(ref_outcome, case_path, label)] * len(outcomes)
+        references = [run_reference(ref_outcome, label)] * len(outcomes)
     rows = []
     for o, ref in zip(outcomes, references, strict=True):
-        rows.append({**o.level.info, **level_row(o, case_path, jobs), **measure(o, ref), "reference": label})
+        rows.append({**o.level.info, **level_row(o, jobs), **measure(o, ref), "reference": label})
     time_key = "wall_time_s" if time_axis == "wall" else "loop_time_s"
     fronts = {m: pareto_front(rows, m, time_key) for m in PANELS}
     outdir.mkdir(parents=True, exist_ok=True)
     write_csv(outdir / "pareto.csv", COLUMNS, rows)
     _plot(outdir / "pareto.png", rows, fronts, time_key, label, base.name, jobs)
+    record = case_record(base)
     write_json(outdir / "study.json", {
-        "study": "pareto", "case": str(Path(case_path).resolve()), "methods": [m.name for m in chosen],
+        "study": "pareto", "case": record["case"], "methods": [m.name for m in chosen],
         "skipped": skipped, "notes": notes, "courant": courant, "rungs": rungs, "time": time_key,
-        "overrides": list(overrides), "reference": label, "jobs": jobs,
+        "overrides": record["overrides"], "reference": label, "jobs": jobs,
         "fronts": {m: [f"{rows[i]['method']} {rows[i]['resolution']}" for i in f] for m, f in fronts.items()}})
     return {"rows": rows, "fronts": fronts, "reference": label, "skipped": skipped, "notes": notes,
             "outdir": outdir, "time_key": time_key, "jobs": jobs}

@@ -30,16 +30,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..case import load_case
-from ..references import ERROR_MEASURES, contact_spells
+from ..references import ERROR_MEASURES, contact_spells, from_case
 from . import methods as registry
 from . import resolution
 from .common import (
     MEASURE_LABELS,
     StudyInputError,
+    case_record,
     check_outdir,
     default_outdir,
-    exact_reference,
     fmt,
     level_row,
     measure,
@@ -133,9 +132,10 @@ def _finite(v) -> bool:
     return isinstance(v, (int, float)) and math.isfinite(v)
 
 
-def stability_study(case_path, methods=None, courants=None, restitutions=None, lengths=None, tolerance=None,
-                    overrides=(), outdir=None, jobs=1, quiet=False, stream=None) -> dict:
-    """Run the sweeps; returns {"rows", "reference", "skipped", "outdir"}."""
+def stability_study(case, methods=None, courants=None, restitutions=None, lengths=None, tolerance=None,
+                    outdir=None, jobs=1, quiet=False, stream=None) -> dict:
+    """Run the sweeps on ``case`` (a :class:`~fem_impact.case.Case`); returns {"rows", "reference", "skipped",
+    "outdir"}."""
     stream = stream or sys.stderr
     courants = list(DEFAULT_COURANTS if courants is None else courants)
     lengths = list(DEFAULT_LENGTHS if lengths is None else lengths)
@@ -146,70 +146,71 @@ def stability_study(case_path, methods=None, courants=None, restitutions=None, l
     if not tolerance > 0:
         raise StudyInputError(f"--tolerance {tolerance:g}: must be > 0")
     chosen = registry.parse_methods(methods)
-    base = load_case(case_path, overrides)
+    base = case
     if restitutions is None:
         restitutions = list(DEFAULT_RESTITUTIONS) if base.contacts else []
     elif not base.contacts:
-        raise StudyInputError(f"--restitution: {case_path} has no contact")
+        raise StudyInputError(f"--restitution: {base.file or 'the case'} has no contact")
     if any(not 0 <= e <= 1 for e in restitutions):
         raise StudyInputError("--restitution: every value must be in [0, 1]")
-    outdir = Path(outdir) if outdir else default_outdir(case_path, "stability")
-    check_outdir(outdir, case_path)
+    outdir = Path(outdir) if outdir else default_outdir(base, "stability")
+    check_outdir(outdir, base)
     e_case = base.contacts[0].restitution if base.contacts else None
     same_e = all(c.restitution == e_case for c in base.contacts)
 
-    def e_options(e):
+    def e_changes(e):
         if same_e and e == e_case:
-            return []
-        return [f"contacts.{i}.restitution={e!r}" for i in range(len(base.contacts))]
+            return {}
+        return {f"contacts.{i}.restitution": e for i in range(len(base.contacts))}
 
-    def dt_options(courant):
+    def dt_changes(courant):
         dt = resolution.dt_for(base, courant)
-        return [] if abs(dt - base.solver.dt) <= 1e-9 * base.solver.dt else [f"solver.dt={dt!r}"]
+        return {} if abs(dt - base.solver.dt) <= 1e-9 * base.solver.dt else {"solver.dt": dt}
 
-    def length_options(k):
-        return [] if k == 1 else [f"solver.t_end={k * base.solver.t_end!r}"]
+    def length_changes(k):
+        return {} if k == 1 else {"solver.t_end": k * base.solver.t_end}
 
-    by_overrides: dict[tuple, Level] = {}
+    by_changes: dict[tuple, Level] = {}
     plan, skipped = [], {}   # plan: (method, sweep, value, level name, e, length)
     for method in chosen:
-        why = registry.availability(method, case_path, overrides)
+        why = registry.availability(method, base)
         if why:
             skipped[method.name] = why
             continue
-        common = (*method.overrides, *overrides, "output.vtk=false")
-        points = [("courant", c, dt_options(c), e_case, 1.0) for c in courants]
-        points += [("restitution", e, e_options(e), e, 1.0) for e in restitutions]
-        points += [("length", k, length_options(k), e_case, k) for k in lengths]
+        common = {**registry.changes_for(method, base), "output.vtk": False}
+        points = [("courant", c, dt_changes(c), e_case, 1.0) for c in courants]
+        points += [("restitution", e, e_changes(e), e, 1.0) for e in restitutions]
+        points += [("length", k, length_changes(k), e_case, k) for k in lengths]
         for sweep, value, extra, e, k in points:
-            key = (*common, *extra)
-            if key not in by_overrides:
+            changes = {**common, **extra}
+            key = tuple(changes.items())
+            if key not in by_changes:
                 name = slug(f"{method.name}-{sweep}-{value:g}")
-                by_overrides[key] = Level(name, key, {"method": method.name}, f"{method.name} {sweep} {value:g}")
-            plan.append((method.name, sweep, value, by_overrides[key].name, e, k))
+                by_changes[key] = Level(name, changes, {"method": method.name}, f"{method.name} {sweep} {value:g}")
+            plan.append((method.name, sweep, value, by_changes[key].name, e, k))
     if not plan:
         raise StudyInputError("no method to run: " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
-    levels = list(by_overrides.values())
+    levels = list(by_changes.values())
     exact = base.reference is not None
     ref_levels = {}
     if exact:
         for lv in levels:
-            exact_reference(case_path, lv.overrides)
+            from_case(base.with_changes(lv.changes))   # CaseError if the case does not fit its reference
     else:   # the default method at half the case's step, per restitution, over the longest length
         default = registry.get(registry.DEFAULT_METHOD)
         for e in dict.fromkeys([e_case, *restitutions]):
             if e is None and base.contacts:
                 continue
             k = max(lengths) if e == e_case else 1.0
-            opts = (*default.overrides, *overrides, "output.vtk=false", f"solver.dt={base.solver.dt / 2!r}",
-                    *e_options(e), *length_options(k))
-            ref_levels[e] = Level(slug(f"reference-e{e:g}" if e is not None else "reference"), opts,
+            changes = {**registry.changes_for(default, base), "output.vtk": False, "solver.dt": base.solver.dt / 2,
+                       **e_changes(e), **length_changes(k)}
+            ref_levels[e] = Level(slug(f"reference-e{e:g}" if e is not None else "reference"), changes,
                                   {"method": default.name}, f"reference run ({default.name}, dt/2"
                                   + (f", e = {e:g}" if e is not None else "") + ")")
     if not quiet:
         for name, why in skipped.items():
             stream.write(f"note: {name} skipped: {why}\n")
-    outcomes = run_levels(case_path, [*levels, *ref_levels.values()], outdir, jobs, allow_failure=True,
+    outcomes = run_levels(base, [*levels, *ref_levels.values()], outdir, jobs, allow_failure=True,
                           stream=stream, quiet=quiet)
     by_name = {o.level.name: o for o in outcomes}
     references = {}
@@ -218,17 +219,16 @@ def stability_study(case_path, methods=None, courants=None, restitutions=None, l
             o = by_name[lv.name]
             if not o.ok:
                 raise StudyInputError(f"the {lv.label} did not finish ({o.reason})")
-            references[e] = run_reference(o, case_path, lv.label)
+            references[e] = run_reference(o, lv.label)
     rows = []
     for method, sweep, value, name, e, k in plan:
         o = by_name[name]
-        ref = exact_reference(case_path, o.level.overrides) if exact else references[e]
+        ref = from_case(o.case) if exact else references[e]
         h = o.history() if o.ok else None
         m = measure(o, ref, h)
-        row = {"method": method, "sweep": sweep, "value": value, "level": name, **level_row(o, case_path, jobs), **m,
+        row = {"method": method, "sweep": sweep, "value": value, "level": name, **level_row(o, jobs), **m,
                "restitution": e, "length": k, "reference": ref.label}
-        case = load_case(case_path, o.level.overrides)
-        names = [c.name for c in case.contacts]
+        names = [c.name for c in o.case.contacts]
         if o.ok:
             m["chatter_to_end"], m["chatter_switches"] = chattering(h, names)
             m["penetration"] = (o.summary["max_penetration"] or 0.0) / ref.length_scale
@@ -240,14 +240,15 @@ def stability_study(case_path, methods=None, courants=None, restitutions=None, l
         rows.append(row)
     outdir.mkdir(parents=True, exist_ok=True)
     write_csv(outdir / "stability.csv", COLUMNS, rows)
-    label = (exact_reference(case_path, levels[0].overrides).label if exact
+    label = (from_case(by_name[levels[0].name].case).label if exact
              else "reference runs of the default method at dt/2")
     _plot(outdir / "stability.png", rows, [m.name for m in chosen], skipped, courants, restitutions, lengths,
           base.name, label, tolerance)
+    record = case_record(base)
     write_json(outdir / "study.json", {
-        "study": "stability", "case": str(Path(case_path).resolve()), "methods": [m.name for m in chosen],
+        "study": "stability", "case": record["case"], "methods": [m.name for m in chosen],
         "skipped": skipped, "courant": courants, "restitution": restitutions, "length": lengths,
-        "tolerance": tolerance, "overrides": list(overrides), "reference": label, "jobs": jobs,
+        "tolerance": tolerance, "overrides": record["overrides"], "reference": label, "jobs": jobs,
         "thresholds": {"energy_growth": ENERGY_GROWTH, "penetration": PENETRATION,
                        "force_oscillation": FORCE_OSCILLATION, "chatter_steps": CHATTER_STEPS,
                        "chatter_switches": CHATTER_SWITCHES}})
