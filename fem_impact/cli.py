@@ -350,8 +350,11 @@ def _reduction(args) -> int:
         return _fail(_comm(), f"error: --modes {args.modes}: give whole numbers separated by commas, e.g. 2,5,10", 2)
 
     def study():
+        from .case import load_case
+
+        case = load_case(args.case, args.overrides)
         try:
-            rows = reduction_table(args.case, modes, args.output, args.overrides, args.probe, _comm())
+            rows = reduction_table(case, modes, args.output, args.probe, _comm())
         except ValueError as err:
             raise _UsageError(str(err)) from None
         if _comm().rank == 0:
@@ -366,9 +369,12 @@ def _sweep(args) -> int:
     target = Target("probe", args.probe) if args.probe else Target("body", args.body) if args.body else None
 
     def sweep():
+        from .case import load_case
+
+        case = load_case(args.case, args.overrides)
         try:
-            outdir, rows = run_sweep(args.case, args.vary, target, args.output, args.overrides, comm=_comm(),
-                                     progress=not args.quiet, report=None if args.quiet else print)
+            outdir, rows = run_sweep(case, args.vary, target, args.output, comm=_comm(), progress=not args.quiet,
+                                     report=None if args.quiet else print)
         except SweepError as err:
             raise _UsageError(str(err)) from None
         if _comm().rank == 0 and not args.quiet:

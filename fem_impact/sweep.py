@@ -1,7 +1,8 @@
 """``fem-impact sweep``: run a case once per value of one key; tabulate and plot the mean speed.
 
-Each run is the ordinary pipeline with ``--set KEY=VALUE`` added (VTK output off unless asked
-for); what is kept of it is read back from its ``history.csv`` and ``summary.json``:
+Each run is the case with ``KEY=VALUE`` set as by ``--set`` (``Case.with_changes``; VTK output off
+unless the case sets ``output.vtk`` itself), run by :func:`fem_impact.run`; what is kept of it is
+read back from its ``history.csv`` and ``summary.json``:
 
 - the mean velocity of the target over the second half of the run, per axis: for a probe
   ``(u(t_end) - u(t_h)) / (t_end - t_h)`` (the time mean of its velocity exactly), for a body the
@@ -33,7 +34,7 @@ import numpy as np
 import yaml
 from mpi4py import MPI
 
-from .case import CaseError, load_case, yaml_value
+from .case import yaml_value
 from .plots import history_columns
 
 log = logging.getLogger(__name__)
@@ -72,14 +73,21 @@ def parse_vary(text: str) -> tuple[str, list[str], list]:
     return key, texts, values
 
 
-def check(case_path, key: str, texts: list[str], overrides, target: Target | None, comm: MPI.Comm) -> Target:
-    """Apply every value to the case (CaseError on a bad one) and settle the target; nothing is written."""
-    cases = [load_case(case_path, [*overrides, f"{key}={text}"]) for text in texts]
-    case = cases[0]
-    probes = list(case.output.probes)
+def check(case, key: str, texts: list[str], target: Target | None, comm: MPI.Comm) -> tuple[Target, list]:
+    """Apply every value to the case (CaseError on a bad one) and settle the target; nothing is written.
+
+    Returns the target and the case of each run.
+    """
+    from .studies.methods import unless_given
+
+    # VTK off by default: a sweep reads histories (the case's own output.vtk, e.g. a --set, wins).
+    base = case.with_changes(unless_given(case, {"output.vtk": False}))
+    cases = [base.with_changes([f"{key}={text}"]) for text in texts]
+    first = cases[0]
+    probes = list(first.output.probes)
     if target is None:
         if not probes:
-            raise SweepError(f"{case_path}: the case has no probe; give --probe NAME or --body NAME")
+            raise SweepError(f"{case.file or 'the case'}: the case has no probe; give --probe NAME or --body NAME")
         target = Target("probe", probes[0])
     if target.kind == "probe":
         missing = [c for c in cases if target.name not in c.output.probes]
@@ -89,10 +97,10 @@ def check(case_path, key: str, texts: list[str], overrides, target: Target | Non
     else:
         from .mesh import build_mesh
 
-        bodies = sorted(build_mesh(case, comm).bodies)
+        bodies = sorted(build_mesh(first, comm).bodies)
         if target.name not in bodies:
             raise SweepError(f"--body {target.name}: no such body in the mesh (bodies: {', '.join(bodies)})")
-    return target
+    return target, cases
 
 
 def measure(outdir: Path, target: Target) -> dict:
@@ -121,30 +129,26 @@ def measure(outdir: Path, target: Target) -> dict:
     return row
 
 
-def run_sweep(case_path, vary: str, target: Target | None = None, outdir=None, overrides=(),
-              comm: MPI.Comm = MPI.COMM_WORLD, progress: bool = True, report=print) -> tuple[Path, list[dict]]:
-    """Run the sweep; returns (OUTDIR, rows). Writes sweep.csv, sweep.png and the runs' folders.
+def run_sweep(case, vary: str, target: Target | None = None, outdir=None, comm: MPI.Comm = MPI.COMM_WORLD,
+              progress: bool = True, report=print) -> tuple[Path, list[dict]]:
+    """Run the sweep on ``case`` (a :class:`~fem_impact.case.Case`); returns (OUTDIR, rows). Writes sweep.csv,
+    sweep.png and the runs' folders.
 
     Raises SweepError or CaseError on bad input before anything runs or is written.
     """
     from .output import Progress
-    from .pipeline import case_inputs, run_case, staged_directory
+    from .pipeline import case_inputs, run, staged_directory
 
-    case_path = Path(case_path)
     key, texts, values = parse_vary(vary)
-    overrides = list(overrides)
-    target = check(case_path, key, texts, overrides, target, comm)
-    case = load_case(case_path, overrides)
+    target, cases = check(case, key, texts, target, comm)
     outdir = Path(outdir) if outdir is not None else Path.cwd() / "results" / f"{case.name}-sweep"
     rows = []
     with staged_directory(outdir, comm, "sweep", protect=case_inputs(case)) as stage:
-        for i, (text, value) in enumerate(zip(texts, values, strict=True)):
+        for i, (text, value, one) in enumerate(zip(texts, values, cases, strict=True)):
             label = f"[{i + 1}/{len(texts)}] {key}={text}"
             run_dir = stage / f"run{i + 1:02d}"
             t0 = time.perf_counter()
-            # VTK off by default: a sweep reads histories; the user's --set comes after and wins.
-            run_case(case_path, run_dir, ["output.vtk=false", *overrides, f"{key}={text}"], comm=comm,
-                     progress=Progress(comm, label=label) if progress else False)
+            run(one, run_dir, comm=comm, progress=Progress(comm, label=label) if progress else False)
             row = {key: value, **measure(run_dir, target), "run": run_dir.name}
             rows.append(row)
             if comm.rank == 0 and report:

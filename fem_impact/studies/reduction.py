@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from ..case import MODAL_SCHEMES, load_case
+from ..case import MODAL_SCHEMES
+from ..pipeline import case_inputs, run, staged_directory
 from ..plots import history_columns, plot_reduction
-from ..pipeline import case_inputs, run_case, staged_directory
 
 log = logging.getLogger(__name__)
 
@@ -59,10 +59,11 @@ def _probe_component(history: dict, probe: str | None) -> str:
     return max(names, key=lambda c: np.abs(history[c]).max())
 
 
-def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe=None,
-                    comm: MPI.Comm = MPI.COMM_WORLD) -> list[dict]:
+def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, probe=None, comm: MPI.Comm = MPI.COMM_WORLD) -> list[dict]:
     """Run the full model and the modal model for each n1, with and without static correction.
 
+    ``case`` is a :class:`~fem_impact.case.Case`; every run is a copy of it with changes (VTK off;
+    the modal method, its scheme, n1 and the static correction), run by :func:`fem_impact.run`.
     Errors against the full model, for a probe's displacement and velocity (the component that
     moves most): the relative L2 norm over the run (RMS of the difference over the RMS of the
     full model's history), the same for both histories filtered below the reduced model's
@@ -72,11 +73,12 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe
     peak value measures, e.g. B3's); and the error of the total contact impulse. Writes
     ``reduction.csv``, ``reduction.png`` (the histories) and every run's folder into ``outdir``.
     """
-    case = Path(case)
-    outdir = Path(outdir or Path.cwd() / "results" / f"{case.stem}-reduction")
+    stem = Path(case.path).stem if case.path is not None else case.name
+    outdir = Path(outdir or Path.cwd() / "results" / f"{stem}-reduction")
     rows = []
-    with staged_directory(outdir, comm, "reduction", protect=case_inputs(load_case(case, overrides))) as stage:
-        full_summary = run_case(case, stage / "full", [*overrides, "output.vtk=false"], comm=comm, progress=False)
+    with staged_directory(outdir, comm, "reduction", protect=case_inputs(case)) as stage:
+        full_case = case.with_changes({"output.vtk": False})
+        full_summary = run(full_case, stage / "full", comm=comm).summary
         full = history_columns(stage / "full")
         u_col = _probe_component(full, probe)
         v_col = u_col.replace(".u", ".v")
@@ -86,13 +88,13 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe
         rows.append(_row("full", None, None, dict.fromkeys(REDUCTION_COLUMNS[4:13], 0.0), full_summary))
         histories = {"full": full}
         # The reduced model steps with the full model's scheme, so that the table measures the reduction alone.
-        scheme = [f"solver.scheme={full_summary['method']}"] if full_summary["method"] in MODAL_SCHEMES else []
+        scheme = {"solver.scheme": full_summary["method"]} if full_summary["method"] in MODAL_SCHEMES else {}
         for n1 in modes:
             for static in (True, False):
                 name = f"modal-{n1}-{'static' if static else 'plain'}"
-                summary = run_case(case, stage / name, [*overrides, "output.vtk=false", "solver.method=modal", *scheme,
-                                                        f"solver.modes={n1}", f"solver.static_correction={static}"],
-                                   comm=comm, progress=False)
+                reduced = full_case.with_changes({"solver.method": "modal", **scheme, "solver.modes": n1,
+                                                  "solver.static_correction": static})
+                summary = run(reduced, stage / name, comm=comm).summary
                 h = history_columns(stage / name)
                 histories[f"{n1} modes, {'static correction' if static else 'plain'}"] = h
                 cut = summary["cutoff_hz"]
@@ -107,8 +109,7 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, overrides=(), probe
                 rows.append(_row("modal", n1, static, errors, summary))
                 log.info("%s: %s", name, rows[-1])
         if comm.rank == 0:
-            plot_reduction(histories, u_col, stage / "reduction.png",
-                           f"{case.stem}: reduced models against the full one")
+            plot_reduction(histories, u_col, stage / "reduction.png", f"{stem}: reduced models against the full one")
             with open(stage / "reduction.csv", "w", newline="") as f:
                 writer = csv.DictWriter(f, fieldnames=REDUCTION_COLUMNS)
                 writer.writeheader()
