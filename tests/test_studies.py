@@ -10,7 +10,12 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import re
+import signal
+import subprocess
+import sys
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -216,6 +221,84 @@ def test_a_level_that_blows_up_stops_the_study_or_is_recorded(tmp_path, jobs):
     outcomes = run_levels(load_case(BAR), levels, tmp_path, jobs=jobs, allow_failure=True, quiet=True)
     assert [o.status for o in outcomes] == ["ok", "failed"] and outcomes[1].resumed
     assert outcomes[0].resumed or jobs > 1
+
+
+# Central difference at Courant 2 on the coarse bar (20 cells, dt = 0.1): blows up within 5 steps.
+ABOVE_COURANT = {"solver.method": "central_difference", "solver.mass": "lumped", "solver.dt": 0.1}
+# 4e8 steps: the run refuses it when it starts (fem_impact.limits), as bad input.
+TOO_LONG = {"solver.t_end": 1e7}
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_each_level_reports_a_structured_status(tmp_path, jobs):
+    """A level whose run fails is `failed` with the run's message and error type; a level the run refuses
+    is `skipped` with the CaseError's message; the same in this process (-j 1) and from the worker
+    processes (-j 2), which report a JSON status (never read from their stderr)."""
+    levels = [Level("ok", coarse()), Level("above-courant", coarse(ABOVE_COURANT)),
+              Level("too-long", coarse(TOO_LONG))]
+    outcomes = run_levels(load_case(BAR), levels, tmp_path, jobs=jobs, allow_failure=True, quiet=True)
+    ok, failed, skipped = outcomes
+    assert ok.status == "ok" and ok.summary["steps"] == 100 and ok.error is None
+    assert failed.status == "failed" and failed.error == "SimulationError"
+    assert failed.reason.startswith("blew up at t = ") and failed.summary is None
+    assert skipped.status == "skipped" and skipped.error == "CaseError"
+    assert "solver.dt: the run would take 4e+08 steps" in skipped.reason
+    for o in outcomes:
+        record = json.loads((tmp_path / "levels" / o.level.name / "level.json").read_text())
+        assert (record["status"], record["reason"], record["error"]) == (o.status, o.reason, o.error)
+        assert o.case.solver.dt == (0.1 if o is failed else 0.025)   # the level's case, for the study's tables
+    assert sorted(p.name for p in (tmp_path / "levels" / "above-courant").iterdir()) == ["level.json"]
+    assert not list(tmp_path.glob(".cache-*"))   # the private cache and the workers' files are gone
+
+
+def test_no_study_sweep_or_reduction_starts_a_fem_impact_run_process(tmp_path, monkeypatch):
+    """-j 2 starts the worker module (the case as data in, a JSON status out); the sweep and the
+    reduction table run fem_impact.run in this process."""
+    from fem_impact.studies import reduction_table
+    from fem_impact.sweep import run_sweep
+
+    started = []
+    popen = subprocess.Popen
+
+    def recording(args, *rest, **options):
+        started.append([str(a) for a in args])
+        return popen(args, *rest, **options)
+
+    monkeypatch.setattr(subprocess, "Popen", recording)
+    case = load_case(BAR).with_changes(coarse())
+    run_levels(case, [Level("a", {}), Level("b", {"mesh.cells": 40})], tmp_path / "study", jobs=2, quiet=True)
+    run_sweep(case, "contacts.0.restitution=0,1", outdir=tmp_path / "sweep", progress=False, report=None)
+    reduction_table(case, modes=(2,), outdir=tmp_path / "reduction")
+    workers = [a for a in started if a[1:3] == ["-m", "fem_impact.studies.worker"]]
+    assert len(workers) == 2 and all(a[0] == sys.executable for a in workers)
+    assert not [a for a in started if "fem_impact" in a or "run" in a], started
+    assert (tmp_path / "sweep" / "sweep.csv").is_file() and (tmp_path / "reduction" / "reduction.csv").is_file()
+
+
+def test_an_interrupted_parallel_study_stops_its_workers_and_leaves_no_staging_folder(tmp_path):
+    """Ctrl-C (SIGINT to the study alone): the study signals its workers, which remove their staging
+    folders; 130, one line; the private cache is removed and no level is recorded."""
+    out = tmp_path / "study"
+    proc = subprocess.Popen([sys.executable, "-m", "fem_impact", "study", "convergence", str(BAR), "-o", str(out),
+                             "-j", "2", "--vary", "solver.t_end=200,201", *sets("mesh.cells=50", "solver.dt=0.0005",
+                                                                                 "output.every=100000")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while len(stages := list((out / "levels").glob(".*.partial-*")) if (out / "levels").exists() else []) < 2:
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the levels did not start"
+        time.sleep(0.1)
+    workers = [int(p.name.rsplit("-", 1)[1]) for p in stages]
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1].startswith("fem-impact: interrupted by SIGINT"), stderr
+    left = [p.relative_to(tmp_path) for p in tmp_path.rglob("*")]
+    assert not [p for p in left if ".partial-" in p.name or p.name.startswith(".cache-") or p.name == "level.json"]
+    for pid in workers:
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
 
 
 # --- the commands, coarse ---------------------------------------------------------------------------
