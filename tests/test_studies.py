@@ -251,6 +251,15 @@ def test_each_level_reports_a_structured_status(tmp_path, jobs):
     assert not list(tmp_path.glob(".cache-*"))   # the private cache and the workers' files are gone
 
 
+def test_a_worker_that_dies_without_a_status_is_a_failed_level(tmp_path):
+    """No status file (killed, or dead before it could write one): failed, whatever its stderr says."""
+    from fem_impact.studies.levels import _from_child
+
+    (tmp_path / "x.log").write_text("fem-impact: the run failed: looks like a reason\n")
+    outcome = _from_child(Level("x", {}), tmp_path / "x", None, -9, tmp_path / "x.status.json", tmp_path / "x.log")
+    assert (outcome.status, outcome.reason) == ("failed", "the run killed by signal 9 without reporting its status")
+
+
 def test_no_study_sweep_or_reduction_starts_a_fem_impact_run_process(tmp_path, monkeypatch):
     """-j 2 starts the worker module (the case as data in, a JSON status out); the sweep and the
     reduction table run fem_impact.run in this process."""
