@@ -160,6 +160,18 @@ def test_every_method_is_available_or_says_why():
     assert [m.name for m in registry.parse_methods(None)] == list(registry.METHODS)
 
 
+def test_a_method_is_applied_as_changes_and_the_case_s_own_keys_win():
+    """A method is a mapping of changes; a key the case was given (--set, or a change) is kept (README:
+    `--set solver.modes=40` changes the modal methods' n1)."""
+    case = registry.apply("modal-static", load_case(BAR))
+    assert (case.solver.method, case.solver.scheme, case.solver.modes) == ("modal", "newmark", 20)
+    given = load_case(BAR, ["solver.modes=40"]).with_changes({"solver.mass": "consistent"})
+    assert registry.changes_for("modal-static", given) == {"solver.method": "modal", "solver.scheme": "newmark",
+                                                           "solver.static_correction": True}
+    assert registry.apply("modal-static", given).solver.modes == 40
+    assert registry.apply("central-difference", given).solver.mass == "consistent"
+
+
 # --- levels: resume, parallel processes, failures -------------------------------------------------
 
 
@@ -331,6 +343,7 @@ def test_convergence_command(tmp_path):
     assert float(rows[0]["err_displacement"]) > float(rows[2]["err_displacement"]) > 0
     study = json.loads((out / "study.json").read_text())
     assert study["orders"]["err_energy"] == pytest.approx(1.0, abs=0.15)
+    assert study["overrides"] == ["solver.t_end=2.5"] and study["case"] == str(BAR.resolve())
     assert (out / "convergence.png").stat().st_size > 10_000
     again = run_cli(*args, cwd=tmp_path)
     assert again.returncode == 0 and again.stderr.count("kept from an earlier run (ok)") == 3
