@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cache import code_fingerprint
 from ..case import Case
 from ..plots import history_columns
 from . import worker
@@ -52,9 +53,6 @@ log = logging.getLogger(__name__)
 
 LEVEL_FILE = "level.json"
 PACKAGE = Path(__file__).resolve().parents[1]
-# Modules that do not change what a run computes: editing them keeps completed levels valid.
-_NOT_IN_FINGERPRINT = {"studies", "plots.py", "animate.py", "paraview_view.py", "cli.py", "references.py",
-                       "__main__.py"}
 
 
 @dataclass
@@ -105,17 +103,6 @@ class StudyStopped(Exception):
 def slug(text: str) -> str:
     """A folder name from a label."""
     return re.sub(r"[^A-Za-z0-9._+-]+", "_", text).strip("_") or "level"
-
-
-def code_fingerprint() -> str:
-    """A hash of the package sources that decide what a run computes."""
-    h = hashlib.sha256()
-    for path in sorted(PACKAGE.rglob("*.py")):
-        rel = path.relative_to(PACKAGE)
-        if rel.parts[0] in _NOT_IN_FINGERPRINT:
-            continue
-        h.update(str(rel).encode() + b"\0" + path.read_bytes())
-    return h.hexdigest()[:20]
 
 
 def fingerprint(case: Case, code: str) -> str:

@@ -12,7 +12,8 @@ import numpy as np
 from mpi4py import MPI
 
 from ..case import MODAL_SCHEMES
-from ..pipeline import case_inputs, run, staged_directory
+from ..outdir import case_inputs
+from ..pipeline import run, staged_directory
 from ..plots import history_columns, plot_reduction
 
 log = logging.getLogger(__name__)
