@@ -427,11 +427,12 @@ def _run_study(args) -> None:
     from pathlib import Path
 
     from .case import load_case
-    from .outdir import written_in_place
-    from .pipeline import case_inputs
+    from .outdir import case_inputs, written_in_place
     from .studies.common import default_outdir
 
-    case = load_case(args.case, args.overrides)   # the study's case: every level is a copy with changes
+    # Every level is a copy of the case with changes: its method's, then the --set options (so that they win
+    # and may set the method's own keys, e.g. solver.modes), then the level's own.
+    case = load_case(args.case)
     args.output = Path(args.output) if args.output else default_outdir(case, args.study)
     with written_in_place(args.output, _comm(), f"study {args.study}", protect=case_inputs(case), source=args.case):
         _study_in(args, case)
@@ -449,8 +450,8 @@ def _study_in(args, case) -> None:
 
         result = convergence_study(
             case, args.vary, courant=_numbers("--courant", args.courant, single=True),
-            dt=_numbers("--dt", args.dt, single=True), method=args.method, against=args.against,
-            outdir=args.output, jobs=jobs, allow_failure=args.allow_failure, quiet=quiet)
+            dt=_numbers("--dt", args.dt, single=True), method=args.method, changes=args.overrides,
+            against=args.against, outdir=args.output, jobs=jobs, allow_failure=args.allow_failure, quiet=quiet)
         if not quiet:
             print(format_convergence(result))
     elif args.study == "pareto":
@@ -459,8 +460,8 @@ def _study_in(args, case) -> None:
         levels = _numbers("--levels", args.levels, int, single=True)
         result = pareto_study(
             case, methods=args.methods, courant=_numbers("--courant", args.courant, single=True),
-            rungs=levels, time_axis=args.time, outdir=args.output, jobs=jobs, allow_failure=args.allow_failure,
-            quiet=quiet)
+            rungs=levels, time_axis=args.time, changes=args.overrides, outdir=args.output, jobs=jobs,
+            allow_failure=args.allow_failure, quiet=quiet)
         if not quiet:
             print(format_pareto(result))
     else:
@@ -469,8 +470,8 @@ def _study_in(args, case) -> None:
         result = stability_study(
             case, methods=args.methods, courants=_numbers("--courant", args.courant),
             restitutions=_numbers("--restitution", args.restitution), lengths=_numbers("--length", args.length),
-            tolerance=_numbers("--tolerance", args.tolerance, single=True), outdir=args.output, jobs=jobs,
-            quiet=quiet)
+            tolerance=_numbers("--tolerance", args.tolerance, single=True), changes=args.overrides,
+            outdir=args.output, jobs=jobs, quiet=quiet)
         if not quiet:
             print(format_stability(result))
 

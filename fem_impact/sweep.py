@@ -78,10 +78,8 @@ def check(case, key: str, texts: list[str], target: Target | None, comm: MPI.Com
 
     Returns the target and the case of each run.
     """
-    from .studies.methods import unless_given
-
-    # VTK off by default: a sweep reads histories (the case's own output.vtk, e.g. a --set, wins).
-    base = case.with_changes(unless_given(case, {"output.vtk": False}))
+    # VTK off by default: a sweep reads histories (unless the case was given output.vtk, e.g. by --set).
+    base = case if _given(case, "output.vtk") else case.with_changes({"output.vtk": False})
     cases = [base.with_changes([f"{key}={text}"]) for text in texts]
     first = cases[0]
     probes = list(first.output.probes)
@@ -101,6 +99,12 @@ def check(case, key: str, texts: list[str], target: Target | None, comm: MPI.Com
         if target.name not in bodies:
             raise SweepError(f"--body {target.name}: no such body in the mesh (bodies: {', '.join(bodies)})")
     return target, cases
+
+
+def _given(case, key: str) -> bool:
+    """Whether ``key`` (a dotted path), or a mapping above it, was given to the case by ``--set`` or a change."""
+    path = tuple(key.split("."))
+    return any(tuple(str(s) for s in p) == path[:len(p)] for p in case.overrides)
 
 
 def measure(outdir: Path, target: Target) -> dict:
@@ -137,7 +141,8 @@ def run_sweep(case, vary: str, target: Target | None = None, outdir=None, comm: 
     Raises SweepError or CaseError on bad input before anything runs or is written.
     """
     from .output import Progress
-    from .pipeline import case_inputs, run, staged_directory
+    from .outdir import case_inputs
+    from .pipeline import run, staged_directory
 
     key, texts, values = parse_vary(vary)
     target, cases = check(case, key, texts, target, comm)

@@ -33,7 +33,8 @@ DTS = [0.1, 0.05, 0.025, 0.0125]
 
 
 def study(case, tmp, vary, overrides=(), **options):
-    return convergence_study(load_case(case, overrides), vary, outdir=tmp, quiet=True, **options)
+    # (the --set options go after the method's changes, as the command line passes them)
+    return convergence_study(load_case(case), vary, changes=overrides, outdir=tmp, quiet=True, **options)
 
 
 @pytest.fixture(scope="module")

@@ -24,6 +24,7 @@ import pytest
 from conftest import CASES, run_cli
 from fem_impact.case import CaseError, load_case
 from fem_impact.references import B1, B2, BarMode, b1_exact_u0, errors, from_case
+from fem_impact.studies import convergence
 from fem_impact.studies import methods as registry
 from fem_impact.studies.levels import Level, StudyStopped, run_levels
 from fem_impact.studies.pareto import pareto_front
@@ -160,16 +161,19 @@ def test_every_method_is_available_or_says_why():
     assert [m.name for m in registry.parse_methods(None)] == list(registry.METHODS)
 
 
-def test_a_method_is_applied_as_changes_and_the_case_s_own_keys_win():
-    """A method is a mapping of changes; a key the case was given (--set, or a change) is kept (README:
-    `--set solver.modes=40` changes the modal methods' n1)."""
+def test_a_method_is_applied_as_changes_and_the_given_changes_win():
+    """A method is a mapping of changes; a study's given changes (the command line's --set) come after
+    them in the same change, so they win and may set the method's own keys (README: `--set
+    solver.modes=40` changes the modal methods' n1), which the file's newmark case alone refuses."""
     case = registry.apply("modal-static", load_case(BAR))
     assert (case.solver.method, case.solver.scheme, case.solver.modes) == ("modal", "newmark", 20)
-    given = load_case(BAR, ["solver.modes=40"]).with_changes({"solver.mass": "consistent"})
-    assert registry.changes_for("modal-static", given) == {"solver.method": "modal", "solver.scheme": "newmark",
-                                                           "solver.static_correction": True}
-    assert registry.apply("modal-static", given).solver.modes == 40
-    assert registry.apply("central-difference", given).solver.mass == "consistent"
+    with pytest.raises(CaseError, match="does not use 'modes'"):
+        load_case(BAR, ["solver.modes=40"])
+    p = convergence.plan(load_case(BAR), [("solver.dt", ["0.004", "0.002"])], method="modal-static",
+                         changes=["solver.modes=40", "solver.static_correction=false"])
+    for lv in p["levels"]:
+        level = load_case(BAR).with_changes(lv.changes)
+        assert (level.solver.method, level.solver.modes, level.solver.static_correction) == ("modal", 40, False)
 
 
 # --- levels: resume, parallel processes, failures -------------------------------------------------

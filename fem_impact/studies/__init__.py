@@ -1,8 +1,9 @@
 """Studies that run a case many times: convergence orders, the speed-accuracy (Pareto) chart, the
 stability map, and the reduction table (reduced against the full model).
 
-Every study works on a :class:`~fem_impact.case.Case` (the command line turns its ``--set`` options
-into one); each run is a copy of it with changes (``Case.with_changes``).
+Every study works on a :class:`~fem_impact.case.Case`: each run is a copy of it with changes
+(``Case.with_changes``): its method's, then the changes given to the study (the command line's
+``--set`` options), then the run's own (mesh, time step, ...).
 
 - ``methods``: the registry of integration methods compared (name -> case changes; ``apply``);
 - ``levels``: running levels (one run each, in its own folder) in-process or in parallel

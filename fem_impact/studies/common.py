@@ -8,10 +8,13 @@ import json
 import math
 import os
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+import yaml
 
+from ..case import CaseError, yaml_value
 from ..references import ERROR_MEASURES, RunReference, energy_growth, errors
 from . import resolution
 from .levels import Outcome
@@ -35,21 +38,34 @@ def default_outdir(case, study: str) -> Path:
 
 def check_outdir(outdir: Path, case) -> None:
     """The output-folder policy (fem_impact.outdir); the command line also locks the folder."""
-    from ..outdir import check
-    from ..pipeline import case_inputs
+    from ..outdir import case_inputs, check
 
     check(outdir, protect=case_inputs(case))
 
 
-def case_record(case) -> dict:
-    """study.json's ``case`` and ``overrides``: the case file and the changes the case was given on top of it
-    (``--set`` options as written, a change as KEY=VALUE)."""
-    changes = []
-    for origin in case.overrides.values():
-        for prefix in ("--set ", "the change "):
-            if origin.startswith(prefix):
-                changes.append(origin[len(prefix):])
-    return {"case": str(Path(case.path).resolve()) if case.path is not None else None, "overrides": changes}
+def given_changes(changes) -> dict:
+    """The changes given for every run of a study, applied after each method's (so that they win): a
+    mapping of dotted key paths to values, or ``--set`` options ``KEY.PATH=VALUE`` (values read as YAML)."""
+    if isinstance(changes, Mapping):
+        return dict(changes)
+    out = {}
+    for option in changes:
+        key, equals, text = option.partition("=")
+        key = key.strip()
+        if not equals or not key:
+            raise CaseError("--set", None, None, f"expected KEY.PATH=VALUE, got {option!r}")
+        try:
+            out[key] = yaml_value(text)
+        except yaml.YAMLError as err:
+            raise CaseError("--set", key, None, f"cannot read the value {text!r}: {' '.join(str(err).split())}") \
+                from None
+    return out
+
+
+def case_record(case, changes) -> dict:
+    """study.json's ``case`` (the case file) and ``overrides`` (the given changes, as ``--set`` options)."""
+    options = [f"{k}={v}" for k, v in changes.items()] if isinstance(changes, Mapping) else list(changes)
+    return {"case": str(Path(case.path).resolve()) if case.path is not None else None, "overrides": options}
 
 
 def write_csv(path: Path, columns, rows) -> Path:

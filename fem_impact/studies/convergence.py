@@ -30,6 +30,7 @@ from .common import (
     default_outdir,
     fit_order,
     fmt,
+    given_changes,
     level_row,
     measure,
     pyplot,
@@ -72,10 +73,11 @@ def parse_vary(options: list[str]) -> list[tuple[str, list[str]]]:
     return out
 
 
-def plan(case, vary, courant=None, dt=None, method=None, against=None):
+def plan(case, vary, courant=None, dt=None, method=None, changes=(), against=None):
     """The levels and how to read them, validated (StudyInputError or CaseError; nothing run)."""
     method = registry.get(method or registry.DEFAULT_METHOD)
-    note = registry.availability(method, case)
+    given = given_changes(changes)
+    note = registry.availability(method, case, given)
     if note:
         raise StudyInputError(f"--method {method.name}: {note}")
     keys = [k for k, _ in vary]
@@ -87,7 +89,7 @@ def plan(case, vary, courant=None, dt=None, method=None, against=None):
         raise StudyInputError(f"--courant {courant:g}: must be > 0")
     if dt is not None and not dt > 0:
         raise StudyInputError(f"--dt {dt:g}: must be > 0")
-    common = {**registry.changes_for(method, case), "output.vtk": False}
+    common = {**method.changes, **given, "output.vtk": False}
     base = case.with_changes(common)
     n = len(vary[0][1])
     varied = []   # per level: (its --vary changes, the case with them)
@@ -137,12 +139,12 @@ def plan(case, vary, courant=None, dt=None, method=None, against=None):
             "finest": finest, "keys": keys}
 
 
-def convergence_study(case, vary_options, courant=None, dt=None, method=None, against=None, outdir=None, jobs=1,
-                      allow_failure=False, quiet=False, stream=None) -> dict:
-    """Run the study on ``case`` (a :class:`~fem_impact.case.Case`); returns {"rows", "orders", "reference",
-    "parameter", "outdir"}."""
+def convergence_study(case, vary_options, courant=None, dt=None, method=None, changes=(), against=None,
+                      outdir=None, jobs=1, allow_failure=False, quiet=False, stream=None) -> dict:
+    """Run the study on ``case`` (a :class:`~fem_impact.case.Case`), every level with ``changes`` after the
+    method's (a mapping, or ``--set`` options); returns {"rows", "orders", "reference", "parameter", "outdir"}."""
     vary = parse_vary(vary_options)
-    p = plan(case, vary, courant, dt, method, against)
+    p = plan(case, vary, courant, dt, method, changes, against)
     outdir = Path(outdir) if outdir else default_outdir(case, "convergence")
     check_outdir(outdir, case)
     outcomes = run_levels(case, p["levels"], outdir, jobs, allow_failure, stream=stream, quiet=quiet)
@@ -169,7 +171,7 @@ def convergence_study(case, vary_options, courant=None, dt=None, method=None, ag
     outdir.mkdir(parents=True, exist_ok=True)
     write_csv(outdir / "convergence.csv", columns, rows)
     _plot(outdir / "convergence.png", rows, orders, p, label, case.name)
-    record = case_record(case)
+    record = case_record(case, changes)
     write_json(outdir / "study.json", {
         "study": "convergence", "case": record["case"], "method": p["method"].name,
         "vary": dict(vary), "courant": courant, "dt": dt, "overrides": record["overrides"], "parameter": p["parameter"],

@@ -6,9 +6,9 @@ know (a CaseError) means the method has not landed yet, and studies skip it with
 that still refuses it when it starts, e.g. a method name the case accepts but no model runs yet,
 is recorded as a skipped level with the run's message.)
 
-:func:`apply` selects a method on a case; :func:`changes_for` gives the changes it makes there.
-Keys the case was given explicitly (``--set``, or :meth:`Case.with_changes`) win over the
-method's, so that ``--set solver.modes=40`` changes the modal methods' n1.
+:func:`apply` selects a method on a case. A study applies the command line's ``--set`` options
+after the method's changes, in the same change (so that they win, and a key of the method's own,
+such as ``solver.modes``, is accepted).
 """
 
 from __future__ import annotations
@@ -121,33 +121,17 @@ def parse_methods(text: str | None) -> list[Method]:
     return [get(n) for n in dict.fromkeys(names)]
 
 
-def given(case: Case, key: str) -> bool:
-    """Whether ``key`` (a dotted path) was given explicitly to the case: by ``--set`` or a change, itself
-    or a mapping or list above it."""
-    path = tuple(key.split("."))
-    return any(tuple(str(s) for s in p) == path[:len(p)] for p in case.overrides)
-
-
-def unless_given(case: Case, changes: Mapping) -> dict:
-    """``changes`` less the keys the case was given explicitly (those win: a command line's ``--set``)."""
-    return {key: value for key, value in changes.items() if not given(case, key)}
-
-
-def changes_for(method: Method | str, case: Case) -> dict:
-    """The changes that select ``method`` on ``case``: the method's, less the keys the case was given."""
+def apply(method: Method | str, case: Case, changes: Mapping | None = None) -> Case:
+    """A copy of ``case`` that runs ``method``, with ``changes`` on top of the method's (they win: the
+    command line's ``--set``, e.g. ``solver.modes``); CaseError when the case does not take them."""
     method = get(method) if isinstance(method, str) else method
-    return unless_given(case, method.changes)
+    return case.with_changes({**method.changes, **(changes or {})})
 
 
-def apply(method: Method | str, case: Case) -> Case:
-    """A copy of ``case`` that runs ``method``; CaseError when the case does not take it."""
-    return case.with_changes(changes_for(method, case))
-
-
-def availability(method: Method | str, case: Case) -> str | None:
-    """None when ``method`` runs on the case in this version, else why not (one line)."""
+def availability(method: Method | str, case: Case, changes: Mapping | None = None) -> str | None:
+    """None when ``method`` (with ``changes`` on top) runs on the case in this version, else why not (one line)."""
     try:
-        apply(method, case)
+        apply(method, case, changes)
     except CaseError as err:
         return f"not available in this version ({err.key}: {err.message})" if err.key else str(err)
     return None

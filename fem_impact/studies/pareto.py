@@ -31,6 +31,7 @@ from .common import (
     check_outdir,
     default_outdir,
     fmt,
+    given_changes,
     level_row,
     measure,
     pyplot,
@@ -52,9 +53,10 @@ def _rung_factor(k: int) -> float:
     return 2.0 ** (k - 3)
 
 
-def ladder(method, base, courant, rungs) -> tuple[list[Level], list[str]]:
-    """The levels of one method on the case ``base``, and notes on the rungs left out."""
-    common = {**registry.changes_for(method, base), "output.vtk": False}
+def ladder(method, base, given, courant, rungs) -> tuple[list[Level], list[str]]:
+    """The levels of one method (``given`` changes after its own) on the case ``base``, and notes on the rungs
+    left out."""
+    common = {**method.changes, **given, "output.vtk": False}
     levels, notes = [], []
     if method.knob == "modes":
         for k in range(rungs):
@@ -84,7 +86,7 @@ def ladder(method, base, courant, rungs) -> tuple[list[Level], list[str]]:
     return levels, notes
 
 
-def _reference_level(base, courant, rungs) -> Level:
+def _reference_level(base, given, courant, rungs) -> Level:
     """The default method one step finer than the top rung of the full-model ladder."""
     method = registry.get(registry.DEFAULT_METHOD)
     top = _rung_factor(rungs)   # one rung beyond the last
@@ -97,14 +99,14 @@ def _reference_level(base, courant, rungs) -> Level:
     else:
         dt = (base.solver.dt if courant is None else target * resolution.mesh_size(base) / c) / top
         extra, label = {"solver.dt": dt}, f"dt={dt:.4g}"
-    return Level("reference", {**registry.changes_for(method, base), "output.vtk": False, **extra},
+    return Level("reference", {**method.changes, **given, "output.vtk": False, **extra},
                  {"method": method.name, "knob": "reference"}, f"reference run ({method.name} {label})")
 
 
-def pareto_study(case, methods=None, courant=None, rungs=None, time_axis="wall", outdir=None, jobs=1,
+def pareto_study(case, methods=None, courant=None, rungs=None, time_axis="wall", changes=(), outdir=None, jobs=1,
                  allow_failure=False, quiet=False, stream=None) -> dict:
-    """Run the ladders on ``case`` (a :class:`~fem_impact.case.Case`); returns {"rows", "fronts", "reference",
-    "skipped", "outdir"}."""
+    """Run the ladders on ``case`` (a :class:`~fem_impact.case.Case`), every run with ``changes`` after its
+    method's (a mapping, or ``--set`` options); returns {"rows", "fronts", "reference", "skipped", "outdir"}."""
     stream = stream or sys.stderr
     rungs = DEFAULT_RUNGS if rungs is None else rungs
     if rungs < 2:
@@ -114,16 +116,17 @@ def pareto_study(case, methods=None, courant=None, rungs=None, time_axis="wall",
     if time_axis not in ("wall", "loop"):
         raise StudyInputError(f"--time {time_axis}: wall or loop")
     chosen = registry.parse_methods(methods)
-    base = case
-    outdir = Path(outdir) if outdir else default_outdir(base, "pareto")
-    check_outdir(outdir, base)
+    given = given_changes(changes)
+    base = case.with_changes(given) if given else case   # the resolution the ladders start from
+    outdir = Path(outdir) if outdir else default_outdir(case, "pareto")
+    check_outdir(outdir, case)
     levels, notes, skipped = [], [], {}
     for method in chosen:
-        why = registry.availability(method, base)
+        why = registry.availability(method, case, given)
         if why:
             skipped[method.name] = why
             continue
-        lv, nt = ladder(method, base, courant, rungs)
+        lv, nt = ladder(method, base, given, courant, rungs)
         levels += lv
         notes += nt
     if not levels:
@@ -131,15 +134,15 @@ def pareto_study(case, methods=None, courant=None, rungs=None, time_axis="wall",
     exact = base.reference is not None
     if exact:
         for lv in levels:
-            from_case(base.with_changes(lv.changes))   # CaseError if the case does not fit its reference
+            from_case(case.with_changes(lv.changes))   # CaseError if the case does not fit its reference
     else:
-        levels.append(_reference_level(base, courant, rungs))
+        levels.append(_reference_level(base, given, courant, rungs))
     if not quiet:
         for name, why in skipped.items():
             stream.write(f"note: {name} skipped: {why}\n")
         for note in notes:
             stream.write(f"note: {note}\n")
-    outcomes = run_levels(base, levels, outdir, jobs, allow_failure, stream=stream, quiet=quiet)
+    outcomes = run_levels(case, levels, outdir, jobs, allow_failure, stream=stream, quiet=quiet)
     if exact:
         references = [from_case(o.case) for o in outcomes]
         label = references[0].label
@@ -157,7 +160,7 @@ def pareto_study(case, methods=None, courant=None, rungs=None, time_axis="wall",
     outdir.mkdir(parents=True, exist_ok=True)
     write_csv(outdir / "pareto.csv", COLUMNS, rows)
     _plot(outdir / "pareto.png", rows, fronts, time_key, label, base.name, jobs)
-    record = case_record(base)
+    record = case_record(case, changes)
     write_json(outdir / "study.json", {
         "study": "pareto", "case": record["case"], "methods": [m.name for m in chosen],
         "skipped": skipped, "notes": notes, "courant": courant, "rungs": rungs, "time": time_key,

@@ -40,6 +40,7 @@ from .common import (
     check_outdir,
     default_outdir,
     fmt,
+    given_changes,
     level_row,
     measure,
     pyplot,
@@ -133,9 +134,9 @@ def _finite(v) -> bool:
 
 
 def stability_study(case, methods=None, courants=None, restitutions=None, lengths=None, tolerance=None,
-                    outdir=None, jobs=1, quiet=False, stream=None) -> dict:
-    """Run the sweeps on ``case`` (a :class:`~fem_impact.case.Case`); returns {"rows", "reference", "skipped",
-    "outdir"}."""
+                    changes=(), outdir=None, jobs=1, quiet=False, stream=None) -> dict:
+    """Run the sweeps on ``case`` (a :class:`~fem_impact.case.Case`), every run with ``changes`` after its
+    method's (a mapping, or ``--set`` options); returns {"rows", "reference", "skipped", "outdir"}."""
     stream = stream or sys.stderr
     courants = list(DEFAULT_COURANTS if courants is None else courants)
     lengths = list(DEFAULT_LENGTHS if lengths is None else lengths)
@@ -146,15 +147,16 @@ def stability_study(case, methods=None, courants=None, restitutions=None, length
     if not tolerance > 0:
         raise StudyInputError(f"--tolerance {tolerance:g}: must be > 0")
     chosen = registry.parse_methods(methods)
-    base = case
+    given = given_changes(changes)
+    base = case.with_changes(given) if given else case   # the step, restitution and length swept about
     if restitutions is None:
         restitutions = list(DEFAULT_RESTITUTIONS) if base.contacts else []
     elif not base.contacts:
         raise StudyInputError(f"--restitution: {base.file or 'the case'} has no contact")
     if any(not 0 <= e <= 1 for e in restitutions):
         raise StudyInputError("--restitution: every value must be in [0, 1]")
-    outdir = Path(outdir) if outdir else default_outdir(base, "stability")
-    check_outdir(outdir, base)
+    outdir = Path(outdir) if outdir else default_outdir(case, "stability")
+    check_outdir(outdir, case)
     e_case = base.contacts[0].restitution if base.contacts else None
     same_e = all(c.restitution == e_case for c in base.contacts)
 
@@ -173,20 +175,21 @@ def stability_study(case, methods=None, courants=None, restitutions=None, length
     by_changes: dict[tuple, Level] = {}
     plan, skipped = [], {}   # plan: (method, sweep, value, level name, e, length)
     for method in chosen:
-        why = registry.availability(method, base)
+        why = registry.availability(method, case, given)
         if why:
             skipped[method.name] = why
             continue
-        common = {**registry.changes_for(method, base), "output.vtk": False}
+        common = {**method.changes, **given, "output.vtk": False}
         points = [("courant", c, dt_changes(c), e_case, 1.0) for c in courants]
         points += [("restitution", e, e_changes(e), e, 1.0) for e in restitutions]
         points += [("length", k, length_changes(k), e_case, k) for k in lengths]
         for sweep, value, extra, e, k in points:
-            changes = {**common, **extra}
-            key = tuple(changes.items())
+            level_changes = {**common, **extra}
+            key = tuple(level_changes.items())
             if key not in by_changes:
                 name = slug(f"{method.name}-{sweep}-{value:g}")
-                by_changes[key] = Level(name, changes, {"method": method.name}, f"{method.name} {sweep} {value:g}")
+                by_changes[key] = Level(name, level_changes, {"method": method.name},
+                                        f"{method.name} {sweep} {value:g}")
             plan.append((method.name, sweep, value, by_changes[key].name, e, k))
     if not plan:
         raise StudyInputError("no method to run: " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
@@ -195,22 +198,22 @@ def stability_study(case, methods=None, courants=None, restitutions=None, length
     ref_levels = {}
     if exact:
         for lv in levels:
-            from_case(base.with_changes(lv.changes))   # CaseError if the case does not fit its reference
+            from_case(case.with_changes(lv.changes))   # CaseError if the case does not fit its reference
     else:   # the default method at half the case's step, per restitution, over the longest length
         default = registry.get(registry.DEFAULT_METHOD)
         for e in dict.fromkeys([e_case, *restitutions]):
             if e is None and base.contacts:
                 continue
             k = max(lengths) if e == e_case else 1.0
-            changes = {**registry.changes_for(default, base), "output.vtk": False, "solver.dt": base.solver.dt / 2,
-                       **e_changes(e), **length_changes(k)}
-            ref_levels[e] = Level(slug(f"reference-e{e:g}" if e is not None else "reference"), changes,
+            ref_changes = {**default.changes, **given, "output.vtk": False, "solver.dt": base.solver.dt / 2,
+                           **e_changes(e), **length_changes(k)}
+            ref_levels[e] = Level(slug(f"reference-e{e:g}" if e is not None else "reference"), ref_changes,
                                   {"method": default.name}, f"reference run ({default.name}, dt/2"
                                   + (f", e = {e:g}" if e is not None else "") + ")")
     if not quiet:
         for name, why in skipped.items():
             stream.write(f"note: {name} skipped: {why}\n")
-    outcomes = run_levels(base, [*levels, *ref_levels.values()], outdir, jobs, allow_failure=True,
+    outcomes = run_levels(case, [*levels, *ref_levels.values()], outdir, jobs, allow_failure=True,
                           stream=stream, quiet=quiet)
     by_name = {o.level.name: o for o in outcomes}
     references = {}
@@ -244,7 +247,7 @@ def stability_study(case, methods=None, courants=None, restitutions=None, length
              else "reference runs of the default method at dt/2")
     _plot(outdir / "stability.png", rows, [m.name for m in chosen], skipped, courants, restitutions, lengths,
           base.name, label, tolerance)
-    record = case_record(base)
+    record = case_record(case, changes)
     write_json(outdir / "study.json", {
         "study": "stability", "case": record["case"], "methods": [m.name for m in chosen],
         "skipped": skipped, "courant": courants, "restitution": restitutions, "length": lengths,
