@@ -77,7 +77,7 @@ def plan(case, vary, courant=None, dt=None, method=None, changes=(), against=Non
     """The levels and how to read them, validated (StudyInputError or CaseError; nothing run)."""
     method = registry.get(method or registry.DEFAULT_METHOD)
     given = given_changes(changes)
-    note = registry.availability(method, case, given)
+    note = registry.availability(method, case, changes)
     if note:
         raise StudyInputError(f"--method {method.name}: {note}")
     keys = [k for k, _ in vary]

@@ -6,9 +6,9 @@ know (a CaseError) means the method has not landed yet, and studies skip it with
 that still refuses it when it starts, e.g. a method name the case accepts but no model runs yet,
 is recorded as a skipped level with the run's message.)
 
-:func:`apply` selects a method on a case. A study applies the command line's ``--set`` options
-after the method's changes, in the same change (so that they win, and a key of the method's own,
-such as ``solver.modes``, is accepted).
+:func:`apply` selects a method on a case. The changes given to a study (the command line's
+``--set`` options) come after the method's, so that they win and may set the method's own keys
+(``solver.modes``), which the case as written may not take.
 """
 
 from __future__ import annotations
@@ -121,15 +121,16 @@ def parse_methods(text: str | None) -> list[Method]:
     return [get(n) for n in dict.fromkeys(names)]
 
 
-def apply(method: Method | str, case: Case, changes: Mapping | None = None) -> Case:
-    """A copy of ``case`` that runs ``method``, with ``changes`` on top of the method's (they win: the
-    command line's ``--set``, e.g. ``solver.modes``); CaseError when the case does not take them."""
+def apply(method: Method | str, case: Case, changes=()) -> Case:
+    """A copy of ``case`` that runs ``method``, then with ``changes`` (a mapping, or ``--set`` options: they
+    win, and may set the method's own keys, e.g. ``solver.modes``); CaseError when the case does not take them."""
     method = get(method) if isinstance(method, str) else method
-    return case.with_changes({**method.changes, **(changes or {})})
+    selected = case.with_changes(method.changes)
+    return selected.with_changes(changes) if changes else selected
 
 
-def availability(method: Method | str, case: Case, changes: Mapping | None = None) -> str | None:
-    """None when ``method`` (with ``changes`` on top) runs on the case in this version, else why not (one line)."""
+def availability(method: Method | str, case: Case, changes=()) -> str | None:
+    """None when ``method`` (with ``changes`` after it) runs on the case in this version, else why not (one line)."""
     try:
         apply(method, case, changes)
     except CaseError as err:

@@ -117,12 +117,12 @@ def pareto_study(case, methods=None, courant=None, rungs=None, time_axis="wall",
         raise StudyInputError(f"--time {time_axis}: wall or loop")
     chosen = registry.parse_methods(methods)
     given = given_changes(changes)
-    base = case.with_changes(given) if given else case   # the resolution the ladders start from
+    base = case.with_changes(changes) if given else case   # the resolution the ladders start from
     outdir = Path(outdir) if outdir else default_outdir(case, "pareto")
     check_outdir(outdir, case)
     levels, notes, skipped = [], [], {}
     for method in chosen:
-        why = registry.availability(method, case, given)
+        why = registry.availability(method, case, changes)
         if why:
             skipped[method.name] = why
             continue

@@ -148,7 +148,7 @@ def stability_study(case, methods=None, courants=None, restitutions=None, length
         raise StudyInputError(f"--tolerance {tolerance:g}: must be > 0")
     chosen = registry.parse_methods(methods)
     given = given_changes(changes)
-    base = case.with_changes(given) if given else case   # the step, restitution and length swept about
+    base = case.with_changes(changes) if given else case   # the step, restitution and length swept about
     if restitutions is None:
         restitutions = list(DEFAULT_RESTITUTIONS) if base.contacts else []
     elif not base.contacts:
@@ -175,7 +175,7 @@ def stability_study(case, methods=None, courants=None, restitutions=None, length
     by_changes: dict[tuple, Level] = {}
     plan, skipped = [], {}   # plan: (method, sweep, value, level name, e, length)
     for method in chosen:
-        why = registry.availability(method, case, given)
+        why = registry.availability(method, case, changes)
         if why:
             skipped[method.name] = why
             continue
