@@ -169,6 +169,9 @@ def test_a_method_is_applied_as_changes_and_the_given_changes_win():
     assert (case.solver.method, case.solver.scheme, case.solver.modes) == ("modal", "newmark", 20)
     with pytest.raises(CaseError, match="does not use 'modes'"):
         load_case(BAR, ["solver.modes=40"])
+    assert registry.apply("modal-static", load_case(BAR), ["solver.modes=40"]).solver.modes == 40
+    why = registry.availability("central-difference", load_case(BAR), ["solver.beta=0.1"])
+    assert why.startswith("not available in this version (solver.beta: ") and "(from --set solver.beta=0.1)" in why
     p = convergence.plan(load_case(BAR), [("solver.dt", ["0.004", "0.002"])], method="modal-static",
                          changes=["solver.modes=40", "solver.static_correction=false"])
     for lv in p["levels"]:
