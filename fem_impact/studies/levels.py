@@ -1,7 +1,7 @@
 """Running the levels of a study: one run per level, each in its own folder ``OUTDIR/levels/NAME``.
 
 A level is a copy of the study's case with changes (dotted key paths to values, ``Case.with_changes``);
-each is run by :func:`.worker.run_level` (:func:`fem_impact.run`), which reports a status: ok,
+each is run from its data by :func:`.worker.run_data` (:func:`fem_impact.run`), which reports a status: ok,
 failed or skipped, the reason, the error's type and the run's summary.
 
 - ``-j 1`` runs the levels one after the other in this process (after a one-step warm-up run,
@@ -225,7 +225,7 @@ def run_levels(case: Case, levels: list[Level], outdir, jobs: int = 1, allow_fai
 
 
 def _outcome(lv: Level, folder: Path, case: Case, status: dict) -> Outcome:
-    """A level's outcome from its run's status (:func:`.worker.run_level`); a crash's traceback is logged."""
+    """A level's outcome from its run's status (:func:`.worker.run_data`); a crash's traceback is logged."""
     if status.get("traceback"):
         log.warning("level %s crashed:\n%s", lv.label, status["traceback"].rstrip())
     return Outcome(lv, status["status"], status["reason"], status["summary"] if status["status"] == "ok" else None,
@@ -252,7 +252,8 @@ def _run_in_process(todo, root, prints, cases, jobs, allow_failure, progress, ou
         progress.restart()
         for lv in todo:
             folder = root / lv.name
-            outcome = _outcome(lv, folder, cases[lv.name], worker.run_level(cases[lv.name], folder))
+            case = cases[lv.name]   # (run from its data, as a child runs it)
+            outcome = _outcome(lv, folder, case, worker.run_data(case.resolved(), case.base_dir, folder))
             _finish(outcome, prints, progress, outcomes, allow_failure)
     finally:
         if saved is None:

@@ -1,9 +1,10 @@
 """One level's run, and the status it reports: the single-run step of every study.
 
-:func:`run_level` runs a level's case into its folder with :func:`fem_impact.run` and returns its
-status as plain data (``status`` ok | failed | skipped, ``reason``, ``error`` (the exception's
-type), ``summary``, and ``traceback`` for a crash). A study with ``-j 1`` calls it in its own
-process; with ``-j N`` each level is a child process::
+:func:`run_data` runs a level's case, given as data (``Case.resolved()`` and ``base_dir``), into its
+folder with :func:`fem_impact.run` and returns its status as plain data (``status`` ok | failed |
+skipped, ``reason``, ``error`` (the exception's type), ``summary``, and ``traceback`` for a
+crash). A study with ``-j 1`` calls it in its own process; with ``-j N`` each level is a child
+process (the same call, so that a level's run and its reason do not depend on ``-j``)::
 
     python -m fem_impact.studies.worker SPEC.json
 
@@ -24,6 +25,20 @@ from pathlib import Path
 from ..errors import CaseError, SimulationError
 
 STATUSES = ("ok", "failed", "skipped")
+
+
+def run_data(data: dict, base_dir, folder: Path) -> dict:
+    """Run the case ``data`` (``Case.resolved()``; relative paths from ``base_dir``) into ``folder``: its status.
+
+    A case the data does not make (CaseError: it should) is ``skipped``; else :func:`run_level`.
+    """
+    from ..case import Case
+
+    try:
+        case = Case.from_dict(data, base_dir=base_dir)
+    except CaseError as err:
+        return status("skipped", str(err), err)
+    return run_level(case, folder)
 
 
 def run_level(case, folder: Path) -> dict:
@@ -86,7 +101,6 @@ def _write_json(path: Path, data) -> None:
 def main(argv=None) -> int:
     import logging
 
-    from ..case import Case
     from ..outdir import exit_status, install_signal_handlers
 
     argv = sys.argv[1:] if argv is None else argv
@@ -98,12 +112,7 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     spec = json.loads(Path(argv[0]).read_text())
     try:
-        try:
-            case = Case.from_dict(spec["case"], base_dir=spec["base_dir"])
-        except CaseError as err:
-            result = status("skipped", str(err), err)
-        else:
-            result = run_level(case, Path(spec["folder"]))
+        result = run_data(spec["case"], spec["base_dir"], Path(spec["folder"]))
     except KeyboardInterrupt as err:
         return exit_status(err)
     _write_json(Path(spec["status"]), result)
