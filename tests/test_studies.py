@@ -529,3 +529,17 @@ def test_reduction_command_still_works(tmp_path):
     assert re.search(r"modal\s+5\s+yes", proc.stdout)
     rows = read_csv(tmp_path / "red" / "reduction.csv")
     assert [r["model"] for r in rows] == ["full", "modal", "modal"]
+
+
+def test_a_given_solver_key_goes_to_the_methods_that_take_it():
+    """``--set solver.modes=40`` in a study with many methods sets the modal methods' n1 and leaves the others as
+    they are (their schema would refuse the key); any other key goes to every method."""
+    case = load_case(CASES / "impacting_bar.yaml")
+    given = {"solver.modes": 40, "mesh.cells": 100}
+    modal = registry.changes_for("modal-static", case, given)
+    assert (modal["solver.modes"], modal["mesh.cells"]) == (40, 100)
+    full = registry.changes_for("trapezoidal", case, given)
+    assert "solver.modes" not in full and full["mesh.cells"] == 100
+    assert registry.apply("trapezoidal", case, ["solver.modes=40"]).solver.method == "newmark"
+    assert registry.apply("modal-static", case, ["solver.modes=40"]).solver.modes == 40
+    assert registry.availability("central-difference", case, given) is None

@@ -62,6 +62,15 @@ def given_changes(changes) -> dict:
     return out
 
 
+def base_case(case, given: dict):
+    """The case a study's ladders and sweeps start from (its step, restitution, length): the given
+    changes but a method's own solver keys, which only the methods that take them receive (after
+    their own changes), e.g. ``--set solver.modes=40`` on a newmark file for the modal methods."""
+    shared = {key: value for key, value in given.items()
+              if not key.startswith("solver.") or key in ("solver.dt", "solver.t_end")}
+    return case.with_changes(shared) if shared else case
+
+
 def case_record(case, changes) -> dict:
     """study.json's ``case`` (the case file) and ``overrides`` (the given changes, as ``--set`` options)."""
     options = [f"{k}={v}" for k, v in changes.items()] if isinstance(changes, Mapping) else list(changes)

@@ -123,10 +123,35 @@ def parse_methods(text: str | None) -> list[Method]:
 
 def apply(method: Method | str, case: Case, changes=()) -> Case:
     """A copy of ``case`` that runs ``method``, then with ``changes`` (a mapping, or ``--set`` options: they
-    win, and may set the method's own keys, e.g. ``solver.modes``); CaseError when the case does not take them."""
+    win, and may set the method's own keys, e.g. ``solver.modes``); CaseError when the case does not take them.
+
+    A solver key of ``changes`` goes to the methods that take it only (:func:`taken`).
+    """
     method = get(method) if isinstance(method, str) else method
     selected = case.with_changes(method.changes)
+    changes = taken(selected, changes)
     return selected.with_changes(changes) if changes else selected
+
+
+def taken(selected: Case, changes):
+    """The ``changes`` (a mapping, or ``--set`` options) that the method of ``selected`` takes: a solver key of
+    another method's is left out, so that ``--set solver.modes=40`` sets the modal methods' n1 in a study and
+    leaves the others as they are (their schema would refuse it)."""
+    takes = type(selected.solver).model_fields
+
+    def wanted(key: str) -> bool:
+        parts = key.strip().split(".")
+        return not (parts[0] == "solver" and len(parts) > 1 and parts[1] not in takes)
+
+    if isinstance(changes, Mapping):
+        return {key: value for key, value in changes.items() if wanted(key)}
+    return [option for option in changes if wanted(option.partition("=")[0])]
+
+
+def changes_for(method: Method | str, case: Case, given: dict) -> dict:
+    """A level's changes for ``method``: its own, then the ``given`` ones it takes (a mapping)."""
+    method = get(method) if isinstance(method, str) else method
+    return {**method.changes, **taken(case.with_changes(method.changes), given)}
 
 
 def availability(method: Method | str, case: Case, changes=()) -> str | None:

@@ -27,6 +27,7 @@ from . import resolution
 from .common import (
     MEASURE_LABELS,
     StudyInputError,
+    base_case,
     case_record,
     check_outdir,
     default_outdir,
@@ -56,7 +57,7 @@ def _rung_factor(k: int) -> float:
 def ladder(method, base, given, courant, rungs) -> tuple[list[Level], list[str]]:
     """The levels of one method (``given`` changes after its own) on the case ``base``, and notes on the rungs
     left out."""
-    common = {**method.changes, **given, "output.vtk": False}
+    common = {**registry.changes_for(method, base, given), "output.vtk": False}
     levels, notes = [], []
     if method.knob == "modes":
         for k in range(rungs):
@@ -99,7 +100,7 @@ def _reference_level(base, given, courant, rungs) -> Level:
     else:
         dt = (base.solver.dt if courant is None else target * resolution.mesh_size(base) / c) / top
         extra, label = {"solver.dt": dt}, f"dt={dt:.4g}"
-    return Level("reference", {**method.changes, **given, "output.vtk": False, **extra},
+    return Level("reference", {**registry.changes_for(method, base, given), "output.vtk": False, **extra},
                  {"method": method.name, "knob": "reference"}, f"reference run ({method.name} {label})")
 
 
@@ -117,7 +118,7 @@ def pareto_study(case, methods=None, courant=None, rungs=None, time_axis="wall",
         raise StudyInputError(f"--time {time_axis}: wall or loop")
     chosen = registry.parse_methods(methods)
     given = given_changes(changes)
-    base = case.with_changes(changes) if given else case   # the resolution the ladders start from
+    base = base_case(case, given)   # the resolution the ladders start from
     outdir = Path(outdir) if outdir else default_outdir(case, "pareto")
     check_outdir(outdir, case)
     levels, notes, skipped = [], [], {}

@@ -36,6 +36,7 @@ from . import resolution
 from .common import (
     MEASURE_LABELS,
     StudyInputError,
+    base_case,
     case_record,
     check_outdir,
     default_outdir,
@@ -148,7 +149,7 @@ def stability_study(case, methods=None, courants=None, restitutions=None, length
         raise StudyInputError(f"--tolerance {tolerance:g}: must be > 0")
     chosen = registry.parse_methods(methods)
     given = given_changes(changes)
-    base = case.with_changes(changes) if given else case   # the step, restitution and length swept about
+    base = base_case(case, given)   # the step, restitution and length swept about
     if restitutions is None:
         restitutions = list(DEFAULT_RESTITUTIONS) if base.contacts else []
     elif not base.contacts:
@@ -179,7 +180,7 @@ def stability_study(case, methods=None, courants=None, restitutions=None, length
         if why:
             skipped[method.name] = why
             continue
-        common = {**method.changes, **given, "output.vtk": False}
+        common = {**registry.changes_for(method, base, given), "output.vtk": False}
         points = [("courant", c, dt_changes(c), e_case, 1.0) for c in courants]
         points += [("restitution", e, e_changes(e), e, 1.0) for e in restitutions]
         points += [("length", k, length_changes(k), e_case, k) for k in lengths]
@@ -205,7 +206,8 @@ def stability_study(case, methods=None, courants=None, restitutions=None, length
             if e is None and base.contacts:
                 continue
             k = max(lengths) if e == e_case else 1.0
-            ref_changes = {**default.changes, **given, "output.vtk": False, "solver.dt": base.solver.dt / 2,
+            ref_changes = {**registry.changes_for(default, base, given), "output.vtk": False,
+                           "solver.dt": base.solver.dt / 2,
                            **e_changes(e), **length_changes(k)}
             ref_levels[e] = Level(slug(f"reference-e{e:g}" if e is not None else "reference"), ref_changes,
                                   {"method": default.name}, f"reference run ({default.name}, dt/2"
