@@ -43,12 +43,13 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     from ._version import __version__
+    from .integrators.parameters import help_text as solver_help
 
     parser.add_argument("--version", action="version", version=f"fem-impact {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     run = sub.add_parser(
         "run", help="run a case file", description="Integrate a case file in time and write its results.",
-        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EXAMPLES + "\n" + solver_help(), formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     run.add_argument("case", metavar="CASE.yaml", help="the case file")
     run.add_argument("-o", "--output", metavar="OUTDIR",

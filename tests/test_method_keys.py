@@ -174,3 +174,12 @@ def test_tolerance_needs_modes_auto(tmp_path):
 def test_case_files_shipped_all_load():
     for path in sorted(Path(CASES).glob("*.yaml")):
         fem_impact.load_case(path)
+
+
+def test_run_help_lists_each_methods_keys():
+    result = run_cli("run", "--help")
+    assert result.returncode == 0
+    for title in ("method: moreau_jean", "method: newmark", "method: central_difference",
+                  "method: modal, scheme: moreau_jean", "method: modal, scheme: newmark"):
+        assert title in result.stdout
+    assert "tolerance (-, default 0.01)" in result.stdout and "dt (s, required): time step" in result.stdout

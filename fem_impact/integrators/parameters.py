@@ -204,3 +204,21 @@ def describe(schema: type[BaseModel]) -> str:
         default = "required" if info.is_required() else f"default {info.default!r}"
         lines.append(f"{name} ({', '.join(filter(None, [unit, default]))}): {info.description or ''}".rstrip(": "))
     return "\n".join(lines)
+
+
+def help_text(width: int = 100) -> str:
+    """Every method's keys (``fem-impact run --help``): each method's first docstring line, then its keys."""
+    import textwrap
+
+    parts = []
+    for name, schema in SCHEMAS.items():
+        method, _, scheme = name.partition("/")
+        title = f"method: {method}" + (f", scheme: {scheme}" if scheme else "")
+        summary = (schema.__doc__ or "").strip().splitlines()[0].replace("``", "")
+        lines = [f"  {title}", *textwrap.wrap(summary, width, initial_indent="    ", subsequent_indent="    ")]
+        for line in describe(schema).splitlines():
+            if not line.startswith(("method ", "scheme ")):   # (the title says them)
+                lines += textwrap.wrap(line.replace("`", ""), width, initial_indent="      ",
+                                       subsequent_indent="        ")
+        parts.append("\n".join(lines))
+    return "solver keys of each method (any other is refused):\n" + "\n".join(parts) + "\n"
