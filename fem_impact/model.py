@@ -337,7 +337,8 @@ def _fixed_dofs(case: Case, meshdata: MeshData, V, bs: int) -> np.ndarray:
             if comp >= meshdata.dim:
                 if support.all_components:   # fix: all -> the components this dimension has
                     continue
-                raise ModelInputError(("supports", i, "fix"), f"component {AXES[comp]} does not exist in {meshdata.dim}D")
+                raise ModelInputError(("supports", i, "fix"),
+                                      f"component {AXES[comp]} does not exist in {meshdata.dim}D")
             fixed.append(owned * bs + comp)
     return np.unique(np.concatenate(fixed)).astype(np.int64) if fixed else np.zeros(0, dtype=np.int64)
 

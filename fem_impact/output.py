@@ -125,8 +125,8 @@ def _check_inside(case, model: Model, key, point) -> None:
     distance = model.comm.allreduce(dx.distance_to_mesh(model.meshdata.mesh, full, tol), op=MPI.MIN)
     if distance > tol:
         box = ", ".join(f"[{a:g}, {b:g}]" for a, b in zip(lo, hi, strict=True))
-        raise ModelInputError(key, f"the point {[float(v) for v in point]} is outside the mesh (which spans {box}); a probe "
-                              "must lie on the structure")
+        raise ModelInputError(key, f"the point {[float(v) for v in point]} is outside the mesh (which spans "
+                                   f"{box}); a probe must lie on the structure")
 
 
 class HistoryWriter:
