@@ -90,7 +90,7 @@ def build_constraints(case: Case, model: Model) -> Constraints:
     for c in contacts:
         if np.any(norms[c.rows] == 0.0):
             raise ModelInputError(("contacts", c.index, "nodes"),
-                             "acts on nodes whose normal direction is fixed by a support")
+                                  "acts on nodes whose normal direction is fixed by a support")
     return cons
 
 

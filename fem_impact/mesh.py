@@ -100,8 +100,8 @@ def _read_gmsh(case: Case, comm: MPI.Comm) -> MeshData:
     if dim < 1:
         if comm.rank == 0:
             gmsh.finalize()
-        raise ModelInputError(("mesh", "file"), f"{path.name} has only point (0-dimensional) physical groups: name the "
-                                           "bodies (physical groups of the mesh's dimension) and node groups")
+        raise ModelInputError(("mesh", "file"), f"{path.name} has only point (0-dimensional) physical groups: name "
+                                                "the bodies (physical groups of the mesh's dimension) and node groups")
     if case.mesh.dim is not None and case.mesh.dim != dim:
         if comm.rank == 0:
             gmsh.finalize()

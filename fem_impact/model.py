@@ -312,8 +312,9 @@ def _redistributed(M: PETSc.Mat, massless: np.ndarray, first_dof: int, case: Cas
     M.mult(keep, coupling)                       # s_c: row mass toward the dofs that keep theirs
     s = coupling.array_r[massless]
     if np.any(s <= 0.0):
-        raise ModelInputError(("solver", "mass"), "mass redistribution needs every contact node to share an element "
-                         "with a node that is not in contact (refine the mesh near the contacts)")
+        raise ModelInputError(("solver", "mass"), "mass redistribution needs every contact node to share an "
+                                                  "element with a node that is not in contact (refine the mesh "
+                                                  "near the contacts)")
     weights = contact.duplicate()
     weights.set(0.0)
     weights.array[massless] = 1.0 + row_mass.array_r[massless] / s

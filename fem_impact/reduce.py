@@ -319,7 +319,8 @@ def prepare_reduced(case: Case, model: Model, cons: Constraints) -> tuple[Reduce
                 break
             if n_try >= cap:
                 raise ModelInputError(("solver", "tolerance"), f"no count of modes up to {n_try} meets it: {reason}; "
-                                 "loosen solver.tolerance, or use the full model (method: newmark)")
+                                                               "loosen solver.tolerance, or use the full model "
+                                                               "(method: moreau_jean)")
             n_try = min(cap, 2 * n_try)
     else:
         n1, reason = solver.modes, "as given (solver.modes)"
@@ -332,8 +333,8 @@ def prepare_reduced(case: Case, model: Model, cons: Constraints) -> tuple[Reduce
             modes = _modes(model, n1, scene, reused)   # all modes of a small model
         if modes.n > n1 and modes.rigid[n1]:
             raise ModelInputError(("solver", "modes"), f"keeps {n1} modes but the model moves freely in at least "
-                             f"{int(modes.rigid.sum())} rigid-body modes: keep them all (modes >= "
-                             f"{int(modes.rigid.sum())}), or add supports")
+                                                       f"{int(modes.rigid.sum())} rigid-body modes: keep them all "
+                                                       f"(modes >= {int(modes.rigid.sum())}), or add supports")
         columns = _flexibility(model, cons, modes, scene, reused)
     red = build_reduced(model, cons, modes, n1, solver.static_correction, case.damping.alpha, case.damping.beta,
                         solver.dt, columns)

@@ -233,10 +233,10 @@ def test_integral_float_accepted_for_int(tmp_path):
     ("dt: 0.01", "dt: 0.01\n  method: modal\n  modes: 0", "solver.modes", "'auto' or an integer >= 1"),
     ("dt: 0.01", "dt: 0.01\n  method: explicit", "solver.method",
      "one of moreau_jean, newmark, central_difference, modal"),
-        ("dt: 0.01", "dt: 0.01\n  method: newmark\n  gamma: 0.4", "solver.gamma", "must be >= 0.5"),
-        ("dt: 0.01", "dt: 0.01\n  method: modal\n  mass: redistributed", "solver.mass",
-         "must be one of consistent, lumped with method modal (scheme moreau_jean); got 'redistributed' "
-         "(a value for method moreau_jean, newmark)"),
+    ("dt: 0.01", "dt: 0.01\n  method: newmark\n  gamma: 0.4", "solver.gamma", "must be >= 0.5"),
+    ("dt: 0.01", "dt: 0.01\n  method: modal\n  mass: redistributed", "solver.mass",
+     "must be one of consistent, lumped with method modal (scheme moreau_jean); got 'redistributed' "
+     "(a value for method moreau_jean, newmark)"),
 ])
 def test_out_of_range(tmp_path, old, new, key, message):
     err = error_of(tmp_path, BASE.replace(old, new))
