@@ -170,8 +170,14 @@ def test_a_method_is_applied_as_changes_and_the_given_changes_win():
     with pytest.raises(CaseError, match="does not use 'modes'"):
         load_case(BAR, ["solver.modes=40"])
     assert registry.apply("modal-static", load_case(BAR), ["solver.modes=40"]).solver.modes == 40
-    why = registry.availability("central-difference", load_case(BAR), ["solver.beta=0.1"])
-    assert why.startswith("not available in this version (solver.beta: ") and "(from --set solver.beta=0.1)" in why
+    # a solver key goes to the methods that take it; any other bad change is refused, named as given
+    assert registry.availability("central-difference", load_case(BAR), ["solver.beta=0.1"]) is None
+    why = registry.availability("central-difference", load_case(BAR), ["contacts.0.restitution=2"])
+    assert why.startswith("not available in this version (contacts[0].restitution: ") \
+        and "(from --set contacts.0.restitution=2)" in why
+    with pytest.raises(CaseError, match="does not use 'modes'"):   # a convergence study's one method: refused
+        convergence.plan(load_case(BAR), [("solver.dt", ["0.004", "0.002"])], method="trapezoidal",
+                         changes=["solver.modes=40"])
     p = convergence.plan(load_case(BAR), [("solver.dt", ["0.004", "0.002"])], method="modal-static",
                          changes=["solver.modes=40", "solver.static_correction=false"])
     for lv in p["levels"]:

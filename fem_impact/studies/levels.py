@@ -47,6 +47,7 @@ import numpy as np
 from ..cache import code_fingerprint
 from ..case import Case
 from ..plots import history_columns
+from ..progress import duration
 from . import worker
 
 log = logging.getLogger(__name__)
@@ -182,7 +183,7 @@ class _Progress:
         eta = elapsed * self.left_weight / self.run_weight if self.run_weight > 0 else 0.0
         width = len(str(self.total))
         self.stream.write(f"[{self.done:>{width}}/{self.total}] {outcome.level.label}: {what} "
-                          f"(elapsed {elapsed:.1f} s, about {eta:.0f} s left)\n")
+                          f"(elapsed {duration(elapsed)}, about {duration(eta)} left)\n")
         self.stream.flush()
 
 
