@@ -786,9 +786,10 @@ def _solver(value, path):
     """The solver section, validated by the schema of its method (fem_impact.integrators.parameters)."""
     # (an explicit null means the default, as everywhere in a case file)
     data = {key: entry for key, entry in _mapping(value, path).items() if entry is not None}
-    if data.get("method", DEFAULT_METHOD) not in METHODS:
+    method, scheme = data.get("method", DEFAULT_METHOD), data.get("scheme", MODAL_SCHEMES[0])
+    if not isinstance(method, str) or method not in METHODS:
         raise _Invalid(path + ("method",), f"must be one of {', '.join(METHODS)}; got {_show(data['method'])}")
-    if data.get("method") == "modal" and data.get("scheme", MODAL_SCHEMES[0]) not in MODAL_SCHEMES:
+    if method == "modal" and (not isinstance(scheme, str) or scheme not in MODAL_SCHEMES):
         raise _Invalid(path + ("scheme",), f"must be one of {', '.join(MODAL_SCHEMES)}; got {_show(data['scheme'])}")
     schema = SCHEMAS[_schema_tag(data)]
     try:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .case import Case
+from .integrators.parameters import steps_for
 
 MAX_STEPS = 10**8
 MAX_FRAMES = 10**5           # VTK frames: one .vtu per rank each, plus a .pvtu under MPI
@@ -62,8 +63,7 @@ def _nodes(case: Case) -> tuple[int, int]:
 def estimate(case: Case, ranks: int = 1) -> Estimate:
     """What the run would take, from the case alone (before the mesh is built)."""
     solver = case.solver
-    ratio = solver.t_end / solver.dt
-    steps = max(1, math.ceil(ratio - 1e-9)) if ratio < 1e300 else 10**300   # (1e300 / 1e-300 overflows)
+    steps = steps_for(solver.t_end, solver.dt)
     nodes, dim = _nodes(case)
     nodes = min(nodes, 10**300)   # (a mistyped cells: 1e400 must not overflow the floats below)
     dofs = nodes * dim

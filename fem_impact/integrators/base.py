@@ -23,6 +23,7 @@ from scipy.linalg.blas import daxpy, dgemv
 from ..errors import SimulationError
 from ..parallel import allsum
 from ..petsc_api import mumps_inverse_block
+from .parameters import steps_for   # (the one definition; integrators re-exports it)
 
 BLOW_UP = 100.0  # kinetic + strain energy above this many times the energy put in: the run blew up
 # Energy above E0 + W_ext (or a loss below zero) by more than this fraction of the energy scale: the
@@ -609,6 +610,3 @@ def integrate(integrator, U0, V0, t_end: float, observers=(), t0: float = 0.0, p
     return state
 
 
-def steps_for(duration: float, dt: float) -> int:
-    """Number of steps of size dt that cover ``duration`` (tolerant of round-off in t_end/dt)."""
-    return max(1, int(np.ceil(duration / dt - 1e-9)))

@@ -11,6 +11,7 @@ anything heavy is imported.
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal, Union
 
 from pydantic import (BaseModel, ConfigDict, Discriminator, Field, PlainValidator, Tag, TypeAdapter,
@@ -168,6 +169,13 @@ METHODS = {"moreau_jean": "Moreau-Jean (full model)", "newmark": "Newmark, the p
 MODAL_SCHEMES = ("moreau_jean", "newmark")
 
 
+def steps_for(duration: float, dt: float) -> int:
+    """Number of steps of size dt that cover ``duration`` (tolerant of round-off in t_end/dt; a ratio
+    beyond 1e300 counts as 10**300 steps rather than overflowing)."""
+    ratio = duration / dt
+    return max(1, math.ceil(ratio - 1e-9)) if ratio < 1e300 else 10**300
+
+
 def tag(data) -> str | None:
     """The schema of a ``solver`` mapping: its method, and for ``modal`` its scheme."""
     if not isinstance(data, dict):
@@ -175,8 +183,8 @@ def tag(data) -> str | None:
     method = data.get("method") if data.get("method") is not None else DEFAULT_METHOD
     if method == "modal":
         scheme = data.get("scheme") if data.get("scheme") is not None else MODAL_SCHEMES[0]
-        return f"modal/{scheme}"
-    return method
+        return f"modal/{scheme}" if isinstance(scheme, str) else None
+    return method if isinstance(method, str) else None
 
 
 SOLVER = TypeAdapter(Annotated[Union[tuple(Annotated[schema, Tag(name)] for name, schema in SCHEMAS.items())],

@@ -46,6 +46,7 @@ import numpy as np
 
 from ..cache import code_fingerprint
 from ..case import Case
+from ..integrators.parameters import steps_for
 from ..plots import history_columns
 from ..progress import duration
 from . import worker
@@ -113,10 +114,6 @@ def fingerprint(case: Case, code: str) -> str:
     if case.mesh.file is not None:
         h.update(Path(case.mesh.file).read_bytes())
     return h.hexdigest()[:20]
-
-
-def _steps(case) -> int:
-    return max(1, int(np.ceil(case.solver.t_end / case.solver.dt - 1e-9)))
 
 
 def _record(outcome: Outcome, fingerprint: str) -> None:
@@ -210,7 +207,7 @@ def run_levels(case: Case, levels: list[Level], outdir, jobs: int = 1, allow_fai
             outcomes[lv.name] = kept
         else:
             todo.append(lv)
-    progress = _Progress(len(levels), {n: float(_steps(c)) for n, c in cases.items()}, stream, quiet, jobs)
+    progress = _Progress(len(levels), {n: float(steps_for(c.solver.t_end, c.solver.dt)) for n, c in cases.items()}, stream, quiet, jobs)
     for lv in levels:
         if lv.name in outcomes:
             progress(outcomes[lv.name])
