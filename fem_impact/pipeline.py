@@ -97,6 +97,7 @@ class Result:
 
     @property
     def history(self) -> dict[str, np.ndarray]:
+        """history.csv's columns by name (read from the folder on first use when the run wrote one)."""
         if self._history is None:
             from .plots import history_columns
 

@@ -117,7 +117,7 @@ def test_public_names_are_documented():
             assert (obj.__doc__ or "").strip(), f"fem_impact.{name} has no docstring"
     for method in ("from_dict", "with_changes", "resolved", "write_resolved", "error"):
         assert getattr(Case, method).__doc__, f"Case.{method} has no docstring"
-    assert fem_impact.Result.history.__doc__ or fem_impact.Result.__doc__
+    assert fem_impact.Result.__doc__ and fem_impact.Result.history.__doc__
 
 
 def test_importing_the_package_stays_light():
