@@ -23,6 +23,17 @@ install_signal_handlers()
 for _name in ("ffcx", "UFL", "FFC", "dijitso"):
     logging.getLogger(_name).setLevel(logging.WARNING)
 
+
+def _not_a_build_line(record: logging.LogRecord) -> bool:
+    return record.levelno >= logging.WARNING or record.name != "root"
+
+
+# While the JIT compiles a form, setuptools lowers the root logger to INFO (distutils' threshold):
+# its "running build_ext" and compiler lines would reach a script's stderr through the root
+# handler ffcx installs (logging.basicConfig at its import).
+for _handler in logging.root.handlers:
+    _handler.addFilter(_not_a_build_line)
+
 Mesh = mesh.Mesh
 
 

@@ -60,3 +60,17 @@ def test_large_steps_show_the_paper_scheme_failing(tmp_path, monkeypatch):
     ratios = run_example("large_steps", tmp_path, monkeypatch)
     assert ratios["newmark"] > 1.5
     assert ratios["moreau_jean"] <= 1 + 1e-6
+
+
+def test_a_script_sees_no_compiler_log(tmp_path):
+    """A script's first run compiles its forms: setuptools' build lines must not reach its stderr."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache"), "FEM_IMPACT_CACHE": str(tmp_path / "fem")}
+    result = subprocess.run([sys.executable, str(EXAMPLES / "parameter_study.py"), "--coarse"], cwd=tmp_path,
+                            capture_output=True, text=True, env=env)
+    assert result.returncode == 0, result.stderr
+    assert "build_ext" not in result.stderr and "INFO" not in result.stderr, result.stderr[:500]
+    assert (tmp_path / "cache").is_dir()   # (the forms were compiled in this run)
