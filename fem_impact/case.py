@@ -494,7 +494,7 @@ def _mapping(value, path):
     return value
 
 
-def _fields(value, path, spec):
+def _fields(value, path, spec, section=None):
     """Validate a mapping against `spec` and return the converted values.
 
     Parameters
@@ -504,10 +504,19 @@ def _fields(value, path, spec):
     path : tuple
         Its key path.
     spec : dict
-        ``key -> (converter, default)``; a converter is ``(value, path) -> result``
-        raising _Invalid; default ``_REQUIRED`` makes the key mandatory. An explicit
-        null on an optional key means its default (so a resolved dump reads back).
+        ``key -> (converter, default)``, or ``key -> converter`` when the default is the
+        `section` dataclass's own (the one place it is written); a converter is
+        ``(value, path) -> result`` raising _Invalid; default ``_REQUIRED`` makes the key
+        mandatory. An explicit null on an optional key means its default (so a resolved
+        dump reads back).
+    section : dataclass, optional
+        The section the values are for: the defaults of the keys given without one.
     """
+    if section is not None:
+        own = {f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory()
+               for f in dataclasses.fields(section)
+               if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING}
+        spec = {key: entry if isinstance(entry, tuple) else (entry, own[key]) for key, entry in spec.items()}
     data = _mapping(value, path)
     for key in data:
         if key not in spec:
@@ -648,10 +657,9 @@ def _case_name(value, path):
 
 def _mesh(value, path, folder):
     f = _fields(value, path, {
-        "shape": (_choice(*SHAPES), None), "file": (_string, None), "dim": (_integer(1, 3), None),
-        "length": (_real(gt=0), 1.0), "cells": (_integer(1, 2**31 - 1), 100),   # (PETSc's 32-bit indices)
-        "height": (_real(gt=0), None), "width": (_real(gt=0), None),
-        "elements": (_choice(*BAR_ELEMENTS), "simplex")})
+        "shape": _choice(*SHAPES), "file": _string, "dim": _integer(1, 3),
+        "length": _real(gt=0), "cells": _integer(1, 2**31 - 1),   # (PETSc's 32-bit indices)
+        "height": _real(gt=0), "width": _real(gt=0), "elements": _choice(*BAR_ELEMENTS)}, MeshSpec)
     if f["shape"] is None and f["file"] is None:
         raise _Invalid(path, f"give 'shape' (a built-in shape: {', '.join(SHAPES)}) or 'file' (a Gmsh file)")
     if f["shape"] is not None and f["file"] is not None:
@@ -673,11 +681,11 @@ def _mesh(value, path, folder):
 def _material(value, path):
     return Material(**_fields(value, path, {
         "E": (_real(gt=0), _REQUIRED), "rho": (_real(gt=0), _REQUIRED),
-        "nu": (_real(ge=0, lt=0.5), 0.0), "area": (_real(gt=0), 1.0)}))
+        "nu": _real(ge=0, lt=0.5), "area": _real(gt=0)}, Material))
 
 
 def _damping(value, path):
-    return Damping(**_fields(value, path, {"alpha": (_real(ge=0), 0.0), "beta": (_real(ge=0), 0.0)}))
+    return Damping(**_fields(value, path, {"alpha": _real(ge=0), "beta": _real(ge=0)}, Damping))
 
 
 def _body_values(value, path, parameters):
@@ -734,8 +742,8 @@ def _contact(value, path):
     f = _fields(value, path, {
         "name": (_csv_name, _REQUIRED), "type": (_choice(*CONTACT_TYPES), _REQUIRED),
         "nodes": (lambda nodes, _: nodes, _REQUIRED), "normal": (_vector(_number), _REQUIRED),
-        "gap": (_real(), None), "restitution": (_real(ge=0, le=1), 0.0),
-        "coupling": (_choice(*CONTACT_COUPLINGS), "each"), "stiffness": (_real(gt=0), None)})
+        "gap": _real(), "restitution": _real(ge=0, le=1),
+        "coupling": _choice(*CONTACT_COUPLINGS), "stiffness": _real(gt=0)}, Contact)
     nodes = [f["nodes"]] if isinstance(f["nodes"], str) else f["nodes"]
     if f["type"] == "obstacle":
         if not (isinstance(nodes, list) and len(nodes) == 1):
@@ -892,8 +900,7 @@ def _follow_kind_changes(data, before: str | None, changed) -> None:
 
 def _output(value, path):
     return Output(**_fields(value, path, {
-        "every": (_integer(1), 10), "probes": (_mapping_of(_vector(_number), _csv_name), {}),
-        "vtk": (_boolean, True)}))
+        "every": _integer(1), "probes": _mapping_of(_vector(_number), _csv_name), "vtk": _boolean}, Output))
 
 
 def _parameters(value, path):
