@@ -549,3 +549,14 @@ def test_a_given_solver_key_goes_to_the_methods_that_take_it():
     assert registry.apply("trapezoidal", case, ["solver.modes=40"]).solver.method == "newmark"
     assert registry.apply("modal-static", case, ["solver.modes=40"]).solver.modes == 40
     assert registry.availability("central-difference", case, given) is None
+
+
+def test_a_stability_study_takes_a_list_valued_change(tmp_path):
+    """``--set "loads=[{body: all, ...}]"`` (as the plate's map in the README): a level's changes hold a list."""
+    from fem_impact.studies.stability import stability_study
+
+    result = stability_study(load_case(BAR), methods="moreau-jean", courants=[0.5], restitutions=[], lengths=[1.0],
+                             changes=["mesh.cells=10", "solver.t_end=0.5", "reference=null",
+                                      "loads=[{body: all, acceleration: [-0.5]}]"],
+                             outdir=tmp_path / "s", quiet=True)
+    assert [row["outcome"] for row in result["rows"]] and all(r["method"] == "moreau-jean" for r in result["rows"])

@@ -24,6 +24,7 @@ Writes ``levels/``, ``stability.csv``, ``stability.png`` and ``study.json`` into
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 from pathlib import Path
@@ -186,7 +187,7 @@ def stability_study(case, methods=None, courants=None, restitutions=None, length
         points += [("length", k, length_changes(k), e_case, k) for k in lengths]
         for sweep, value, extra, e, k in points:
             level_changes = {**common, **extra}
-            key = tuple(level_changes.items())
+            key = json.dumps(level_changes, sort_keys=True, default=str)   # (values may be lists: loads=[...])
             if key not in by_changes:
                 name = slug(f"{method.name}-{sweep}-{value:g}")
                 by_changes[key] = Level(name, level_changes, {"method": method.name},
