@@ -32,7 +32,7 @@ class System:
 
 
 def full_model(case: Case, model, cons) -> System:
-    """The finite-element system itself (method ``newmark``)."""
+    """The finite-element system itself (the full methods: moreau_jean, newmark, central_difference)."""
     from .integrators import Operators
     from .output import NodalFields
 

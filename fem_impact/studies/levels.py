@@ -19,7 +19,7 @@ failed or skipped, the reason, the error's type and the run's summary.
   A run that refuses its input when it starts (CaseError, e.g. a method this version does not
   run) is a skipped level; a run that crashes (any other error) is a failed level with the error
   as the reason (and its traceback logged as a warning). The run itself never writes a partial
-  folder (run.staged_directory); Ctrl-C stops the children, which remove their staging folders.
+  folder (pipeline.staged_directory); Ctrl-C stops the children, which remove their staging folders.
 - Modes and static solves go to a cache private to the study run and deleted after it, so that
   the reduced model's timings include them (as on a first run of a scene).
 """
