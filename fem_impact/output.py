@@ -136,7 +136,7 @@ class HistoryWriter:
     """
 
     def __init__(self, path: Path | None, cons: Constraints, probes: Probes, comm: MPI.Comm, fields,
-                 flush_every: int = 2000, momenta: BodyMomenta | None = None):
+                 flush_every: int = 2000, momenta: BodyMomenta | None = None, scheme_energy: bool = False):
         self.cons, self.probes, self.comm, self.fields = cons, probes, comm, fields
         self.momenta = momenta
         self.rows: list[list[float]] = []
@@ -147,6 +147,9 @@ class HistoryWriter:
         # Body momenta come last, after the energies: columns added since INTERFACE.md keep the
         # positions of the earlier ones.
         self.columns += probes.columns() + list(ENERGY_COLUMNS) + (momenta.columns() if momenta else [])
+        self.scheme_energy = scheme_energy   # a scheme that conserves more than kinetic + strain (central difference)
+        if scheme_energy:
+            self.columns.append("scheme_energy")
         self._keep = comm.rank == 0
         self._file = open(path, "w", newline="") if comm.rank == 0 and path is not None else None
         if self._file:
@@ -163,6 +166,8 @@ class HistoryWriter:
         row += [e.kinetic, e.strain, e.external_work, e.damping_loss, e.impact_loss, e.contact_loss, e.error]
         if self.momenta is not None:
             row += self.momenta.values(state).tolist()
+        if self.scheme_energy:
+            row.append(e.scheme)
         if self._keep:
             self.rows.append(row)
             if self._file and len(self.rows) >= self.flush_every:

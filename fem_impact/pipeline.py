@@ -184,7 +184,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     with out.staged() if out is not None else contextlib.nullcontext(None) as stage:
         fields = system.fields
         momenta = BodyMomenta(model, fields)
-        history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta)
+        history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
+                                scheme_energy=integrator.scheme_energy)
         stats = RunStatistics(cons)
         observers = [history, stats]
         vtk = None
@@ -206,6 +207,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         summary = {
             "case": case.name,
             "method": solver.method,
+            "scheme": integrator.name,
             "wall_time_s": time.perf_counter() - t_start,
             "setup_time_s": setup_time,
             "loop_time_s": loop_time,
@@ -256,7 +258,20 @@ def energy_warning(summary: dict) -> str | None:
             f"{summary['dt']:.4g} s): {summary['energy_created']:.4g} J above E0 + W_ext ("
             f"{summary['energy_created_relative']:.3g} of the energy scale), first at t = "
             f"{summary['energy_created_at']:.6g} s; max E / (E0 + W_ext) = {summary['max_energy_ratio']:.3g}. "
-            "The results are not physical: use solver.method: moreau_jean (stable at any step), or a smaller dt")
+            f"{energy_advice(summary)}")
+
+
+def energy_advice(summary: dict) -> str:
+    """What to change after energy was created, for the method that ran."""
+    reduced = summary.get("modes") is not None
+    if summary.get("scheme", summary["method"]) != "moreau_jean":
+        switch = "solver.scheme: moreau_jean" if reduced else "solver.method: moreau_jean"
+        return f"The results are not physical: use {switch} (stable at any step), or a smaller dt"
+    if reduced and summary.get("static_correction"):
+        return ("The reduced model's contact rows are compliant (static correction); under a load that varies "
+                "over a step they gain energy of order dt^2: use a smaller dt")
+    return ("Moreau-Jean's contacts cannot create energy beyond round-off: check the case (a smaller dt), and "
+            "report it if it persists")
 
 
 def describe(summary: dict) -> str:

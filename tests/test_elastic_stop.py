@@ -67,8 +67,7 @@ def test_mass_on_an_elastic_stop(scheme):
     e0 = 0.5 * M_ * V0_**2
     i = np.argmax(f)   # full compression: the energy sits in the spring
     assert h[i, 5] == pytest.approx(e0, rel=2 * rtol) and h[i, 4] < 2 * rtol * e0
-    tol = 1e-12 if scheme is Newmark else 1e-5    # central difference: O(dt^2), not round-off
-    assert np.abs(h[:, 6]).max() < tol * e0
+    assert np.abs(h[:, 6]).max() < 1e-12 * e0   # central difference: with its scheme energy
     assert abs(h[-1, 7]) < max(2 * rtol, 1e-3) * e0   # little lost at closing and opening
 
 
@@ -115,17 +114,29 @@ def test_2d_bar_on_a_wall_through_its_end_sections_mean(tmp_path):
 
 def test_a_stop_stiffer_than_the_step_resolves_is_flagged_and_pumps_energy(tmp_path, caplog):
     """Where the method fails: k = 1e5 on B2a's bar at dt = 0.002 (c / (beta dt^2 W) = 0.015) is
-    not resolved: the row chatters and, with no Carnot correction on an elastic row, energy grows
-    16-fold (the balance still books it, as a negative contact loss). The run says so at the
-    start; at the step it suggests (dt = 1e-4) the energy stays within 0.2 %."""
+    not resolved by newmark: the row chatters and, with no Carnot correction on an elastic row,
+    energy grows (the balance still books it, as a negative contact loss). The run says so at the
+    start and the energy watch flags the gain. At the step the warning suggests (dt = 1e-4) the
+    warning is silent. How much energy the chatter creates is chaotic (round-off decides it, from
+    +0.1 % to +1.5 % at dt = 1e-4 on different machines): no figure of it is asserted. What holds
+    on every machine is the default method's bound: Moreau-Jean keeps E <= E0 on the same stop at
+    both steps (the end-point rule on a convex spring stores at most what it receives)."""
+    newmark = ("solver.method=newmark", "output.vtk=false")
     with caplog.at_level("WARNING"):
         summary, _ = run_case_file(CASES / "impacting_bar.yaml", tmp_path / "coarse", "contacts.0.stiffness=1e5",
-                                   "output.vtk=false")
+                                   *newmark)
     assert "stiffer than the time step resolves" in caplog.text and "dt <=" in caplog.text
-    assert summary["max_energy"] > 5 * summary["initial_energy"] and summary["contact_loss"] < 0
+    assert summary["energy_created_at"] is not None and summary["contact_loss"] < 0
     caplog.clear()
     with caplog.at_level("WARNING"):
-        summary, _ = run_case_file(CASES / "impacting_bar.yaml", tmp_path / "fine", "contacts.0.stiffness=1e5",
-                                   "solver.dt=1e-4", "solver.t_end=1.0", "output.vtk=false")
+        run_case_file(CASES / "impacting_bar.yaml", tmp_path / "fine", "contacts.0.stiffness=1e5",
+                      "solver.dt=1e-4", "solver.t_end=1.0", *newmark)
     assert "stiffer" not in caplog.text
-    assert summary["max_energy"] < 1.002 * summary["initial_energy"]
+    for dt in (0.002, 1e-4):
+        summary, h = run_case_file(CASES / "impacting_bar.yaml", tmp_path / f"mj{dt}", "contacts.0.stiffness=1e5",
+                                   f"solver.dt={dt}", "solver.t_end=1.0", "solver.method=moreau_jean",
+                                   "output.vtk=false")
+        assert summary["energy_created_at"] is None
+        assert summary["max_energy"] <= summary["initial_energy"] * (1.0 + 1e-9)
+        assert np.all(column(h, "contact_loss") >= -1e-12)
+        assert column(h, "wall.force").max() > 0.5   # the stop did work: the bar hit it

@@ -113,6 +113,7 @@ class MoreauJean(ContactScheme):
             pu = pu + ops.static.offset(t0) - ops.static.compliance @ force
         energy = EnergyBudget()
         energy.kinetic, energy.strain = self._quadratic_energies()
+        energy.load_scale = self._start_load_scale
         alg.mult(ops.K, self.U, self.KU)
         alg.mult(ops.K, self.V, self.KV)
         if ops.C is not None:
@@ -160,6 +161,8 @@ class MoreauJean(ContactScheme):
                 Wp = self.W.dot(impulse)
                 pv, jump = pv_free - Wp, float(np.abs(Wp).max())
         axpy(U, dt * theta, V)
+        if ops.C is not None:   # C V1 of the step's equation (before Carnot's correction): its damping work
+            alg.mult(ops.C, V, self.CV)
         pv_star, restitution_loss, percussion = pv, 0.0, impulse
         if p:   # the work of the impulse with the step's mean velocity (exact for theta = 1/2)
             step_contact_loss = float(impulse.dot(0.5 * (st.normal_velocity + pv_star)))
@@ -175,9 +178,8 @@ class MoreauJean(ContactScheme):
 
         # K V1 from the step's equation S V1 = rhs: theta^2 dt^2 K V1 = rhs - M V1 - theta dt C V1.
         alg.mult(ops.M, V, self.MV)
-        if ops.C is not None:
-            alg.mult(ops.C, V, self.CV)
-        if (st.step + 1) % CHECK_EVERY and pv is pv_star:   # (Carnot's correction changed V: products)
+        corrected = pv is not pv_star   # Carnot's correction changed V: products below
+        if (st.step + 1) % CHECK_EVERY and not corrected:
             np.subtract(rhs, self.MV, out=self.KV)
             if ops.C is not None:
                 axpy(self.KV, -theta * dt, self.CV)
@@ -197,7 +199,9 @@ class MoreauJean(ContactScheme):
             energy.impact_loss += restitution_loss
             if ops.static:
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
-        self._energies(energy)
+        self._energies(energy, t1)
+        if corrected and ops.C is not None:   # the next step starts from the corrected velocity
+            alg.mult(ops.C, V, self.CV)
         self._book_stored(energy, st, force, t1, theta)
         self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, percussion, energy, pu, pv)
         return self.state
@@ -288,11 +292,12 @@ class MoreauJean(ContactScheme):
         loss = 0.5 * float((f0 + force).dot(static.offset(t1) - static.offset(st.t)))
         return loss - 0.5 * float(force.dot(static.compliance.dot(force)) - f0.dot(static.compliance.dot(f0)))
 
-    def _energies(self, energy: EnergyBudget) -> None:
+    def _energies(self, energy: EnergyBudget, t1: float) -> None:
         """Kinetic and strain energy at t1; external work and damping loss over the step, with the
-        weights (1 - theta, theta) of the scheme's own rule."""
+        weights (1 - theta, theta) of the scheme's own rule; the load's energy scale at t1."""
         theta = self.theta
-        sums = np.zeros(4)
+        sums = np.zeros(5)
+        sums[4] = self._load_energy()
         sums[0] = self.V @ self.MV
         sums[1] = self.U @ self.KU
         if self.track_du:
@@ -306,3 +311,4 @@ class MoreauJean(ContactScheme):
         energy.kinetic, energy.strain = 0.5 * sums[0], 0.5 * sums[1]
         energy.external_work += sums[2]
         energy.damping_loss += sums[3]
+        energy.load_scale = sums[4] + self._static_load_energy(t1)

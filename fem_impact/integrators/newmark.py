@@ -151,7 +151,7 @@ class Newmark(ContactScheme):
         axpy(self.MV, dt * (1.0 - gamma), self.MA_prev)
         axpy(self.MV, dt * gamma, self.MA)
         KU_rest = self.MA if (st.step + 1) % CHECK_EVERY else None
-        self._step_energies(energy, 1.0 - gamma, gamma, self.MV, KU_rest, float(pu_dyn.dot(force)) if p else 0.0)
+        self._step_energies(energy, t1, 1.0 - gamma, gamma, self.MV, KU_rest, float(pu_dyn.dot(force)) if p else 0.0)
         self._book_stored(energy, st, force, t1, gamma)
 
         self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, impulse, energy, pu, pv)

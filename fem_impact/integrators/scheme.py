@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from ..contact import TINY, Delassus, ImpactResult, impact_correction, solve_lcp
+from ..errors import SimulationError
 from .base import EnergyBudget, Operators, StepState, owned_values
 
 log = logging.getLogger(__name__)
@@ -28,6 +29,7 @@ class ContactScheme:
     """
 
     name = ""
+    scheme_energy = False   # whether the scheme conserves an energy term beyond kinetic + strain (EnergyBudget.scheme)
 
     def __init__(self, ops: Operators, dt: float, S, impact_correction: bool = True):
         alg = ops.algebra
@@ -42,6 +44,9 @@ class ContactScheme:
         self.timings["factorize M"] = time.perf_counter() - clock
         clock = time.perf_counter()
         self.W, self.G = ops.delassus(self.solve_S)   # P S^-1 P^T (p x p, every rank); S^-1 P^T
+        if not np.all(np.isfinite(self.W)):
+            raise SimulationError(f"{self.name}: the solves with the step matrix M + C + K (weighted by the scheme) "
+                                  "give non-finite values: the direct solver failed on it")
         self.timings["W"] = time.perf_counter() - clock
         self._D = self._H = self._carnot = None
         static = ops.static
@@ -59,6 +64,10 @@ class ContactScheme:
         self.R_prev = new() if ops.load.time_dependent else self.R   # a constant load: one vector, no copies
         self.CV, self.CV_prev = (new(), new()) if ops.C is not None else (None, None)
         self.loaded = self.track_du = True   # (known at the start)
+        # 1/2 dt^2 / m_i per dof (lumped: row sums of M; 0 without mass): R . (this R) is the kinetic
+        # energy the load gives the free nodes in one step, the load's energy scale (_load_energy).
+        masses = alg.row_sums(ops.M)
+        self._load_weights = np.divide(0.5 * dt * dt, masses, out=np.zeros_like(masses), where=masses > 0.0)
         self.t0 = 0.0
         self.state: StepState | None = None
 
@@ -163,18 +172,29 @@ class ContactScheme:
             energy.strain += static.energy(t1, force)
             energy.external_work += static.work(st.t, t1, st.force, force, weight)
 
+    def _load_energy(self) -> float:
+        """This rank's part of the load's energy scale at the step: ``1/2 dt^2 R . M_L^-1 R``."""
+        return float(np.einsum("i,i,i->", self.R, self.R, self._load_weights)) if self.loaded else 0.0
+
+    def _static_load_energy(self, t: float) -> float:
+        """What the load alone stores in a static part (the reduced model's), replicated."""
+        static = self.ops.static
+        return static.energy(t, np.zeros(self.ops.p)) if static is not None and self.loaded else 0.0
+
     def _quadratic_energies(self) -> tuple[float, float]:
         """Kinetic and strain energy from products with M and K; sets ``MV`` and ``MA`` (at the start)."""
         ops, alg = self.ops, self.alg
         alg.mult(ops.M, self.V, self.MV)
         alg.mult(ops.M, self.A, self.MA)
         alg.mult(ops.K, self.U, self.work)
-        sums = alg.allsum(np.array([self.V @ self.MV, self.U @ self.work]))
+        sums = alg.allsum(np.array([self.V @ self.MV, self.U @ self.work, self._load_energy()]))
+        self._start_load_scale = sums[2] + self._static_load_energy(self.t0)
         return 0.5 * sums[0], 0.5 * sums[1]
 
-    def _step_energies(self, energy: EnergyBudget, w_prev: float, w_new: float, MV: np.ndarray,
-                       KU_rest: np.ndarray | None = None, force_work: float = 0.0) -> None:
-        """Kinetic and strain energy at the new step; external work and damping loss over the step.
+    def _step_energies(self, energy: EnergyBudget, t1: float, w_prev: float, w_new: float, MV: np.ndarray,
+                       KU_rest: np.ndarray | None = None, force_work: float = 0.0,
+                       scheme_weight: float = 0.0) -> None:
+        """Kinetic and strain energy at the new step (t1); external work and damping loss over the step.
 
         ``MV = M V`` comes from the scheme. ``U^T K U``: with ``KU_rest``, from the equation of
         motion that the step solved, ``K U = R - CV - KU_rest - P^T F`` (``CV`` = ``self.CV``, its
@@ -184,10 +204,12 @@ class ContactScheme:
         Work terms use the weights (w_prev, w_new) of the scheme's own rule for the forces over a
         step (the trapezoidal rule: 1/2, 1/2), with ``Delta U``: for the trapezoidal rule the
         balance then closes to round-off; with gamma > 1/2 its residual is the scheme's own
-        numerical dissipation, which no term books.
+        numerical dissipation, which no term books. ``scheme_weight``: the scheme's own energy is
+        ``scheme_weight A.M A`` (``self.MA`` = M A at the step).
         """
         U, R, CV = self.U, self.R, self.CV
-        sums = np.zeros(4)
+        sums = np.zeros(6)
+        sums[5] = self._load_energy()
         sums[0] = self.V @ MV
         if KU_rest is None:
             self.alg.mult(self.ops.K, U, self.work)
@@ -206,10 +228,14 @@ class ContactScheme:
                     w_prev * (du @ self.R_prev) + w_new * (du @ R)
             if CV is not None:
                 sums[3] = w_prev * (du @ self.CV_prev) + w_new * (du @ CV)
+        if scheme_weight:
+            sums[4] = self.A @ self.MA
         self.alg.allsum(sums)
         energy.kinetic, energy.strain = 0.5 * sums[0], 0.5 * (sums[1] - force_work)
         energy.external_work += sums[2]
         energy.damping_loss += sums[3]
+        energy.scheme = scheme_weight * sums[4]
+        energy.load_scale = sums[5] + self._static_load_energy(t1)
 
     def _initial_state(self, U0, V0, t0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """U, V from (U0, V0); R(t0); the free initial acceleration ``M A = R - K U - C V``; (P U, P V, P A)."""
@@ -258,6 +284,7 @@ class ContactScheme:
         if ops.p:
             force, impulse, pu, pv = self._initial_contacts(pu, pv, pa, energy)
         energy.kinetic, energy.strain = self._quadratic_energies()
+        energy.load_scale = self._start_load_scale
         self._book_stops(energy, force, force)
         if ops.static:
             energy.strain += ops.static.energy(t0, force)
