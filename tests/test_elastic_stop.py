@@ -118,7 +118,7 @@ def test_a_stop_stiffer_than_the_step_resolves_is_flagged_and_pumps_energy(tmp_p
     energy grows (the balance still books it, as a negative contact loss). The run says so at the
     start and the energy watch flags the gain. At the step the warning suggests (dt = 1e-4) the
     warning is silent. How much energy the chatter creates is chaotic (round-off decides it, from
-    +0.1 % to +1.5 % at dt = 1e-4 on different machines): no figure of it is asserted. What holds
+    +0.1 % to +1.7 % at dt = 1e-4 on different machines and BLAS kernels): no figure of it is asserted. What holds
     on every machine is the default method's bound: Moreau-Jean keeps E <= E0 on the same stop at
     both steps (the end-point rule on a convex spring stores at most what it receives)."""
     newmark = ("solver.method=newmark", "output.vtk=false")
