@@ -58,7 +58,7 @@ def test_reduced_model_converges_and_the_static_correction_pays(tmp_path, monkey
 
 def test_large_steps_show_the_paper_scheme_failing(tmp_path, monkeypatch):
     ratios = run_example("large_steps", tmp_path, monkeypatch)
-    assert ratios["newmark"] > 1.5
+    assert ratios["newmark"] > 1.1   # (1.9 measured; chaotic: a margin, not the figure)
     assert ratios["moreau_jean"] <= 1 + 1e-6
 
 
