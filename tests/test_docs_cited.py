@@ -1,13 +1,14 @@
 """Every document the repository cites is in the repository (issue 17).
 
 The tracked text files (code, tests, cases, examples, README, docs, Makefile, pyproject) are
-scanned for the documents they name: Markdown files (``name.md``, with or without a path),
+scanned for the documents they name: Markdown files (by name, with or without a path),
 files under ``docs/``, the targets of Markdown links and pictures, and paths that climb out
 with ``../``. Each must be a tracked file (or folder) of the repository: a path is taken from
 the citing file's folder or from the repository's root (a ``../`` path also from a top-level
 folder, as a case file's ``mesh.file`` is), a bare name must be the name of some tracked file.
-A section cited as ``docs/NAME.md s. N`` (``section N``) or ``docs/NAME.md B2`` must be a
-heading of that file (``## N. ...``, ``### N.M ...``, a heading naming B2).
+A section cited as ``s. N`` (or ``section N``, ``B2``) right after a document's path must be a
+heading of that document (``## N. ...``, ``### N.M ...``, a heading naming B2). This file is not
+scanned: its examples are not citations.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+THIS = Path(__file__).resolve().relative_to(ROOT).as_posix()
 TEXT_SUFFIXES = {".py", ".md", ".yaml", ".yml", ".toml", ".cfg", ".txt", ".sh"}
 TEXT_NAMES = {"Makefile"}
 SKIP_DIRS = {".git", ".venv", "results", "__pycache__", ".pytest_cache", ".hypothesis"}
@@ -29,7 +31,7 @@ DOCS_PATH = re.compile(r"(?<![\w./-])(docs/[\w./-]*\w)")
 CLIMB = re.compile(r"(?<![\w./-])((?:\.\./)+[\w./-]*\w/?)")
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 # What follows a document's name when a section of it is cited (across a line break, a comment's #).
-SECTION = re.compile(r"[,;:]?\s*(?:#\s*)?(?:s\.|sections?\b)\s*(\d+(?:\.\d+)*)|[,;:]?\s+(B\d+)[a-z]?\b")
+SECTION = re.compile(r"`?[,;:]?\s*(?:#\s*)?(?:s\.|sections?\b)\s*(\d+(?:\.\d+)*)|`?[,;:]?\s+(B\d+)[a-z]?\b")
 HEADING = re.compile(r"^#{1,6}\s+(.*\S)\s*$", re.MULTILINE)
 
 
@@ -136,14 +138,18 @@ def problems(root: Path, files: list[str]) -> list[str]:
     return out
 
 
+def cited_files() -> list[str]:
+    return [f for f in repository_files(ROOT) if f != THIS]
+
+
 def test_every_cited_document_is_in_the_repository():
-    found = problems(ROOT, repository_files(ROOT))
+    found = problems(ROOT, cited_files())
     assert not found, "documents cited but not in the repository:\n" + "\n".join(found)
 
 
 def test_the_code_cites_the_theory_by_section():
     """The check sees the citations it is for: the integrators cite docs/theory.md by section."""
-    refs = references(ROOT, repository_files(ROOT))
+    refs = references(ROOT, cited_files())
     cited = {(r.file, r.section) for r in refs if r.target == "docs/theory.md" and r.section}
     assert {f for f, _ in cited} >= {"fem_impact/integrators/newmark.py", "fem_impact/integrators/moreau_jean.py",
                                      "fem_impact/reduce.py"}
@@ -152,7 +158,7 @@ def test_the_code_cites_the_theory_by_section():
 
 def test_the_check_is_not_fooled(tmp_path):
     """A small tree with one good and one bad reference of each kind: exactly the bad ones are found."""
-    doc, missing = "theory" + ".md", "METHOD" + ".md"     # (spelled apart: this file is scanned too)
+    doc, missing = "theory.md", "METHOD.md"
     files = {
         "docs/" + doc: "# Theory\n\n## 1. Notation\n\n### 1.2 Units\n\n## B2: a bar\n",
         "docs/bar.png": "",
@@ -161,7 +167,7 @@ def test_the_check_is_not_fooled(tmp_path):
                       f"![lost](docs/lost.png) and `../shared/peers/`; a case file's `../meshes/two_bars.msh`.\n"),
         "fem_impact/a.py": (f'"""The step (docs/{doc} s. 1.2; docs/{doc}\n# section 1).\n'
                             f'Wrong: docs/{doc} s. 3, docs/{doc} B3, {missing}, docs/{doc} B2."""\n'),
-        "cases/c.yaml": f"# B2 ({missing} B2), docs/{doc} B2, see {doc} s. 1\n",
+        "cases/c.yaml": f"# B2 ({missing} B2), docs/{doc} B2, see {doc} s. 1, not `docs/{doc}` s. 7\n",
     }
     for name, text in files.items():
         (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
@@ -175,4 +181,5 @@ def test_the_check_is_not_fooled(tmp_path):
         f"fem_impact/a.py:3: 'docs/{doc}' has no section B3",
         f"fem_impact/a.py:3: '{missing}' is not in the repository",
         f"cases/c.yaml:1: '{missing}' is not in the repository",
+        f"cases/c.yaml:1: 'docs/{doc}' has no section 7",
     ])
