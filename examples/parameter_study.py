@@ -1,4 +1,4 @@
-"""A parameter study in a loop: a free bar hits a rigid wall (B2, BENCHMARKS.md) and stays in
+"""A parameter study in a loop: a free bar hits a rigid wall (docs/benchmarks.md B2) and stays in
 contact for exactly 2 L / c, whatever its length L. Each run is a changed copy of one case,
 run in memory (nothing is written to disk).
 

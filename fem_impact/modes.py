@@ -1,4 +1,4 @@
-"""Natural modes of the finite-element model: ``K y = w^2 M y`` with SLEPc (METHOD.md, section 3).
+"""Natural modes of the finite-element model: ``K y = w^2 M y`` with SLEPc (docs/theory.md s. 8.1).
 
 The eigenproblem is solved on the free dofs only: the rows and columns that supports hold
 (``model.fixed``) are taken out of M and K (``createSubMatrix``), so they neither give

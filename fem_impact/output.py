@@ -130,7 +130,7 @@ def _check_inside(case, model: Model, key, point) -> None:
 
 
 class HistoryWriter:
-    """``history.csv``: one row for t = 0 and one per step (INTERFACE.md).
+    """``history.csv``: one row for t = 0 and one per step (README.md, "What a run writes").
 
     With ``path`` None nothing is written: the rows are kept (on rank 0) for :meth:`columns_data`.
     """
@@ -144,7 +144,7 @@ class HistoryWriter:
         self.columns = ["t"]
         for c in cons.contacts:
             self.columns += [f"{c.name}.gap", f"{c.name}.force", f"{c.name}.impulse"]
-        # Body momenta come last, after the energies: columns added since INTERFACE.md keep the
+        # Body momenta come last, after the energies: columns added later keep the
         # positions of the earlier ones.
         self.columns += probes.columns() + list(ENERGY_COLUMNS) + (momenta.columns() if momenta else [])
         self.scheme_energy = scheme_energy   # a scheme that conserves more than kinetic + strain (central difference)

@@ -1,4 +1,4 @@
-"""The reduced model (METHOD.md s. 3): kept modes dynamically, the truncated ones statically.
+"""The reduced model (docs/theory.md s. 8): kept modes dynamically, the truncated ones statically.
 
 ``U = Y1 Z + S_k (R(t) - P^T lam)`` with ``S_k = K^-1 - Y1 diag(1/w1^2) Y1^T`` on the elastic
 subspace. The modal equations ``Z'' + diag(mu1) Z' + diag(w1^2) Z + (P Y1)^T lam = Y1^T R`` are

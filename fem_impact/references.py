@@ -1,7 +1,7 @@
 """Exact solutions by name (the ``reference:`` key of a case file) and the error measures of a run
 against them, or against another run (the finest level of a study).
 
-Known references (BENCHMARKS.md), each on the built-in bar (``mesh.shape: bar``; 1D, or a 2D
+Known references (docs/benchmarks.md), each on the built-in bar (``mesh.shape: bar``; 1D, or a 2D
 strip or 3D box with ``nu = 0``, which behave as the rod), one material, no damping, no loads:
 
 - ``b1``: the Dirichlet-Signorini bar. Clamped at one end, an obstacle with gap 0 at the other,
@@ -168,7 +168,7 @@ def _end_contact(case: Case, contact, what: str) -> float:
 
 
 class B2(Reference):
-    """A free bar moving toward a rigid wall (BENCHMARKS.md B2)."""
+    """A free bar moving toward a rigid wall (docs/benchmarks.md B2)."""
 
     title = "free bar hitting a rigid wall"
 
@@ -232,7 +232,7 @@ _B1_G = (np.array([0.0, 2.0, 3.0, 4.0]), np.array([0.5, -0.5, 0.0, -0.5]))
 
 
 class B1(Reference):
-    """A bar clamped at one end, released against an obstacle at the other (BENCHMARKS.md B1)."""
+    """A bar clamped at one end, released against an obstacle at the other (docs/benchmarks.md B1)."""
 
     title = "clamped bar released against an obstacle"
 
@@ -461,7 +461,7 @@ def energy_growth(h: dict) -> float:
     return float(np.max(E - E[0] - W) / scale) if scale > 0 else 0.0
 
 
-# --- the benchmark checks of the test suite (BENCHMARKS.md B1, B2) ---------------------------
+# --- the benchmark checks of the test suite (docs/benchmarks.md B1, B2) ----------------------
 
 
 def contact_window(h, name):
@@ -502,6 +502,6 @@ def b2_checks(h, L, E, rho, A, v0, g0, name="wall"):
 
 
 def b1_exact_u0(t):
-    """u(0, t) of B1 as in BENCHMARKS.md (L = E = rho = 1, u0 = (1 - x)/2): period 3."""
+    """u(0, t) of B1 as in docs/benchmarks.md B1 (L = E = rho = 1, u0 = (1 - x)/2): period 3."""
     tau = np.mod(t, 3.0)
     return np.where(tau < 1, (1 - tau) / 2, np.where(tau < 2, 0.0, (tau - 2) / 2))

@@ -1,6 +1,6 @@
 """The Python API (issue 12): cases from files and dicts, runs that write nothing, one error hierarchy.
 
-B2a (BENCHMARKS.md) built from a dict and run in memory gives B2's exact answers; bad input raises
+B2a (docs/benchmarks.md B2) built from a dict and run in memory gives B2's exact answers; bad input raises
 CaseError naming the key; a run into a folder writes exactly what the command writes.
 """
 

@@ -1,5 +1,5 @@
 """Verification of the full model on bars with exact solutions: B2 (free bar on a wall) and B1
-(clamped bar against an obstacle), BENCHMARKS.md; and the same bar in 2D and 3D. (Their orders of
+(clamped bar against an obstacle), docs/benchmarks.md; and the same bar in 2D and 3D. (Their orders of
 convergence, and the impact loss with e = 0 vanishing like h: tests/test_convergence.py.)"""
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def test_b2b_steel_bar(tmp_path):
     """B2b in SI units: contact on [5.000e-4, 8.854e-4] s, 1270.8 N, 0.48984 N s."""
     summary, h = run_case_file(CASES / "impacting_bar_steel.yaml", tmp_path, "output.vtk=false")
     assert_b2(h, E=210e9, rho=7800.0, A=3.14e-4, v0=0.1, g0=5e-5)
-    # The published figures themselves (BENCHMARKS.md), to their quoted digits.
+    # The published figures themselves (docs/benchmarks.md B2), to their quoted digits.
     assert h["wall_impulse"].sum() == pytest.approx(0.48984, rel=0.01)
     start, end = contact_window(h, "wall")
     assert start == pytest.approx(5.000e-4, rel=0.01) and end == pytest.approx(8.854e-4, rel=0.01)

@@ -54,7 +54,7 @@ def test_lcp_without_contact_returns_the_free_gap():
     np.testing.assert_array_equal(w, [0.3, 0.0])
 
 
-# --- B0: a point mass dropped on a rigid floor (BENCHMARKS.md) ---------------------------
+# --- B0: a point mass dropped on a rigid floor (docs/benchmarks.md B0) --------------------
 
 def one_by_one(value):
     A = PETSc.Mat().createAIJ([1, 1], nnz=1, comm=PETSc.COMM_SELF)

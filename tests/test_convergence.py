@@ -84,7 +84,7 @@ def test_b2_orders_with_contact(b2):
 
 def test_b2_impact_loss_with_plastic_node_vanishes_like_h(b2):
     """With e = 0 one impact removes about 1/(2 sqrt(3) n_el) of the energy (consistent mass,
-    BENCHMARKS.md B2; METHOD.md s. 5): the energy error of B2 is that loss. Order 1 +- 0.1
+    docs/benchmarks.md B2; docs/theory.md s. 10): the energy error of B2 is that loss. Order 1 +- 0.1
     (measured 1.00), and the loss itself within 10 % of the formula (measured 0.1 %)."""
     cells = np.array([50, 100, 200, 400])
     losses = np.array([r["err_energy"] for r in b2["rows"]])
@@ -93,7 +93,7 @@ def test_b2_impact_loss_with_plastic_node_vanishes_like_h(b2):
 
 
 def test_b1_orders_with_contact(tmp_path):
-    """B1 over four periods, 20 ... 160 cells at Courant 0.5 (BENCHMARKS.md asks for these meshes).
+    """B1 over four periods, 20 ... 160 cells at Courant 0.5 (the meshes of docs/benchmarks.md B1).
     Kinks as in B2 (velocity jumps of a c/L at each contact change): measured displacement 0.67,
     impulse 0.63, mean force 0.59; the energy lost over the four impacts (e = 0 at the node) 1.08
     (the loss per impact ~ h, as in B2). Asserted within 0.1 (energy 0.15)."""
@@ -108,7 +108,7 @@ def test_b1_orders_with_contact(tmp_path):
 @pytest.mark.parametrize("method", ["modal-truncated", "modal-static"])
 def test_truncation_stays_wrong_as_dt_shrinks_the_static_correction_does_not(tmp_path, method):
     """B2a, 250 cells, 10 modes, dt = 0.004 ... 0.0005. Plain truncation keeps the wrong contact
-    compliance (METHOD.md s. 3): its errors converge in dt to a wrong limit (force 5.2 %,
+    compliance (docs/theory.md s. 8.6): its errors converge in dt to a wrong limit (force 5.2 %,
     displacement 4.2 %, fitted order 0.00); with the static correction the same dt refinement
     converges to the full model's accuracy on this mesh (displacement 0.523 % at dt = 0.0005,
     the full model 0.528 %; force 0.28 %)."""

@@ -89,7 +89,7 @@ def test_damped_clamped_rod_settles_at_the_static_tip_displacement(tmp_path):
 
 
 def test_lumped_mass_impact_loss_is_one_over_two_n(tmp_path):
-    """With a lumped mass and e = 0 one impact removes 1/(2 n_el) of the energy (BENCHMARKS.md B2)."""
+    """With a lumped mass and e = 0 one impact removes 1/(2 n_el) of the energy (docs/benchmarks.md B2)."""
     for n in (50, 100):
         _, h = run_case_file(BAR, Path(tmp_path) / str(n), "solver.mass=lumped", f"mesh.cells={n}",
                              f"solver.dt={0.5 / n}", "solver.t_end=2.5", "output.vtk=false")

@@ -95,7 +95,7 @@ def test_position_multipliers_alone_close_the_balance_but_let_the_bar_chatter(tm
     e0 = h["kinetic"][0] + h["strain"][0]
     assert summary["max_energy_error"] < 1e-9 * e0
     assert h["impact_loss"][-1] == 0.0
-    assert (h["kinetic"] + h["strain"]).max() > 2 * e0       # energy pumped in (METHOD.md s. 5)
+    assert (h["kinetic"] + h["strain"]).max() > 2 * e0       # energy pumped in (docs/theory.md s. 3.5)
     assert h["contact_loss"][-1] < -e0
     busy = (h["t"] > 0.2) & (h["t"] < 2.0)
     assert np.sqrt(np.mean((h["wall_force"][busy] - 1.0) ** 2)) > 1.0

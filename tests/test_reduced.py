@@ -1,4 +1,4 @@
-"""The reduced model (METHOD.md s. 3): all modes = the full model; the static correction keeps
+"""The reduced model (docs/theory.md s. 8): all modes = the full model; the static correction keeps
 contact right with few modes; truncation alone does not; the residual flexibility is exact."""
 
 from __future__ import annotations
@@ -190,7 +190,7 @@ def column_of(rows, key, static):
 
 
 def test_b3_reduction_table(tmp_path):
-    """B3 (cases/beam_stop.yaml, BENCHMARKS.md): `fem-impact reduction` against the full model.
+    """B3 (cases/beam_stop.yaml, docs/benchmarks.md B3): `fem-impact reduction` against the full model.
 
     The reference code's figures (5 modes + 1 static mode: 1.8 % on the tip displacement, 0.6 %
     on the tip velocity; 5 modes alone 7.1 %, 3.2 %) are errors of the histories' extreme values
@@ -201,7 +201,7 @@ def test_b3_reduction_table(tmp_path):
     (8.0, 0.93, 0.33 %; 9.4, 3.6, 1.5 %)."""
     rows = reduction_rows(tmp_path / "b3", modes=(2, 5, 10, 20))
     peak_u, peak_v = (float(rows[("5", "True")][k]) for k in ("displacement_error_peak", "velocity_error_peak"))
-    assert peak_u < 0.018 and peak_v < 0.006                             # BENCHMARKS.md's bar for n1 = 5
+    assert peak_u < 0.018 and peak_v < 0.006                             # docs/benchmarks.md B3: the bar at n1 = 5
     plain_u, plain_v = (float(rows[("5", "False")][k]) for k in ("displacement_error_peak", "velocity_error_peak"))
     assert plain_u < 0.071 and plain_v < 0.032 and plain_v > 3 * peak_v
     for key in ("displacement_error", "velocity_error_band", "impulse_error"):

@@ -76,7 +76,7 @@ def test_b2_exact_field_keeps_its_energy_and_the_wall():
 
 
 def test_b1_exact_field_matches_the_table_and_keeps_its_energy():
-    """B1 by d'Alembert: u(0, t) as in BENCHMARKS.md's table, u(L, t) = 0 (clamp), period 3, energy
+    """B1 by d'Alembert: u(0, t) as in the table of docs/benchmarks.md B1, u(L, t) = 0 (clamp), period 3, energy
     1/8 at every time, the contact force 1/2 on [1, 2] mod 3."""
     ref = from_case(load_case(SIGNORINI))
     assert isinstance(ref, B1)

@@ -269,7 +269,7 @@ class TimeDependentLoad(Protocol):
 class StaticPart(Protocol):
     """A massless, quasi-static part of the displacement, ``U_s = S_k (R(t) - P^T lam)``.
 
-    The reduced model's residual flexibility (METHOD.md s. 3): the contact rows see
+    The reduced model's residual flexibility (docs/theory.md s. 8.2): the contact rows see
     ``P U = P U_dyn + offset(t) - compliance lam``, so the contact becomes compliant; the
     energy of U_s and the work of the loads on it enter the energy budget.
     """
@@ -487,7 +487,7 @@ def owned_values(x) -> np.ndarray:
 
 @dataclass
 class EnergyBudget:
-    """Energies at a step; work and loss terms cumulative from the start (METHOD.md s. 4)."""
+    """Energies at a step; work and loss terms cumulative from the start (docs/theory.md s. 9)."""
 
     kinetic: float = 0.0
     strain: float = 0.0

@@ -1,4 +1,4 @@
-"""Explicit central difference with forward-increment Lagrange multipliers (METHOD.md s. 5)."""
+"""Explicit central difference with forward-increment Lagrange multipliers (docs/theory.md s. 6)."""
 
 from __future__ import annotations
 

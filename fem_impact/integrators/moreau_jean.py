@@ -1,4 +1,4 @@
-"""Moreau-Jean: the theta-method with contact impulses (METHOD.md s. 8), the default method.
+"""Moreau-Jean: the theta-method with contact impulses (docs/theory.md s. 4), the default method.
 
 Why it holds where the paper's scheme does not. With theta = 1/2 the smooth part is the
 trapezoidal rule, the same as Newmark's (beta 1/4, gamma 1/2). The two differ only in how the

@@ -1,4 +1,4 @@
-"""Generalized Newmark with position-level multipliers and Carnot's impact correction (METHOD.md s. 2)."""
+"""Generalized Newmark with position-level multipliers and Carnot's impact correction (docs/theory.md s. 3)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ class Newmark(ContactScheme):
     - ``beta = 0`` (explicit) is not handled here: the position-level contact problem needs
       ``beta > 0`` (see ``CentralDifference``).
     - ``impact_correction: false`` keeps only the position-level multipliers: no Carnot
-      correction of the velocities and no acceleration projection (METHOD.md s. 5: the contact
+      correction of the velocities and no acceleration projection (docs/theory.md s. 3.5: the contact
       force then oscillates and the contact chatters; for comparison studies).
 
     A step is vector updates, one solve with ``S = M + gamma dt C + beta dt^2 K``, a product
@@ -137,7 +137,7 @@ class Newmark(ContactScheme):
                     ops.subtract_transpose(self.MV, jump)
             else:
                 impulse, pv = s0, pv_star
-            # Work absorbed by the position-level forces over the step (METHOD.md s. 4).
+            # Work absorbed by the position-level forces over the step (docs/theory.md s. 9).
             energy.contact_loss += float((pu - st.normal_displacement).dot(f_mean))
 
         # Energy budget: kinetic and strain energy of the state; work terms with the scheme's own

@@ -1,7 +1,7 @@
 """``fem-impact study convergence``: run a case at several resolutions, measure its errors against the
 case's exact solution (``reference:``) or against the finest level, and fit the observed orders.
 
-Refinement follows BENCHMARKS.md ("Measuring"): when the mesh varies, the time step follows it at a
+Refinement follows docs/benchmarks.md s. 1: when the mesh varies, the time step follows it at a
 fixed Courant number ``c dt / h`` (the case's own unless ``--courant``; ``--dt`` fixes dt instead);
 for time convergence vary ``solver.dt`` on a fixed mesh. The refinement parameter of the fit is
 ``h`` when the mesh varies, else ``dt`` when the time step varies, else ``1/n1`` for
