@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import csv
+import os
+import re
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -136,8 +139,12 @@ class HistoryWriter:
     """
 
     def __init__(self, path: Path | None, cons: Constraints, probes: Probes, comm: MPI.Comm, fields,
-                 flush_every: int = 2000, momenta: BodyMomenta | None = None, scheme_energy: bool = False):
+                 flush_every: int = 2000, momenta: BodyMomenta | None = None, scheme_energy: bool = False,
+                 name: str = "run"):
         self.cons, self.probes, self.comm, self.fields = cons, probes, comm, fields
+        self.name = name
+        # FEM_IMPACT_RECORD=DIR: every run also keeps its rows unrounded in DIR (tools/same_histories.py).
+        self._recorded: list | None = [] if os.environ.get("FEM_IMPACT_RECORD") and comm.rank == 0 else None
         self.momenta = momenta
         self.rows: list[list[float]] = []
         self.flush_every = flush_every
@@ -175,6 +182,8 @@ class HistoryWriter:
 
     def flush(self) -> None:
         if self._file:
+            if self._recorded is not None:
+                self._recorded += self.rows
             self._csv.writerows([[f"{v:.12g}" for v in row] for row in self.rows])
             self.rows.clear()
 
@@ -182,6 +191,17 @@ class HistoryWriter:
         self.flush()
         if self._file:
             self._file.close()
+        if self._recorded is not None:
+            self._record(self._recorded if self._file else self.rows)
+
+    def _record(self, rows: list) -> None:
+        """Save the rows under ``$FEM_IMPACT_RECORD/<the pytest test running, if any>/``."""
+        test = os.environ.get("PYTEST_CURRENT_TEST", "no-test").rsplit(" (", 1)[0]
+        folder = Path(os.environ["FEM_IMPACT_RECORD"]) / re.sub(r"[^A-Za-z0-9_.-]+", "_", test)
+        folder.mkdir(parents=True, exist_ok=True)
+        data = np.array(rows, dtype=float).reshape(len(rows), len(self.columns))
+        stem = f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', self.name)}-{os.getpid()}-{time.monotonic_ns()}"
+        np.savez(folder / f"{stem}.npz", columns=np.array(self.columns), data=data)
 
     def columns_data(self) -> dict[str, np.ndarray] | None:
         """The kept rows as columns by name (a writer without a file; None on ranks other than 0)."""

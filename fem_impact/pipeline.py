@@ -185,7 +185,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         fields = system.fields
         momenta = BodyMomenta(model, fields)
         history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
-                                scheme_energy=integrator.scheme_energy)
+                                scheme_energy=integrator.scheme_energy, name=case.name)
         stats = RunStatistics(cons)
         observers = [history, stats]
         vtk = None
