@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,6 +15,7 @@ from .constraints import Constraints
 from .errors import ModelInputError
 from .integrators import StepState
 from .model import AXES, Model, pad_vector
+from .outdir import writing
 from .parallel import allsum
 from .progress import Progress, duration  # noqa: F401  (re-exported: pipeline, sweep, cli)
 
@@ -148,10 +150,12 @@ class HistoryWriter:
         # positions of the earlier ones.
         self.columns += probes.columns() + list(ENERGY_COLUMNS) + (momenta.columns() if momenta else [])
         self._keep = comm.rank == 0
+        self.path = path
         self._file = open(path, "w", newline="") if comm.rank == 0 and path is not None else None
         if self._file:
             self._csv = csv.writer(self._file)
-            self._csv.writerow(self.columns)
+            with writing(path):
+                self._csv.writerow(self.columns)
 
     def write(self, state: StepState) -> None:
         row = [state.t]
@@ -170,17 +174,29 @@ class HistoryWriter:
 
     def flush(self) -> None:
         if self._file:
-            self._csv.writerows([[f"{v:.12g}" for v in row] for row in self.rows])
+            with writing(self.path):   # (a failed write names no file)
+                self._csv.writerows([[f"{v:.12g}" for v in row] for row in self.rows])
             self.rows.clear()
 
     def close(self) -> None:
-        self.flush()
-        if self._file:
-            self._file.close()
+        """Write what is left and close the file; the file is closed even when that write fails."""
+        file = self._file
+        if file is None:
+            return
+        try:
+            self.flush()
+            with writing(self.path):
+                file.close()
+        except BaseException:
+            with contextlib.suppress(OSError):
+                file.close()
+            raise
+        finally:
+            self._file = None
 
     def columns_data(self) -> dict[str, np.ndarray] | None:
         """The kept rows as columns by name (a writer without a file; None on ranks other than 0)."""
-        if not self._keep or self._file is not None:
+        if not self._keep or self.path is not None:
             return None
         data = np.array(self.rows, dtype=float).reshape(len(self.rows), len(self.columns))
         return {name: data[:, i].copy() for i, name in enumerate(self.columns)}
@@ -203,9 +219,9 @@ class VTKWriter:
     def close(self) -> None:
         # dolfinx 0.5's VTKFile writes its .pvd again when destroyed: drop it now, while its
         # folder (the staging folder) exists, not after that has been moved or removed.
-        if self.series is not None:
-            self.series.close()
-            self.series = None
+        series, self.series = self.series, None
+        if series is not None:
+            series.close()
 
 
 class RunStatistics:
