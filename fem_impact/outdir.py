@@ -13,6 +13,8 @@ replaced, the staging folder, the lock against a concurrent run, stale debris, a
   beside the folder, ``flock``: released by the kernel when the process dies) makes a second run
   into the same folder refuse; whoever holds the lock removes staging folders that a killed
   process left behind.
+- A study writes into its folder directly (:func:`written_in_place`): its completed levels stay
+  when it fails or is interrupted, for a rerun to resume.
 - SIGTERM, SIGHUP and SIGQUIT end a run as Ctrl-C does (:class:`Interrupted`, a KeyboardInterrupt):
   the staging folder is removed and the command exits with 128 + the signal number.
 - A write that fails (a full disk, a quota, an I/O error) is :class:`OutputWriteError`, a
@@ -465,27 +467,96 @@ def claim(outdir, comm, command: str, protect=(), source=None):
 
 @contextlib.contextmanager
 def written_in_place(outdir, comm, command: str, protect=(), source=None):
-    """Claim ``outdir`` for a command that writes into it directly (a study: completed levels are kept
-    for a rerun); the marker is written first, so that an interrupted study's folder is recognized."""
+    """Claim ``outdir`` for a command that writes into it directly, not through a staging folder: a study,
+    whose completed levels (``OUTDIR/levels/NAME``) are kept for a rerun to resume.
+
+    The folder is made at once (mkdir, which does not take over a folder that appeared since the
+    check: that one is checked again). The marker is written at once only into a new or empty folder
+    (so that it is recognized with its first level); into an earlier result, at completion.
+
+    Leaving with an error, the exception gets ``left``, one sentence on what the folder keeps: the
+    levels this run completed, or "the output folder was left as it was" (then what this claim made
+    is removed again). An OSError becomes :class:`OutputWriteError`.
+    """
     with claim(outdir, comm, command, protect, source) as out:
-        new = not out.path.exists()
+        made, before, error = set(), {}, None
         if comm.rank == 0:
-            out.path.mkdir(exist_ok=True)
-            out.write_marker(out.path)
-            for cache in out.path.glob(".cache-*"):   # a killed study's private cache (we hold the lock)
-                shutil.rmtree(cache, ignore_errors=True)
-        comm.barrier()
+            try:
+                made = _open_in_place(out)
+                before = _levels(out.path)
+            except OutputFolderError as err:
+                error = (err.file, err.message)
+            except OSError as err:
+                error = (str(out.path), f"cannot create the output folder: {err.strerror or err}")
+        error = comm.bcast(error, root=0)
+        if error:
+            raise OutputFolderError(*error)
         try:
             yield out
-        except BaseException:
-            # Refused before anything ran (or interrupted before a level completed): no empty folder left.
-            if comm.rank == 0 and new and [p.name for p in out.path.iterdir()] in ([MARKER], [MARKER, "levels"]):
-                with contextlib.suppress(OSError):
-                    (out.path / MARKER).unlink()
-                    if (out.path / "levels").exists():
-                        (out.path / "levels").rmdir()
-                    out.path.rmdir()
+            if comm.rank == 0:
+                with writing(out.path / MARKER):
+                    out.write_marker(out.path)
+        except BaseException as err:
+            if comm.rank == 0:
+                err.left = _left_in_place(out.path, before, made)
+            if isinstance(err, OSError):
+                converted = write_error(err, final=out.path)
+                converted.left = getattr(err, "left", None)
+                raise converted from None
             raise
+
+
+def _open_in_place(out: OutputFolder) -> set:
+    """Make the folder (or check it again) for writing in place; returns what was made: "folder", "marker"."""
+    made = set()
+    try:
+        out.path.mkdir()
+        made.add("folder")
+    except FileExistsError:
+        refusal = _refusal(out.path)
+        if refusal is not None:
+            raise OutputFolderError(str(out.path), refusal) from None
+    if "folder" in made or not any(out.path.iterdir()):
+        out.write_marker(out.path)
+        made.add("marker")
+    for cache in out.path.glob(".cache-*"):   # a killed study's private cache (we hold the lock)
+        shutil.rmtree(cache, ignore_errors=True)
+    if not (out.path / "levels").exists():
+        made.add("levels")
+    return made
+
+
+def _levels(folder: Path) -> dict:
+    """The recorded levels of a study folder: name -> identity of its ``level.json`` (rewritten by replace)."""
+    found = {}
+    for record in (folder / "levels").glob("*/level.json"):
+        with contextlib.suppress(OSError):
+            st = record.stat()
+            found[record.parent.name] = (st.st_ino, st.st_mtime_ns)
+    return found
+
+
+def _left_in_place(folder: Path, before: dict, made: set) -> str:
+    """What a study that ends early leaves in its folder, in words; when it recorded no level, what it
+    made is removed (the folder, the marker, an empty ``levels/``), so that the folder is as it was."""
+    now = _levels(folder)
+    new = [name for name, ident in now.items() if before.get(name) != ident]
+    if new:
+        others = len(now) - len(new)
+        return (f"{len(new)} completed level{'s' if len(new) > 1 else ''} of this run "
+                f"{'are' if len(new) > 1 else 'is'} kept in {folder / 'levels'}"
+                + (f", with {others} of an earlier run" if others else "")
+                + "; run the same command again to resume")
+    try:
+        if "levels" in made and (folder / "levels").exists():
+            (folder / "levels").rmdir()
+        if "marker" in made:
+            (folder / MARKER).unlink()
+        if "folder" in made:
+            folder.rmdir()
+    except OSError:   # (something else was left in it: a killed level's staging folder)
+        return "no level was completed"
+    return "the output folder was left as it was"
 
 
 # --- single files (plot, animate) ------------------------------------------------------------
