@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import SimulationError
 from .progress import Progress
 
 # --field NAME -> (point array, label)
@@ -631,6 +632,9 @@ def main(args) -> int:
     except AnimateError as err:
         print(f"fem-impact: error: {err}", file=sys.stderr)
         return 2
+    except SimulationError as err:   # (OutputWriteError: a full disk)
+        print(f"fem-impact: the rendering failed: {err}", file=sys.stderr)
+        return 3
     except KeyboardInterrupt as err:
         from .outdir import exit_status, signal_name
 

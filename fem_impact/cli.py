@@ -291,13 +291,18 @@ def _guarded(action, failure: str) -> int:
     """Run ``action``; bad input -> one line and status 2, a failed computation -> status 3."""
     from .case import CaseError
     from .errors import SimulationError
+    from .outdir import OutputWriteError
 
     try:
         action()
     except (CaseError, _UsageError) as err:
         return _fail(_comm(), f"error: {err}", 2)
     except SimulationError as err:
-        return _fail(_comm(), f"{failure}: {err} (the output folder was left as it was)", 3)
+        status = _fail(_comm(), f"{failure}: {err} ({_left(err)})", 3)
+        if _comm().size > 1 and isinstance(err, OutputWriteError):
+            sys.stderr.flush()   # (written by rank 0 alone: the other ranks wait in the time loop)
+            os._exit(status)
+        return status
     except KeyboardInterrupt as err:
         return _interrupted(err)
     except MemoryError:
@@ -315,7 +320,7 @@ def _interrupted(err: KeyboardInterrupt) -> int:
     Progress.end_line()
     status = exit_status(err)
     try:
-        _fail(_comm(), f"interrupted by {signal_name(err)} (the output folder was left as it was)", status)
+        _fail(_comm(), f"interrupted by {signal_name(err)} ({_left(err)})", status)
         sys.stderr.flush()
     except OSError:   # (SIGHUP: the terminal may be gone)
         pass
@@ -324,6 +329,11 @@ def _interrupted(err: KeyboardInterrupt) -> int:
         # would wait for them too); mpirun ends the job when a rank exits with a non-zero status.
         os._exit(status)
     return status
+
+
+def _left(err: BaseException) -> str:
+    """What the output folder holds after a failure: as it was (staged commands), or what a study kept."""
+    return getattr(err, "left", None) or "the output folder was left as it was"
 
 
 def _modes(args) -> int:
@@ -480,7 +490,7 @@ def _study_in(args, case) -> None:
 def _plot(outdir: str, png) -> int:
     from pathlib import Path
 
-    from .outdir import OutputFolderError
+    from .outdir import OutputFolderError, OutputWriteError
     from .plots import PlotError, plot_history
 
     if not (Path(outdir) / "history.csv").is_file():
@@ -491,6 +501,9 @@ def _plot(outdir: str, png) -> int:
     except (PlotError, OutputFolderError) as err:
         print(f"fem-impact: error: {err}", file=sys.stderr)
         return 2
+    except OutputWriteError as err:
+        print(f"fem-impact: the plot failed: {err}", file=sys.stderr)
+        return 3
     except KeyboardInterrupt as err:
         return _interrupted(err)
     return 0

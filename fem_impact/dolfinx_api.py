@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
@@ -135,23 +137,66 @@ class VTKSeries:
         self.functions = {name: function(W, name) for name in names}
         self._file = io.VTKFile(comm, str(path), "w")
         self._path, self._comm = Path(path), comm
+        self._frames = 0
 
     def write(self, t: float, owned_values: dict) -> None:
-        """Write one frame; ``owned_values`` maps a field name to its owned dof values."""
+        """Write one frame; ``owned_values`` maps a field name to its owned dof values.
+
+        dolfinx 0.5 ignores a failed write of a frame's files (a full disk leaves them empty or cut
+        short): each rank reads the end of its piece back, and all raise OSError if one is incomplete.
+        """
         for name, values in owned_values.items():
             f = self.functions[name]
             blocks = values.reshape(-1, self.bs)
             f.x.array.reshape(-1, self.out_bs)[: blocks.shape[0], : self.bs] = blocks
             f.x.scatter_forward()
         self._file.write_function(list(self.functions.values()), t)
+        stem, rank = self._path.stem, self._comm.rank
+        files = [self._path.with_name(f"{stem}_p{rank}_{self._frames:06d}.vtu")]
+        if rank == 0:
+            files.append(self._path.with_name(f"{stem}{self._frames:06d}.pvtu"))
+        self._frames += 1
+        bad = next((str(f) for f in files if not _complete_xml(f)), None)
+        bad = self._comm.allgather(bad)
+        if any(bad):
+            raise _unwritten(Path(next(b for b in bad if b)))
 
     def close(self) -> None:
         # dolfinx 0.5 rewrites the .pvd when the file object is destroyed: destroy it now,
-        # before the output folder is moved into place.
-        self._file.close()
-        self._file = None
+        # before the output folder is moved into place (or removed, when this fails).
+        file, self._file = self._file, None
+        if file is None:
+            return
+        try:
+            file.close()
+        except RuntimeError:   # "Could not write VTKFile": the .pvd
+            del file
+            raise _unwritten(self._path) from None
+        del file
         if self._comm.rank == 0:
             _drop_repeated_pieces(self._path)
+
+
+def _complete_xml(path: Path) -> bool:
+    """Whether an XML file dolfinx wrote is there to its last line (``</VTKFile>``)."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, 2)
+            f.seek(max(f.tell() - 16, 0))
+            return f.read().rstrip().endswith(b"</VTKFile>")
+    except OSError:
+        return False
+
+
+def _unwritten(path: Path) -> OSError:
+    """The error of a file dolfinx could not write (it gives no reason): a full disk, or an I/O error."""
+    try:
+        full = os.statvfs(path.parent).f_bavail == 0
+    except OSError:
+        full = False
+    if full:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    return OSError(errno.EIO, "the file was not written completely", str(path))
 
 
 def _drop_repeated_pieces(pvd: Path) -> None:

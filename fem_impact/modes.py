@@ -374,6 +374,7 @@ def run_modes(path, outdir=None, overrides=(), n: int | None = None, comm: MPI.C
 def _run_modes(case, out, n, comm, t_start) -> dict:
     from .mesh import build_mesh
     from .model import build_model
+    from .outdir import writing
 
     outdir = out.path
     meshdata = build_mesh(case, comm)
@@ -405,12 +406,13 @@ def _run_modes(case, out, n, comm, t_start) -> dict:
             # happen here, inside the staging folder, not after it was moved into place.
             del series
         if comm.rank == 0:
-            with open(stage / "modes.csv", "w", newline="") as f:
+            with writing(stage / "modes.csv"), open(stage / "modes.csv", "w", newline="") as f:
                 writer = csv.writer(f)
                 writer.writerow(columns)
                 for row in rows:
                     writer.writerow([f"{v:.10g}" if isinstance(v, float) else v for v in row])
-            case.write_resolved(stage / "case.resolved.yaml")
+            with writing(stage / "case.resolved.yaml"):
+                case.write_resolved(stage / "case.resolved.yaml")
     return {
         "case": case.name, "dofs": model.dofs, "free_dofs": available, "modes": n, "rigid": modes.n_rigid,
         "dim": model.bs, "columns": columns, "rows": rows, "mass_total_percent": (100.0 * fractions.sum(0)).tolist(),

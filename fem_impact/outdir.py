@@ -7,13 +7,20 @@ replaced, the staging folder, the lock against a concurrent run, stale debris, a
 - The home folder, the current folder and its parents, the case file's folder and its parents
   (and the mesh file's) are never output folders.
 - Results are written into a hidden sibling ``.NAME.partial-PID`` and moved into place when
-  complete. A lock (``.NAME.lock`` beside the folder, ``flock``: released by the kernel when the
-  process dies) makes a second run into the same folder refuse; whoever holds the lock removes
-  staging folders that a killed process left behind.
+  complete, under the policy checked again at that moment: a folder that appeared or changed
+  meanwhile and holds files that are not a result is left as it was, and the result is kept
+  beside it (``NAME.result-TIMESTAMP``, :class:`OutputFolderChanged`). A lock (``.NAME.lock``
+  beside the folder, ``flock``: released by the kernel when the process dies) makes a second run
+  into the same folder refuse; whoever holds the lock removes staging folders that a killed
+  process left behind.
+- A study writes into its folder directly (:func:`written_in_place`): its completed levels stay
+  when it fails or is interrupted, for a rerun to resume.
 - SIGTERM, SIGHUP and SIGQUIT end a run as Ctrl-C does (:class:`Interrupted`, a KeyboardInterrupt):
   the staging folder is removed and the command exits with 128 + the signal number.
+- A write that fails (a full disk, a quota, an I/O error) is :class:`OutputWriteError`, a
+  SimulationError (status 3) naming the file and the reason; the staging folder is removed.
 
-Errors are :class:`OutputFolderError`, a CaseError: one line and status 2, like other bad input.
+Refusals are :class:`OutputFolderError`, a CaseError: one line and status 2, like other bad input.
 Under MPI, rank 0 decides and does the file work; every rank raises the same error.
 """
 
@@ -26,10 +33,11 @@ import json
 import os
 import shutil
 import signal
+import time
 from pathlib import Path
 
 from ._version import __version__
-from .errors import CaseError
+from .errors import CaseError, SimulationError
 
 MARKER = ".fem-impact.json"
 # Leave room for ".partial-PID" and ".lock" around the folder's name (NAME_MAX is 255 bytes).
@@ -41,6 +49,62 @@ class OutputFolderError(CaseError):
 
     def __init__(self, where, message):
         super().__init__(where, None, None, message)
+
+
+class OutputFolderChanged(OutputFolderError):
+    """At the final move the output folder (or file) held what is not a fem-impact result: it was left as
+    it was and the complete result was kept beside it, at ``kept``."""
+
+    def __init__(self, where, message, kept):
+        super().__init__(where, message)
+        self.kept = Path(kept)
+
+
+class OutputWriteError(SimulationError):
+    """Results that could not be written (a full disk, a quota, an I/O error): the run fails (status 3)."""
+
+
+def write_error(err: OSError, stage: Path | None = None, final: Path | None = None) -> OutputWriteError:
+    """The one line for an OSError while writing results: the file (as it would be named in ``final``
+    when it lies in the staging folder ``stage``) and the system's reason."""
+    name = err.filename
+    if name is not None and stage is not None and final is not None:
+        with contextlib.suppress(ValueError):
+            name = final / Path(os.fsdecode(name)).relative_to(stage)
+    if err.filename2 is not None:   # a rename: the move into place
+        what = f"cannot move the results into {final if final is not None else os.fsdecode(err.filename2)}"
+    elif name is not None:
+        what = f"cannot write {os.fsdecode(name)}"
+    else:
+        what = f"cannot write the results{f' into {final}' if final is not None else ''}"
+    return OutputWriteError(f"{what}: {err.strerror or err}")
+
+
+@contextlib.contextmanager
+def writing(path):
+    """An OSError of the body names ``path`` (a failed ``write`` or ``close`` of a file object names none)."""
+    try:
+        yield
+    except OSError as err:
+        if err.filename is None:
+            raise OSError(err.errno, err.strerror or str(err), os.fspath(path)) from None
+        raise
+
+
+@contextlib.contextmanager
+def replacing(path):
+    """Yields a temporary name beside ``path``; it replaces ``path`` when the body completes and is removed
+    when it fails (errors name ``path``): a file is either the old one or the new one, whole."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+    try:
+        with writing(path):
+            yield tmp
+            os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
 
 
 # --- which folders ---------------------------------------------------------------------------
@@ -119,21 +183,53 @@ def check(outdir, protect=(), option: str = "-o") -> Path:
         raise OutputFolderError(shown, f"{ancestor} is a file, not a folder")
     if not os.access(ancestor, os.W_OK | os.X_OK):
         raise OutputFolderError(shown, f"cannot write into {ancestor} (permission denied)")
-    if path.is_symlink():
-        raise OutputFolderError(shown, "is a symbolic link; give the folder itself")
-    if path.exists():
-        if not path.is_dir():
-            raise OutputFolderError(shown, "the output path exists and is not a folder")
-        try:
-            entries = sorted(p.name for p in path.iterdir())
-        except OSError as err:
-            raise OutputFolderError(shown, f"cannot read the folder: {err.strerror}") from None
-        if entries and not is_result(path):
-            example = ", ".join(repr(e) for e in entries[:3]) + (", ..." if len(entries) > 3 else "")
-            raise OutputFolderError(shown, f"the folder holds files that are not a fem-impact result ({len(entries)} "
-                                           f"entries: {example}); it is left as it was. Choose a new or empty "
-                                           "folder (an earlier result of fem-impact is replaced)")
+    refusal = _refusal(path)
+    if refusal is not None:
+        raise OutputFolderError(shown, refusal + ". Choose a new or empty folder (an earlier result of "
+                                                 "fem-impact is replaced)" if refusal.startswith("the folder holds")
+                                else refusal)
     return path
+
+
+def _refusal(path: Path) -> str | None:
+    """Why the policy does not let results replace what ``path`` holds now; None for nothing there, an empty
+    folder or an earlier result."""
+    if path.is_symlink():
+        return "is a symbolic link; give the folder itself"
+    if not path.exists():
+        return None
+    if not path.is_dir():
+        return "the output path exists and is not a folder"
+    try:
+        entries = sorted(p.name for p in path.iterdir())
+    except OSError as err:
+        return f"cannot read the folder: {err.strerror}"
+    if entries and not is_result(path):
+        example = ", ".join(repr(e) for e in entries[:3]) + (", ..." if len(entries) > 3 else "")
+        return (f"the folder holds files that are not a fem-impact result ({len(entries)} entries: {example}); it is "
+                "left as it was")
+    return None
+
+
+def _keep_beside(result: Path, target: Path) -> Path:
+    """Move the complete ``result`` (a folder or a file) to a new name beside ``target``,
+    ``NAME.result-TIMESTAMP`` (a file keeps its suffix), never over anything: the name is taken
+    first (mkdir, or an exclusive create), which fails on whatever exists."""
+    is_file = result.is_file()
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    for n in range(1, 1000):
+        tag = f".result-{stamp}" + (f"-{n}" if n > 1 else "")
+        kept = target.with_name(target.stem + tag + target.suffix) if is_file else target.with_name(target.name + tag)
+        try:
+            if is_file:
+                os.close(os.open(kept, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+            else:
+                kept.mkdir()
+        except FileExistsError:
+            continue
+        os.rename(result, kept)   # over the empty folder (or file) just taken
+        return kept
+    raise OSError(errno.EEXIST, "no free name beside it for the result", str(target))
 
 
 # --- the claim: lock, stale debris, staging ---------------------------------------------------
@@ -156,6 +252,8 @@ def _remove_stale(parent: Path, name: str) -> list[Path]:
         for p in parent.glob(f".{_glob_escape(name)}.{kind}-*"):
             pid = p.name.rsplit("-", 1)[1]
             if pid.isdigit() and (int(pid) == 0 or not _alive(int(pid))):
+                if kind == "old" and _refusal(p) is not None:   # (only ever a result moved aside)
+                    continue
                 shutil.rmtree(p, ignore_errors=True)
                 removed.append(p)
     return removed
@@ -239,7 +337,9 @@ class OutputFolder:
     def staged(self):
         """Write into ``.NAME.partial-PID`` beside the folder; move it over the folder when complete.
 
-        A failed or interrupted body removes the staging folder and leaves the folder as it was.
+        A failed or interrupted body removes the staging folder and leaves the folder as it was; so
+        does a failed write (:class:`OutputWriteError`). At the move the policy is checked again
+        (:meth:`install`).
         """
         comm = self.comm
         install_signal_handlers()   # again: PETSc, imported meanwhile, installs its own
@@ -257,14 +357,20 @@ class OutputFolder:
         try:
             yield stage
             comm.barrier()
+            failure = None
             if comm.rank == 0:
-                self.write_marker(stage)
-                old = self.path.parent / f".{self.path.name}.old-{os.getpid()}"
-                if self.path.exists():
-                    self.path.rename(old)
-                stage.rename(self.path)
-                shutil.rmtree(old, ignore_errors=True)
-                self._created = []   # they hold the result now
+                try:
+                    with writing(stage / MARKER):
+                        self.write_marker(stage)
+                    self.install(stage)
+                    self._created = []   # they hold the result now
+                except OutputFolderChanged as err:
+                    failure = ("changed", err.file, err.message, str(err.kept))
+                except OSError as err:
+                    failure = ("write", str(write_error(err, stage, self.path)))
+            failure = comm.bcast(failure, root=0)
+            if failure is not None:
+                raise OutputFolderChanged(*failure[1:]) if failure[0] == "changed" else OutputWriteError(failure[1])
         except BaseException as err:
             interrupted = isinstance(err, KeyboardInterrupt)
             if interrupted:
@@ -276,8 +382,55 @@ class OutputFolder:
             if interrupted and comm.rank != 0:   # (rank 0, if stuck, is killed with the lock file left)
                 with contextlib.suppress(OSError):
                     os.unlink(self._lock_path)
+            if isinstance(err, OSError):
+                raise write_error(err, stage, self.path) from None
             raise
         comm.barrier()
+
+    def install(self, stage: Path) -> None:
+        """Move the complete ``stage`` into place (rank 0, holding the lock), under the policy checked again:
+        between the check at the start and now the folder may have appeared or changed.
+
+        The move itself never replaces files: rename(2) puts a folder over an empty folder only, and
+        fails on one with files (which may appear between this check and the move). An earlier result
+        is first moved aside (``.NAME.old-PID``) and removed once the new one is in place; it is put
+        back when the move fails. When the folder holds what is not a result, it is left as it was and
+        the result is kept beside it: :class:`OutputFolderChanged`.
+        """
+        path = self.path
+        refusal = _refusal(path)
+        old = None
+        if refusal is None and path.is_dir() and any(path.iterdir()):
+            old = path.parent / f".{path.name}.old-{os.getpid()}"
+            try:
+                os.rename(path, old)
+            except FileNotFoundError:   # (gone meanwhile: nothing to move aside)
+                old = None
+        try:
+            if refusal is None:
+                try:
+                    os.rename(stage, path)
+                except OSError as err:
+                    if err.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR):
+                        raise
+                    refusal = _refusal(path) or "the output path was taken during the run"
+        except BaseException:
+            if old is not None:
+                os.rename(old, path)
+            raise
+        if refusal is not None:
+            earlier = ""
+            if old is not None:   # (the folder appeared again between the two renames)
+                try:
+                    os.rename(old, path)
+                except OSError:
+                    earlier = f"; the earlier result is in {_keep_beside(old, path)}"
+            kept = _keep_beside(stage, path)
+            raise OutputFolderChanged(str(path), f"{refusal} (checked again at the end of the {self.command}, "
+                                                 f"before the results were moved into place); the results are "
+                                                 f"in {kept}{earlier}", kept)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
 
 
 @contextlib.contextmanager
@@ -314,27 +467,96 @@ def claim(outdir, comm, command: str, protect=(), source=None):
 
 @contextlib.contextmanager
 def written_in_place(outdir, comm, command: str, protect=(), source=None):
-    """Claim ``outdir`` for a command that writes into it directly (a study: completed levels are kept
-    for a rerun); the marker is written first, so that an interrupted study's folder is recognized."""
+    """Claim ``outdir`` for a command that writes into it directly, not through a staging folder: a study,
+    whose completed levels (``OUTDIR/levels/NAME``) are kept for a rerun to resume.
+
+    The folder is made at once (mkdir, which does not take over a folder that appeared since the
+    check: that one is checked again). The marker is written at once only into a new or empty folder
+    (so that it is recognized with its first level); into an earlier result, at completion.
+
+    Leaving with an error, the exception gets ``left``, one sentence on what the folder keeps: the
+    levels this run completed, or "the output folder was left as it was" (then what this claim made
+    is removed again). An OSError becomes :class:`OutputWriteError`.
+    """
     with claim(outdir, comm, command, protect, source) as out:
-        new = not out.path.exists()
+        made, before, error = set(), {}, None
         if comm.rank == 0:
-            out.path.mkdir(exist_ok=True)
-            out.write_marker(out.path)
-            for cache in out.path.glob(".cache-*"):   # a killed study's private cache (we hold the lock)
-                shutil.rmtree(cache, ignore_errors=True)
-        comm.barrier()
+            try:
+                made = _open_in_place(out)
+                before = _levels(out.path)
+            except OutputFolderError as err:
+                error = (err.file, err.message)
+            except OSError as err:
+                error = (str(out.path), f"cannot create the output folder: {err.strerror or err}")
+        error = comm.bcast(error, root=0)
+        if error:
+            raise OutputFolderError(*error)
         try:
             yield out
-        except BaseException:
-            # Refused before anything ran (or interrupted before a level completed): no empty folder left.
-            if comm.rank == 0 and new and [p.name for p in out.path.iterdir()] in ([MARKER], [MARKER, "levels"]):
-                with contextlib.suppress(OSError):
-                    (out.path / MARKER).unlink()
-                    if (out.path / "levels").exists():
-                        (out.path / "levels").rmdir()
-                    out.path.rmdir()
+            if comm.rank == 0:
+                with writing(out.path / MARKER):
+                    out.write_marker(out.path)
+        except BaseException as err:
+            if comm.rank == 0:
+                err.left = _left_in_place(out.path, before, made)
+            if isinstance(err, OSError):
+                converted = write_error(err, final=out.path)
+                converted.left = getattr(err, "left", None)
+                raise converted from None
             raise
+
+
+def _open_in_place(out: OutputFolder) -> set:
+    """Make the folder (or check it again) for writing in place; returns what was made: "folder", "marker"."""
+    made = set()
+    try:
+        out.path.mkdir()
+        made.add("folder")
+    except FileExistsError:
+        refusal = _refusal(out.path)
+        if refusal is not None:
+            raise OutputFolderError(str(out.path), refusal) from None
+    if "folder" in made or not any(out.path.iterdir()):
+        out.write_marker(out.path)
+        made.add("marker")
+    for cache in out.path.glob(".cache-*"):   # a killed study's private cache (we hold the lock)
+        shutil.rmtree(cache, ignore_errors=True)
+    if not (out.path / "levels").exists():
+        made.add("levels")
+    return made
+
+
+def _levels(folder: Path) -> dict:
+    """The recorded levels of a study folder: name -> identity of its ``level.json`` (rewritten by replace)."""
+    found = {}
+    for record in (folder / "levels").glob("*/level.json"):
+        with contextlib.suppress(OSError):
+            st = record.stat()
+            found[record.parent.name] = (st.st_ino, st.st_mtime_ns)
+    return found
+
+
+def _left_in_place(folder: Path, before: dict, made: set) -> str:
+    """What a study that ends early leaves in its folder, in words; when it recorded no level, what it
+    made is removed (the folder, the marker, an empty ``levels/``), so that the folder is as it was."""
+    now = _levels(folder)
+    new = [name for name, ident in now.items() if before.get(name) != ident]
+    if new:
+        others = len(now) - len(new)
+        return (f"{len(new)} completed level{'s' if len(new) > 1 else ''} of this run "
+                f"{'are' if len(new) > 1 else 'is'} kept in {folder / 'levels'}"
+                + (f", with {others} of an earlier run" if others else "")
+                + "; run the same command again to resume")
+    try:
+        if "levels" in made and (folder / "levels").exists():
+            (folder / "levels").rmdir()
+        if "marker" in made:
+            (folder / MARKER).unlink()
+        if "folder" in made:
+            folder.rmdir()
+    except OSError:   # (something else was left in it: a killed level's staging folder)
+        return "no level was completed"
+    return "the output folder was left as it was"
 
 
 # --- single files (plot, animate) ------------------------------------------------------------
@@ -361,37 +583,83 @@ def check_file(output, protect=(), option: str = "-o") -> Path:
         raise OutputFolderError(f"{option} {text}", f"cannot write into {path.parent} (permission denied)")
     if any(_real(path) == _real(p) for p in protect if p is not None):
         raise OutputFolderError(f"{option} {text}", "is an input of this command; choose another file")
-    if path.is_dir():
-        raise OutputFolderError(f"{option} {text}", "is a folder; give a file name")
-    if path.exists():
-        magic = _MAGIC.get(path.suffix.lower(), ())
-        try:
-            with open(path, "rb") as f:
-                head = f.read(12)
-        except OSError as err:
-            raise OutputFolderError(f"{option} {text}", f"cannot read the existing file: {err.strerror}") from None
-        if not any(head.startswith(m) or m in head[:12] for m in magic):
-            raise OutputFolderError(f"{option} {text}", f"the file exists and is not a {path.suffix or 'picture'} "
-                                                        "picture; it is left as it was (choose another name)")
+    refusal = _file_refusal(path)
+    if refusal is not None:
+        raise OutputFolderError(f"{option} {text}", refusal)
     return path
+
+
+def _file_refusal(path: Path) -> str | None:
+    """Why a picture must not replace what ``path`` is now; None for nothing there or a picture of its kind."""
+    if path.is_dir():
+        return "is a folder; give a file name"
+    if not path.exists():
+        return None
+    magic = _MAGIC.get(path.suffix.lower(), ())
+    try:
+        with open(path, "rb") as f:
+            head = f.read(12)
+    except OSError as err:
+        return f"cannot read the existing file: {err.strerror}"
+    if not any(head.startswith(m) or m in head[:12] for m in magic):
+        return (f"the file exists and is not a {path.suffix or 'picture'} picture; it is left as it was (choose "
+                "another name)")
+    return None
 
 
 @contextlib.contextmanager
 def atomic_file(path: Path):
-    """Yields a temporary name beside ``path`` (same suffix); it replaces ``path`` when the body completes."""
+    """Yields a temporary name beside ``path`` (same suffix); it replaces ``path`` when the body completes.
+
+    The temporary file is made first: a place where no file can be made is refused
+    (:class:`OutputFolderError`); a write that fails later is :class:`OutputWriteError`. At the end
+    :func:`check_file`'s policy is checked again: a file that appeared meanwhile and is not a picture of
+    the kind is left as it was, and the picture kept beside it (:class:`OutputFolderChanged`).
+    """
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
     try:
-        yield tmp
-        os.replace(tmp, path)
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644))
+    except OSError as err:
+        raise OutputFolderError(str(path), f"cannot write the file: {err.strerror or err}") from None
+    try:
+        with writing(path):
+            yield tmp
+            _install_file(tmp, path)
     except OSError as err:
         with contextlib.suppress(OSError):
             tmp.unlink()
-        raise OutputFolderError(str(path), f"cannot write the file: {err.strerror or err}") from None
+        if err.filename is not None and os.fsdecode(err.filename) == str(tmp):
+            err.filename = str(path)
+        raise write_error(err) from None
     except BaseException:
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise
+
+
+def _install_file(tmp: Path, path: Path) -> None:
+    """Put the finished ``tmp`` at ``path`` under the policy checked again; never over another file: a new
+    name is taken with link(2), which fails on whatever exists (rename would replace it)."""
+    refusal = _file_refusal(path)
+    if refusal is None and not path.exists():
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            refusal = _file_refusal(path) or "a file of that name was made during the rendering"
+        except OSError as err:
+            if err.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EMLINK):
+                raise
+            os.replace(tmp, path)   # (no hard links on this file system: the check just made must do)
+        else:
+            os.unlink(tmp)
+            return
+    if refusal is None:
+        os.replace(tmp, path)   # a picture of the kind, replaced
+        return
+    kept = _keep_beside(tmp, path)
+    raise OutputFolderChanged(str(path), f"{refusal} (checked again before the picture was written); the picture "
+                                         f"is in {kept}", kept)
 
 
 # --- interruption ----------------------------------------------------------------------------

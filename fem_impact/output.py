@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import os
 import re
@@ -17,6 +18,7 @@ from .constraints import Constraints
 from .errors import ModelInputError
 from .integrators import StepState
 from .model import AXES, Model, pad_vector
+from .outdir import writing
 from .parallel import allsum
 from .progress import Progress, duration  # noqa: F401  (re-exported: pipeline, sweep, cli)
 
@@ -158,10 +160,12 @@ class HistoryWriter:
         if scheme_energy:
             self.columns.append("scheme_energy")
         self._keep = comm.rank == 0
+        self.path = path
         self._file = open(path, "w", newline="") if comm.rank == 0 and path is not None else None
         if self._file:
             self._csv = csv.writer(self._file)
-            self._csv.writerow(self.columns)
+            with writing(path):
+                self._csv.writerow(self.columns)
 
     def write(self, state: StepState) -> None:
         row = [state.t]
@@ -184,18 +188,33 @@ class HistoryWriter:
         if self._file:
             if self._recorded is not None:
                 self._recorded += self.rows
-            self._csv.writerows([[f"{v:.12g}" for v in row] for row in self.rows])
+            with writing(self.path):   # (a failed write names no file)
+                self._csv.writerows([[f"{v:.12g}" for v in row] for row in self.rows])
             self.rows.clear()
 
     def close(self) -> None:
-        self.flush()
-        if self._file:
-            self._file.close()
-        if self._recorded is not None:
-            self._record(self._recorded if self._file else self.rows)
+        """Write what is left and close the file; the file is closed even when that write fails."""
+        file = self._file
+        if file is None:
+            self._record(self.rows)   # (a run that writes no file keeps its rows)
+            return
+        try:
+            self.flush()
+            with writing(self.path):
+                file.close()
+        except BaseException:
+            with contextlib.suppress(OSError):
+                file.close()
+            raise
+        finally:
+            self._file = None
+        self._record(self._recorded)
 
-    def _record(self, rows: list) -> None:
-        """Save the rows under ``$FEM_IMPACT_RECORD/<the pytest test running, if any>/``."""
+    def _record(self, rows: list | None) -> None:
+        """With FEM_IMPACT_RECORD, save the rows under ``$FEM_IMPACT_RECORD/<the pytest test running, if any>/``."""
+        if self._recorded is None or rows is None:
+            return
+        self._recorded = None   # (once)
         test = os.environ.get("PYTEST_CURRENT_TEST", "no-test").rsplit(" (", 1)[0]
         folder = Path(os.environ["FEM_IMPACT_RECORD"]) / re.sub(r"[^A-Za-z0-9_.-]+", "_", test)
         folder.mkdir(parents=True, exist_ok=True)
@@ -205,7 +224,7 @@ class HistoryWriter:
 
     def columns_data(self) -> dict[str, np.ndarray] | None:
         """The kept rows as columns by name (a writer without a file; None on ranks other than 0)."""
-        if not self._keep or self._file is not None:
+        if not self._keep or self.path is not None:
             return None
         data = np.array(self.rows, dtype=float).reshape(len(self.rows), len(self.columns))
         return {name: data[:, i].copy() for i, name in enumerate(self.columns)}
@@ -228,9 +247,9 @@ class VTKWriter:
     def close(self) -> None:
         # dolfinx 0.5's VTKFile writes its .pvd again when destroyed: drop it now, while its
         # folder (the staging folder) exists, not after that has been moved or removed.
-        if self.series is not None:
-            self.series.close()
-            self.series = None
+        series, self.series = self.series, None
+        if series is not None:
+            series.close()
 
 
 class RunStatistics:

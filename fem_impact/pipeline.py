@@ -15,7 +15,7 @@ from mpi4py import MPI
 from ._version import __version__
 from .case import Case, load_case
 from .limits import check_limits
-from .outdir import case_inputs, claim
+from .outdir import case_inputs, claim, writing
 
 log = logging.getLogger(__name__)
 
@@ -132,9 +132,12 @@ def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
     Raises
     ------
     CaseError
-        The case does not fit the mesh or the limits (before anything is written).
+        The case does not fit the mesh or the limits (before anything is written), or the output
+        folder is refused: at the start, or at the end when it appeared or changed during the run
+        (:class:`~fem_impact.outdir.OutputFolderChanged`: the result is kept beside it, at ``kept``).
     SimulationError
-        The run could not go on (an output folder is then left as it was).
+        The run could not go on, or its files could not be written (a full disk:
+        :class:`~fem_impact.outdir.OutputWriteError`); an output folder is then left as it was.
     """
     t_start = time.perf_counter()
     comm = MPI.COMM_WORLD if comm is None else comm
@@ -199,8 +202,17 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             watch = EnergyWatch(stop_on_energy_gain)
             final = integrate(integrator, system.U0, system.V0, solver.t_end, observers, watch=watch,
                               progress=progress if callable(progress) else Progress(comm) if progress else None)
-        finally:
+        except BaseException:
+            # Both closed now (the VTK file writes again when destroyed, after the staging folder is gone),
+            # without hiding the run's own error behind a write that fails too.
+            for writer in (history, vtk):
+                if writer is not None:
+                    with contextlib.suppress(OSError):
+                        writer.close()
+            raise
+        try:
             history.close()
+        finally:
             if vtk is not None:
                 vtk.close()
         loop_time = time.perf_counter() - t_loop
@@ -239,12 +251,15 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "fem_impact_version": __version__,
         }
         if comm.rank == 0 and stage is not None:
-            (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-            case.write_resolved(stage / "case.resolved.yaml")
+            with writing(stage / "summary.json"):
+                (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+            with writing(stage / "case.resolved.yaml"):
+                case.write_resolved(stage / "case.resolved.yaml")
             if vtk is not None:
                 from .paraview_view import write_view_script
 
-                write_view_script(stage, meshdata.dim, final_dir=outdir)
+                with writing(stage / "view.py"):
+                    write_view_script(stage, meshdata.dim, final_dir=outdir)
     summary["outdir"] = str(outdir.resolve()) if outdir is not None else None
     columns = None if outdir is not None else comm.bcast(history.columns_data(), root=0)
     return Result(summary, outdir.resolve() if outdir is not None else None, columns)

@@ -141,8 +141,8 @@ def run_sweep(case, vary: str, target: Target | None = None, outdir=None, comm: 
 
     Raises SweepError or CaseError on bad input before anything runs or is written.
     """
+    from .outdir import case_inputs, writing
     from .output import Progress
-    from .outdir import case_inputs
     from .pipeline import run, staged_directory
 
     key, texts, values = parse_vary(vary)
@@ -163,8 +163,10 @@ def run_sweep(case, vary: str, target: Target | None = None, outdir=None, comm: 
                 report(f"{label}: {target.kind} {target.name} mean velocity over the second half {speeds} "
                        f"({time.perf_counter() - t0:.1f} s)")
         if comm.rank == 0:
-            write_csv(stage / "sweep.csv", rows)
-            plot_sweep(stage / "sweep.png", rows, key, target, case.name)
+            with writing(stage / "sweep.csv"):
+                write_csv(stage / "sweep.csv", rows)
+            with writing(stage / "sweep.png"):
+                plot_sweep(stage / "sweep.png", rows, key, target, case.name)
     return outdir.resolve(), rows
 
 

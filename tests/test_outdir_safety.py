@@ -8,11 +8,13 @@ guard refuses absurd runs before anything is built or written.
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import os
 import shutil
 import subprocess
 import sys
+import types
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -245,3 +247,312 @@ def test_memory_exhaustion_during_setup_is_one_line(tmp_path):
                             capture_output=True, text=True, env=env, preexec_fn=limit, timeout=300)
     refused(result, "not enough memory")
     assert list(tmp_path.iterdir()) == []
+
+
+# --- the policy checked again at the final move (issue 16) -----------------------------------
+
+def small_case():
+    from fem_impact import load_case
+
+    return load_case(CASES / "impacting_bar.yaml", [a for a in SMALL if a != "--set"])
+
+
+def at_step(k, action):
+    """A progress callback that does ``action`` once, at step ``k`` of the time loop (inside the run)."""
+    def progress(step, total):
+        if step == k:
+            action()
+    return progress
+
+
+def kept_results(parent: Path) -> list[Path]:
+    return sorted(parent.glob("*.result-*"))
+
+
+@pytest.mark.parametrize("earlier", [False, True], ids=["new folder", "earlier result"])
+def test_a_folder_made_during_the_run_is_left_and_the_result_kept_beside(tmp_path, earlier):
+    """The issue's race: while the run integrates, the user makes the output folder (or empties the
+    earlier result) and puts a file in it. The run must not replace it: the file stays, the result is
+    kept beside it and the error says where."""
+    import fem_impact
+    from fem_impact.outdir import OutputFolderChanged, is_result
+
+    out = tmp_path / "out"
+    if earlier:
+        fem_impact.run(small_case(), out)
+
+    def user_takes_the_folder():
+        if out.exists():
+            shutil.rmtree(out)
+        out.mkdir()
+        (out / "notes.txt").write_text("my notes\n")
+
+    with pytest.raises(OutputFolderChanged) as caught:
+        fem_impact.run(small_case(), out, progress=at_step(2, user_takes_the_folder))
+    assert snapshot(out) == {"notes.txt": b"my notes\n"}
+    kept = kept_results(tmp_path)
+    assert kept == [caught.value.kept] and is_result(kept[0])
+    assert (kept[0] / "summary.json").is_file() and (kept[0] / "history.csv").is_file()
+    assert str(kept[0]) in str(caught.value) and "notes.txt" in str(caught.value)
+    no_debris(tmp_path)
+
+
+def test_an_empty_folder_made_during_the_run_is_replaced(tmp_path):
+    """An empty folder holds nothing to lose: the result takes its place (rename(2) puts a folder over
+    an empty one only)."""
+    import fem_impact
+
+    out = tmp_path / "out"
+    result = fem_impact.run(small_case(), out, progress=at_step(2, out.mkdir))
+    assert result.outdir == out and (out / "summary.json").is_file()
+    assert kept_results(tmp_path) == []
+    no_debris(tmp_path)
+
+
+def test_a_file_at_the_output_path_made_during_the_run_is_left(tmp_path):
+    import fem_impact
+    from fem_impact.outdir import OutputFolderChanged
+
+    out = tmp_path / "out"
+    with pytest.raises(OutputFolderChanged, match="not a folder"):
+        fem_impact.run(small_case(), out, progress=at_step(2, lambda: out.write_text("a file\n")))
+    assert out.read_text() == "a file\n"
+    assert len(kept_results(tmp_path)) == 1
+    no_debris(tmp_path)
+
+
+def test_a_folder_filled_between_the_check_and_the_move_is_not_replaced(tmp_path, monkeypatch):
+    """The move itself: files that appear after the last check (here: just before the rename) make
+    rename(2) fail; they are not replaced, and the result is kept beside them."""
+    import fem_impact
+    from fem_impact import outdir
+    from fem_impact.outdir import OutputFolderChanged
+
+    out = tmp_path / "out"
+    out.mkdir()
+    real = os.rename
+
+    def rename(src, dst, *args, **kwargs):
+        if Path(dst) == out and ".partial-" in Path(src).name:
+            (out / "thesis.tex").write_text("x\n")
+        return real(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(outdir.os, "rename", rename)
+    with pytest.raises(OutputFolderChanged):
+        fem_impact.run(small_case(), out)
+    assert snapshot(out) == {"thesis.tex": b"x\n"}
+    assert len(kept_results(tmp_path)) == 1
+    no_debris(tmp_path)
+
+
+HOOK = """
+import shutil, sys
+from pathlib import Path
+import fem_impact.output as output
+
+target, step = Path(sys.argv[1]), int(sys.argv[2])
+write = output.HistoryWriter.write
+
+def hooked(self, state):
+    if state.step == step and not (target / "notes.txt").exists():   # the user, during the run
+        shutil.rmtree(target, ignore_errors=True)
+        target.mkdir()
+        (target / "notes.txt").write_text("my notes\\n")
+    write(self, state)
+
+output.HistoryWriter.write = hooked
+from fem_impact.cli import main
+sys.exit(main(sys.argv[3:]))
+"""
+
+
+@pytest.mark.parametrize("command", ["run", "sweep", "reduction"])
+def test_the_commands_say_where_the_result_went(tmp_path, command):
+    """One line, status 2, the user's folder as they made it, the result beside it; for every command
+    that stages its folder (the runs of a sweep or a reduction are inside its staging folder: the
+    hook fires in the first of them)."""
+    out = tmp_path / "out"
+    args = {"run": ("run", CASES / "impacting_bar.yaml", "-q", *SMALL),
+            "sweep": ("sweep", CASES / "impacting_bar.yaml", "--vary", "solver.dt=0.01,0.02", "-q", *SMALL[:2]),
+            "reduction": ("reduction", CASES / "impacting_bar.yaml", "--modes", "2", *SMALL[:6])}[command]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    result = subprocess.run([sys.executable, "-c", HOOK, out, "2", *args, "-o", out], capture_output=True,
+                            text=True, env=env, timeout=300)
+    kept = kept_results(tmp_path)
+    refused(result, str(out), "not a fem-impact result", f"the results are in {kept[0]}")
+    assert snapshot(out) == {"notes.txt": b"my notes\n"}
+    assert len(kept) == 1 and (kept[0] / ".fem-impact.json").is_file()
+    no_debris(tmp_path)
+
+
+def test_a_picture_made_during_the_rendering_is_left(tmp_path, monkeypatch):
+    """plot -o: the same check at the final replace of the picture."""
+    import matplotlib.figure
+
+    import fem_impact
+    from fem_impact.outdir import OutputFolderChanged
+    from fem_impact.plots import plot_history
+
+    out = fem_impact.run(small_case(), tmp_path / "run").outdir
+    png = tmp_path / "fig.png"
+    savefig = matplotlib.figure.Figure.savefig
+
+    def hooked(self, *args, **kwargs):
+        png.write_text("my own fig.png, not a picture\n")   # the user, during the rendering
+        return savefig(self, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", hooked)
+    with pytest.raises(OutputFolderChanged, match="is not a .png picture") as caught:
+        plot_history(out, png)
+    assert png.read_text() == "my own fig.png, not a picture\n"
+    assert caught.value.kept.read_bytes().startswith(b"\x89PNG") and caught.value.kept.suffix == ".png"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["run", "fig.png", caught.value.kept.name])
+
+
+# --- a write that fails: one line, status 3, nothing left, the earlier result untouched ---------
+
+ENOSPC = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def full_disk_at(where: str, monkeypatch):
+    """Make the run's writing fail as on a full disk at ``where`` (the errors a real one gives: a failed
+    write names no file; dolfinx leaves a frame's file cut short and says nothing)."""
+    from fem_impact import dolfinx_api, outdir, output
+
+    if where == "first VTK frame":
+        monkeypatch.setattr(dolfinx_api, "_complete_xml", lambda path: False)
+        full = types.SimpleNamespace(f_blocks=1000, f_bfree=0, f_bavail=0, f_frsize=4096)
+        monkeypatch.setattr(dolfinx_api.os, "statvfs", lambda path: full)
+    elif where == "history mid-run":
+        init = output.HistoryWriter.__init__
+
+        class FullDisk:
+            def __init__(self, writer):
+                self.writer, self.rows = writer, 0
+
+            def writerow(self, row):
+                self.writer.writerow(row)
+
+            def writerows(self, rows):
+                self.rows += 1
+                if self.rows > 1:
+                    raise ENOSPC
+                self.writer.writerows(rows)
+
+        def hooked(self, *args, **kwargs):
+            init(self, *args, **{**kwargs, "flush_every": 2})
+            if self._file:
+                self._csv = FullDisk(self._csv)
+
+        monkeypatch.setattr(output.HistoryWriter, "__init__", hooked)
+    elif where == "summary":
+        write_text = Path.write_text
+
+        def hooked(self, *args, **kwargs):
+            if self.name == "summary.json":
+                raise ENOSPC
+            return write_text(self, *args, **kwargs)
+
+        monkeypatch.setattr(Path, "write_text", hooked)
+    elif where == "move":
+        rename = os.rename
+
+        def hooked(src, dst, *args, **kwargs):
+            if ".partial-" in Path(src).name:
+                raise OSError(errno.EIO, os.strerror(errno.EIO), src, None, dst)
+            return rename(src, dst, *args, **kwargs)
+
+        monkeypatch.setattr(outdir.os, "rename", hooked)
+
+
+WRITE_FAILURES = {"first VTK frame": ("out/results_p0_000000.vtu", "No space left on device"),
+                  "history mid-run": ("out/history.csv", "No space left on device"),
+                  "summary": ("out/summary.json", "No space left on device"),
+                  "move": ("move the results into", "Input/output error")}
+
+
+@pytest.mark.parametrize("where", list(WRITE_FAILURES))
+def test_a_failed_write_leaves_the_earlier_result(tmp_path, monkeypatch, where):
+    import fem_impact
+    from fem_impact.outdir import OutputWriteError
+
+    out = tmp_path / "out"
+    fem_impact.run(small_case(), out)
+    before = snapshot(out)
+    full_disk_at(where, monkeypatch)
+    with pytest.raises(OutputWriteError) as caught:
+        fem_impact.run(small_case(), out, force=True)   # (the size guard would see the full disk)
+    name, reason = WRITE_FAILURES[where]
+    assert str(caught.value).startswith("cannot ") and name in str(caught.value), caught.value
+    assert str(caught.value).endswith(reason), caught.value
+    assert snapshot(out) == before
+    no_debris(tmp_path)
+
+
+FULL_DISK_HOOK = """
+import errno, os, sys
+import fem_impact.output as output
+
+class FullDisk:   # a csv writer on a full disk: the first rows fail (a failed write names no file)
+    def writerows(self, rows):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+init = output.HistoryWriter.__init__
+
+def hooked(self, *args, **kwargs):
+    init(self, *args, **kwargs)
+    self._csv = FullDisk()
+
+output.HistoryWriter.__init__ = hooked
+from fem_impact.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_a_failed_write_is_one_line_with_status_3(tmp_path):
+    out = tmp_path / "out"
+    assert cli("run", CASES / "impacting_bar.yaml", "-o", out, *SMALL, "-q").returncode == 0
+    before = snapshot(out)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    result = subprocess.run([sys.executable, "-c", FULL_DISK_HOOK, "run", CASES / "impacting_bar.yaml", "-o", out,
+                             *SMALL, "-q"], capture_output=True, text=True, env=env, timeout=300)
+    assert result.returncode == 3, result.stderr
+    assert result.stderr == (f"fem-impact: the run failed: cannot write {out / 'history.csv'}: No space left on "
+                             "device (the output folder was left as it was)\n")
+    assert snapshot(out) == before
+    no_debris(tmp_path)
+
+
+def in_small_filesystem(script: str, tmp_path: Path) -> subprocess.CompletedProcess:
+    """``script`` (sh) with a 256 kB tmpfs at tmp_path/disk, in a mount namespace of its own (nothing
+    is mounted on this machine); skips where user namespaces are not allowed."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if shutil.which("unshare") is None:
+        pytest.skip("no unshare")
+    probe = subprocess.run(["unshare", "--map-root-user", "--mount", "true"], capture_output=True)
+    if probe.returncode != 0:
+        pytest.skip("no user namespaces here")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run(["unshare", "--map-root-user", "--mount", "sh", "-c",
+                           f"mount -t tmpfs -o size=256k tmpfs {disk} && {script}"],
+                          capture_output=True, text=True, env=env, timeout=300)
+
+
+def test_a_really_full_disk(tmp_path):
+    """No monkeypatching: a small file system fills up in the VTK frames (dolfinx says nothing: the
+    frames are read back), then in history.csv; the earlier result stays, nothing is left behind."""
+    out = tmp_path / "disk" / "out"
+    run = f"{sys.executable} -m fem_impact run {CASES / 'impacting_bar.yaml'} -q --force -o {out}"
+    result = in_small_filesystem(
+        f"{run} {' '.join(SMALL)} && cd {out} && sha1sum * > ../../before && cd / && "
+        f"{run} --set solver.t_end=20; echo status $?; "
+        f"{run} --set solver.t_end=20 --set output.every=100000; echo status $?; "
+        f"cd {out} && sha1sum -c --quiet ../../before && echo same && ls -A {out.parent}", tmp_path)
+    lines = result.stdout.split("\n") + result.stderr.split("\n")
+    assert "status 3" in lines and lines.count("status 3") == 2, result
+    assert f"fem-impact: the run failed: cannot write {out}/results_p0_" in result.stderr, result.stderr
+    assert f"fem-impact: the run failed: cannot write {out}/history.csv: No space left on device (the output " \
+           "folder was left as it was)" in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr
+    assert result.stdout.split("\n")[-3:] == ["same", "out", ""], result.stdout

@@ -141,3 +141,143 @@ def test_mpi_one_rank_signalled(earlier):
     assert snapshot(out) == before
     time.sleep(0.5)
     assert not [n for n in debris(out.parent) if ".partial-" in n]
+
+
+# --- studies: they write in place and keep their completed levels (issue 16) ---------------------
+
+STUDY = ["study", "convergence", CASE, "--vary", "mesh.cells=10,20,40", "--set", "solver.t_end=0.2", "-q"]
+
+INTERRUPT_HOOK = """
+import signal, sys
+from fem_impact.outdir import Interrupted
+from fem_impact.studies import levels, worker
+
+after = int(sys.argv[1])   # SIGTERM once this many levels are recorded (0: when the first level starts)
+finish, run_data = levels._finish, worker.run_data
+done = []
+
+def hooked_finish(*args, **kwargs):
+    finish(*args, **kwargs)
+    done.append(1)
+    if len(done) == after:
+        raise Interrupted(signal.SIGTERM)
+
+def hooked_run_data(*args, **kwargs):
+    if after == 0:
+        raise Interrupted(signal.SIGTERM)
+    return run_data(*args, **kwargs)
+
+levels._finish, worker.run_data = hooked_finish, hooked_run_data
+from fem_impact.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def interrupted_study(out: Path, after: int, *extra):
+    return subprocess.run([sys.executable, "-c", INTERRUPT_HOOK, str(after), *map(str, STUDY), "-o", out, *extra],
+                          capture_output=True, text=True, env=env(), timeout=300)
+
+
+def outside_levels(folder: Path) -> dict[str, bytes]:
+    return {k: v for k, v in snapshot(folder).items() if not k.startswith("levels/")}
+
+
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_study_interrupted_on_an_earlier_result_says_what_it_kept(earlier, jobs):
+    """The issue's case: a study into an earlier result S, interrupted by SIGTERM after one level. The
+    line says what was kept and that a rerun resumes; nothing of S but S/levels changed (not even its
+    marker); the rerun resumes."""
+    out, before = earlier
+    result = interrupted_study(out, 1, "-j", jobs)
+    assert result.returncode == 143, result.stderr
+    assert result.stderr == (f"fem-impact: interrupted by SIGTERM (1 completed level of this run is kept in "
+                             f"{out / 'levels'}; run the same command again to resume)\n")
+    assert outside_levels(out) == before
+    assert len(list((out / "levels").glob("*/level.json"))) == 1
+    assert debris(out.parent) == []
+    again = subprocess.run(command(*[a for a in STUDY if a != "-q"], "-o", out, "-j", jobs), capture_output=True,
+                           text=True, env=env(), timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert again.stderr.count("kept from an earlier run") == 1, again.stderr
+    assert (out / "convergence.csv").is_file() and (out / "history.csv").read_bytes() == before["history.csv"]
+
+
+def test_study_interrupted_before_a_level_completes_leaves_the_folder_as_it_was(earlier):
+    out, before = earlier
+    result = interrupted_study(out, 0)
+    assert result.returncode == 143, result.stderr
+    assert result.stderr == "fem-impact: interrupted by SIGTERM (the output folder was left as it was)\n"
+    assert snapshot(out) == before and sorted(p.name for p in out.iterdir()) == sorted(before)
+    assert debris(out.parent) == []
+
+
+def test_a_new_study_folder_interrupted_stays_a_result(tmp_path):
+    """Interrupted after a level in a folder it made: the folder keeps its marker with the level (a
+    rerun takes it, as a result); interrupted before any level: no folder is left."""
+    from fem_impact.outdir import is_result
+
+    out = tmp_path / "S"
+    assert interrupted_study(out, 0).returncode == 143
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    result = interrupted_study(out, 2)
+    assert result.returncode == 143 and "2 completed levels of this run are kept" in result.stderr, result.stderr
+    assert is_result(out) and sorted(p.name for p in out.iterdir()) == [".fem-impact.json", "levels"]
+    again = subprocess.run(command(*[a for a in STUDY if a != "-q"], "-o", out), capture_output=True, text=True,
+                           env=env(), timeout=300)
+    assert again.returncode == 0 and again.stderr.count("kept from an earlier run") == 2, again.stderr
+
+
+FULL_DISK_HOOK = """
+import errno, os, sys
+import fem_impact.output as output
+
+init, calls = output.HistoryWriter.__init__, []
+
+def hooked(self, *args, **kwargs):   # the warm-up run, the first level, then the disk is full
+    calls.append(1)
+    if len(calls) == 3:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(args[0]))
+    init(self, *args, **kwargs)
+
+output.HistoryWriter.__init__ = hooked
+from fem_impact.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_study_on_a_full_disk_stops_with_one_line(tmp_path):
+    """A level that cannot be written is not a failed level: the study stops, status 3, and says what
+    it kept."""
+    out = tmp_path / "S"
+    result = subprocess.run([sys.executable, "-c", FULL_DISK_HOOK, *map(str, STUDY), "-o", out], capture_output=True,
+                            text=True, env=env(), timeout=300)
+    assert result.returncode == 3, result.stderr
+    level = sorted((out / "levels").iterdir())
+    assert [p.name for p in level] == ["00-mesh.cells_10"]
+    assert result.stderr == (f"fem-impact: the study failed: cannot write {out}/levels/01-mesh.cells_20/history.csv: "
+                             f"No space left on device (1 completed level of this run is kept in {out / 'levels'}; "
+                             "run the same command again to resume)\n")
+
+
+def test_study_with_children_interrupted_by_sigterm(earlier):
+    """The issue's command for real: ``study ... -j 2 -o S`` on an earlier result S, SIGTERM to the
+    study once a level is recorded (the children, stopped, remove their staging folders)."""
+    out, before = earlier
+    cmd = command("study", "convergence", CASE, "--vary", "mesh.cells=10,20,1000", "--set", "solver.t_end=20",
+                  "-j", "2", "-q", "-o", out)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env())
+    deadline = time.monotonic() + 120
+    while not list(out.glob("levels/*/level.json")):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "no level completed"
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=120)
+    kept = len(list(out.glob("levels/*/level.json")))
+    assert proc.returncode == 143, stderr
+    levels = "1 completed level of this run is" if kept == 1 else f"{kept} completed levels of this run are"
+    assert stderr == (f"fem-impact: interrupted by SIGTERM ({levels} kept in {out / 'levels'}; run the same "
+                      "command again to resume)\n")
+    assert outside_levels(out) == before
+    assert not [p for p in (out / "levels").iterdir() if p.name.startswith(".")]   # no staging folder, no lock
+    assert debris(out.parent) == []

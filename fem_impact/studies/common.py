@@ -6,7 +6,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
@@ -15,6 +14,7 @@ import numpy as np
 import yaml
 
 from ..case import CaseError, yaml_value
+from ..outdir import replacing
 from ..references import ERROR_MEASURES, RunReference, energy_growth, errors
 from . import resolution
 from .levels import Outcome
@@ -79,13 +79,11 @@ def case_record(case, changes) -> dict:
 
 def write_csv(path: Path, columns, rows) -> Path:
     """Write rows (dicts) atomically; floats with 6 significant digits, None and NaN as empty."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", newline="") as f:
+    with replacing(path) as tmp, open(tmp, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(columns), extrasaction="ignore")
         writer.writeheader()
         for row in rows:
             writer.writerow({k: _cell(v) for k, v in row.items()})
-    os.replace(tmp, path)
     return path
 
 
@@ -98,9 +96,8 @@ def _cell(value):
 
 
 def write_json(path: Path, data) -> Path:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
-    os.replace(tmp, path)
+    with replacing(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
     return path
 
 
@@ -111,11 +108,9 @@ def _json_default(value):
 
 
 def save_figure(fig, path: Path) -> Path:
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    with warnings.catch_warnings():   # (a blown-up level's huge error overflows the log axis)
+    with replacing(path) as tmp, warnings.catch_warnings():   # (a blown-up level's huge error overflows the log axis)
         warnings.simplefilter("ignore", RuntimeWarning)
         fig.savefig(tmp, dpi=110)
-    os.replace(tmp, path)
     return path
 
 

@@ -47,6 +47,7 @@ import numpy as np
 from ..cache import code_fingerprint
 from ..case import Case
 from ..integrators.parameters import steps_for
+from ..outdir import replacing
 from ..plots import history_columns
 from ..progress import duration
 from . import worker
@@ -124,9 +125,8 @@ def _record(outcome: Outcome, fingerprint: str) -> None:
         folder.mkdir(parents=True)
     data = {"changes": outcome.level.changes, "fingerprint": fingerprint, "status": outcome.status,
             "reason": outcome.reason, "error": outcome.error, "info": outcome.level.info}
-    tmp = folder / f".{LEVEL_FILE}.tmp"
-    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
-    os.replace(tmp, folder / LEVEL_FILE)
+    with replacing(folder / LEVEL_FILE) as tmp:
+        tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
 
 
 def _resumable(folder: Path, level: Level, case: Case, fingerprint: str) -> Outcome | None:
@@ -294,6 +294,10 @@ def _from_child(lv: Level, folder: Path, case: Case, returncode: int, status_fil
         said = log_file.read_text(errors="replace").strip()
     except OSError:
         said = ""
+    if returncode == worker.WRITE_FAILED:   # it could not write its results: not the level's outcome, the study's
+        from ..outdir import OutputWriteError
+
+        raise OutputWriteError(said.splitlines()[-1] if said else f"level {lv.label}: cannot write its results")
     if said:
         log.warning("level %s: the run %s; it wrote:\n%s", lv.label, how, "\n".join(said.splitlines()[-20:]))
     return Outcome(lv, "failed", f"the run {how} without reporting its status", None, folder, case)

@@ -12,7 +12,7 @@ import numpy as np
 from mpi4py import MPI
 
 from ..case import MODAL_SCHEMES
-from ..outdir import case_inputs
+from ..outdir import case_inputs, writing
 from ..pipeline import run, staged_directory
 from ..plots import history_columns, plot_reduction
 
@@ -110,8 +110,10 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, probe=None, comm: M
                 rows.append(_row("modal", n1, static, errors, summary))
                 log.info("%s: %s", name, rows[-1])
         if comm.rank == 0:
-            plot_reduction(histories, u_col, stage / "reduction.png", f"{stem}: reduced models against the full one")
-            with open(stage / "reduction.csv", "w", newline="") as f:
+            with writing(stage / "reduction.png"):
+                plot_reduction(histories, u_col, stage / "reduction.png",
+                               f"{stem}: reduced models against the full one")
+            with writing(stage / "reduction.csv"), open(stage / "reduction.csv", "w", newline="") as f:
                 writer = csv.DictWriter(f, fieldnames=REDUCTION_COLUMNS)
                 writer.writeheader()
                 writer.writerows(rows)

@@ -15,8 +15,8 @@ interrupted child (SIGINT from the study) removes its staging folder and writes 
 
 from __future__ import annotations
 
+import contextlib
 import json
-import os
 import sys
 import traceback
 import warnings
@@ -25,6 +25,7 @@ from pathlib import Path
 from ..errors import CaseError, SimulationError
 
 STATUSES = ("ok", "failed", "skipped")
+WRITE_FAILED = 3   # the child's status when it could not write (the line on its stderr says what)
 
 
 def run_data(data: dict, base_dir, folder: Path) -> dict:
@@ -46,16 +47,20 @@ def run_level(case, folder: Path) -> dict:
 
     SimulationError (blow-up, NaN, energy created when asked to stop) -> ``failed`` with its message;
     CaseError (the run refuses its input when it starts) -> ``skipped``; any other error -> ``failed``
-    as a crash, with its traceback. KeyboardInterrupt goes through.
+    as a crash, with its traceback. KeyboardInterrupt goes through, and so does OutputWriteError (a
+    full disk is not the level's outcome: the study stops).
     """
     from mpi4py import MPI
 
+    from ..outdir import OutputWriteError
     from ..pipeline import run
 
     try:
         with warnings.catch_warnings():   # (overflow on the way to a blow-up: the run reports it)
             warnings.simplefilter("ignore", RuntimeWarning)
             run(case, folder, comm=MPI.COMM_SELF, progress=False)
+    except OutputWriteError:
+        raise
     except SimulationError as err:
         return status("failed", str(err), err)
     except CaseError as err:
@@ -93,15 +98,16 @@ def read_status(path: Path) -> dict | None:
 
 
 def _write_json(path: Path, data) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
-    os.replace(tmp, path)
+    from ..outdir import replacing
+
+    with replacing(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
 
 
 def main(argv=None) -> int:
     import logging
 
-    from ..outdir import exit_status, install_signal_handlers
+    from ..outdir import OutputWriteError, exit_status, install_signal_handlers, write_error
 
     argv = sys.argv[1:] if argv is None else argv
     if len(argv) != 1:
@@ -113,9 +119,17 @@ def main(argv=None) -> int:
     spec = json.loads(Path(argv[0]).read_text())
     try:
         result = run_data(spec["case"], spec["base_dir"], Path(spec["folder"]))
+        _write_json(Path(spec["status"]), result)
     except KeyboardInterrupt as err:
         return exit_status(err)
-    _write_json(Path(spec["status"]), result)
+    except OutputWriteError as err:   # the study reads the line from the log and stops
+        with contextlib.suppress(OSError):
+            print(err, file=sys.stderr)
+        return WRITE_FAILED
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            print(write_error(err), file=sys.stderr)
+        return WRITE_FAILED
     return 0
 
 
