@@ -42,12 +42,12 @@ def measure(cells: int, coupling: str, steps: int, method: str) -> dict:
     import numpy as np
     from mpi4py import MPI
 
-    from fem_impact.case import load_case
-    from fem_impact.constraints import build_constraints
+    from fem_impact.config.case import load_case
+    from fem_impact.nonsmooth.relation import build_constraints
     from fem_impact.integrators import Operators
-    from fem_impact.mesh import build_mesh
-    from fem_impact.model import build_model
-    from fem_impact.pipeline import make_integrator
+    from fem_impact.fem.mesh import build_mesh
+    from fem_impact.fem.model import build_model
+    from fem_impact.app.pipeline import make_integrator
 
     dt = 0.5 / cells
     overrides = [f"mesh.cells={cells}", f"solver.dt={dt}", f"contacts.0.gap={1.5 * dt}",

@@ -21,11 +21,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the fem-impact command 
 
 from mpi4py import MPI
 
-from fem_impact.case import load_case
-from fem_impact.constraints import build_constraints
+from fem_impact.config.case import load_case
+from fem_impact.nonsmooth.relation import build_constraints
 from fem_impact.integrators import Newmark, Operators
-from fem_impact.mesh import build_mesh
-from fem_impact.model import build_model
+from fem_impact.fem.mesh import build_mesh
+from fem_impact.fem.model import build_model
 
 CASE = Path(__file__).resolve().parents[1] / "cases" / "impacting_bar.yaml"
 

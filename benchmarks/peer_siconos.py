@@ -61,12 +61,12 @@ def main(argv):
     sets += ["solver.method=moreau_jean", "solver.level=velocity", "output.vtk=false"]
     from mpi4py import MPI
 
-    from fem_impact.case import load_case
-    from fem_impact.constraints import build_constraints
+    from fem_impact.config.case import load_case
+    from fem_impact.nonsmooth.relation import build_constraints
     from fem_impact.integrators import Operators, integrate
-    from fem_impact.mesh import build_mesh
-    from fem_impact.model import build_model
-    from fem_impact.pipeline import make_integrator
+    from fem_impact.fem.mesh import build_mesh
+    from fem_impact.fem.model import build_model
+    from fem_impact.app.pipeline import make_integrator
 
     case = load_case(case_path, sets)
     if case.damping.alpha or case.damping.beta or any(c.stiffness for c in case.contacts):

@@ -20,14 +20,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the fem-impact command 
 
 from mpi4py import MPI  # noqa: E402
 
-from fem_impact.case import load_case  # noqa: E402
-from fem_impact.constraints import build_constraints  # noqa: E402
+from fem_impact.config.case import load_case  # noqa: E402
+from fem_impact.nonsmooth.relation import build_constraints  # noqa: E402
 from fem_impact.integrators import Newmark, integrate  # noqa: E402
-from fem_impact.mesh import build_mesh  # noqa: E402
-from fem_impact.model import build_model  # noqa: E402
-from fem_impact.modes import compute_modes  # noqa: E402
-from fem_impact.reduce import build_reduced  # noqa: E402
-from fem_impact.pipeline import full_model  # noqa: E402
+from fem_impact.fem.mesh import build_mesh  # noqa: E402
+from fem_impact.fem.model import build_model  # noqa: E402
+from fem_impact.fem.modes import compute_modes  # noqa: E402
+from fem_impact.fem.reduced import build_reduced  # noqa: E402
+from fem_impact.app.pipeline import full_model  # noqa: E402
 
 CASE = Path(__file__).resolve().parents[1] / "cases" / "beam_stop.yaml"
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import gmsh
 
 import fem_impact
-from fem_impact.gmsh_utils import add_named_groups, write_msh
+from fem_impact.fem.gmsh_utils import add_named_groups, write_msh
 
 WIDTH, HEIGHT = 0.10, 0.05            # m
 E, RHO, NU, THICKNESS = 70e9, 2700.0, 0.33, 0.01   # Pa, kg/m^3, -, m

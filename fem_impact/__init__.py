@@ -15,7 +15,7 @@ The Python API (the command ``fem-impact`` is a thin layer over it)::
 """
 
 from ._version import __version__
-from .case import Case, load_case
+from .config.case import Case, load_case
 from .errors import CaseError, FemImpactError, SimulationError
 
 __all__ = ["Case", "CaseError", "FemImpactError", "Result", "SimulationError", "__version__", "load_case", "run"]
@@ -24,7 +24,7 @@ __all__ = ["Case", "CaseError", "FemImpactError", "Result", "SimulationError", "
 def __getattr__(name):
     # run and Result need MPI: imported on first use, so that `import fem_impact` stays light.
     if name in ("run", "Result"):
-        from . import pipeline
+        from .app import pipeline
 
         return getattr(pipeline, name)
     raise AttributeError(f"module 'fem_impact' has no attribute {name!r}")

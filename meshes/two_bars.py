@@ -26,7 +26,7 @@ from pathlib import Path
 
 import gmsh
 
-from fem_impact.gmsh_utils import add_named_groups, write_msh
+from fem_impact.fem.gmsh_utils import add_named_groups, write_msh
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "two_bars.msh"

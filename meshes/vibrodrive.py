@@ -50,7 +50,7 @@ from pathlib import Path
 
 import gmsh
 
-from fem_impact.gmsh_utils import add_named_groups, write_msh
+from fem_impact.fem.gmsh_utils import add_named_groups, write_msh
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "vibrodrive.msh"

@@ -41,7 +41,7 @@ def read_history(outdir: Path) -> np.ndarray:
 
 def run_case_file(case, outdir: Path, *overrides: str):
     """Run a case in-process; returns (summary dict, history array)."""
-    from fem_impact.pipeline import run_case
+    from fem_impact.app.pipeline import run_case
 
     summary = run_case(Path(case), outdir, list(overrides), progress=False)
     return summary, read_history(outdir)

@@ -68,13 +68,13 @@ def test_gif_of_a_2d_run_has_one_frame_per_time_step_and_the_bar_moves(strip, tm
 
 
 def test_default_output_and_scale(strip):
-    from fem_impact.animate import animate
+    from fem_impact.app.animate import animate
 
     out, scale, frames = animate(strip, field="contact", size=(160, 96), progress=False)
     assert out == strip / "animation.gif" and out.is_file() and frames == 11
     # the largest displacement (the free end's, about v0 t_end = 0.4) becomes 10 % of L = 1;
     # max |u| read back from the .vtu pieces by an independent (numpy) parser
-    from fem_impact.paraview_view import series_extremes
+    from fem_impact.app.paraview_view import series_extremes
 
     ext = series_extremes(strip)
     assert ext["size"] == pytest.approx(1.0) and ext["max_u"] == pytest.approx(0.4, rel=0.05)
@@ -84,7 +84,7 @@ def test_default_output_and_scale(strip):
 
 
 def test_a_1d_run_renders(rod, tmp_path):
-    from fem_impact.animate import animate
+    from fem_impact.app.animate import animate
 
     gif = tmp_path / "rod.gif"
     out, scale, frames = animate(rod, field="v", output=gif, size=(320, 96), progress=False)
@@ -97,7 +97,7 @@ def test_a_1d_run_renders(rod, tmp_path):
 @pytest.mark.mpi
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
 def test_the_pieces_of_a_two_rank_run_join_into_the_serial_mesh(strip, tmp_path):
-    from fem_impact.animate import load_series
+    from fem_impact.app.animate import load_series
 
     # as in test_mpi.py: this process's own MPI variables would make mpirun think it is nested
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}

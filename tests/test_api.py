@@ -90,7 +90,7 @@ def test_a_run_into_a_folder_writes_what_the_command_writes(tmp_path):
     timings = {k for k in api if k.endswith("_time_s")}
     assert {k: v for k, v in api.items() if k not in timings} == {k: v for k, v in cli.items() if k not in timings}
     assert (tmp_path / "api" / "history.csv").read_text() == (tmp_path / "cli" / "history.csv").read_text()
-    from fem_impact.plots import history_columns
+    from fem_impact.app.plots import history_columns
 
     on_disk = history_columns(tmp_path / "api")
     assert set(result.history) == set(on_disk)

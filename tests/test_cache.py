@@ -1,4 +1,4 @@
-"""The on-disk cache (fem_impact.cache): its key holds the code (version and fingerprint of the
+"""The on-disk cache (fem_impact.app.cache): its key holds the code (version and fingerprint of the
 sources) and the solvers' settings, so a fix or a changed tolerance never reuses an old entry."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from mpi4py import MPI
 
 from conftest import CASES, run_case_file
 from fem_impact import cache, modes
-from fem_impact.modes import solver_settings
-from fem_impact.reduce import static_settings
+from fem_impact.fem.modes import solver_settings
+from fem_impact.fem.reduced import static_settings
 
 COMM = MPI.COMM_SELF
 MODAL = ["solver.method=modal", "solver.modes=6", "mesh.cells=30", "output.vtk=false"]

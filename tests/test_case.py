@@ -1,4 +1,4 @@
-"""Unit tests for fem_impact.case: loading, validation, --set overrides and the resolved dump."""
+"""Unit tests for fem_impact.config.case: loading, validation, --set overrides and the resolved dump."""
 
 import textwrap
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
-from fem_impact.case import CaseError, load_case
+from fem_impact.config.case import CaseError, load_case
 
 BASE = """\
 mesh:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from conftest import CASES, run_case_file
-from fem_impact.case import load_case
+from fem_impact.config.case import load_case
 
 CASE_FILES = sorted(CASES.glob("*.yaml"))
 

@@ -9,7 +9,7 @@ import pytest
 from petsc4py import PETSc
 
 from conftest import ConstantLoad
-from fem_impact.contact import solve_lcp
+from fem_impact.nonsmooth.lcp import solve_lcp
 from fem_impact.integrators import MoreauJean, Newmark, Operators, integrate
 
 # The schemes B0 holds for: the paper's, and Moreau-Jean at the position level (the default) and

@@ -8,7 +8,7 @@ import pytest
 from scipy.optimize import nnls
 
 from conftest import CASES
-from fem_impact.contact import Delassus, regularized, solve_lcp
+from fem_impact.nonsmooth.lcp import Delassus, regularized, solve_lcp
 
 PLATE = CASES / "plate_drop.yaml"
 BAR_1D = ["mesh.dim=1", "mesh.height=null", "mesh.width=null", "mesh.elements=simplex", "initial.velocity=[-1.0]",

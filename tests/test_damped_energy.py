@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import fem_impact
-from fem_impact.pipeline import energy_advice, energy_warning
+from fem_impact.app.pipeline import energy_advice, energy_warning
 
 BALANCE = 1e-10   # of the energy scale: round-off (1e-15 .. 1e-13 measured)
 

@@ -152,7 +152,7 @@ def test_the_code_cites_the_theory_by_section():
     refs = references(ROOT, cited_files())
     cited = {(r.file, r.section) for r in refs if r.target == "docs/theory.md" and r.section}
     assert {f for f, _ in cited} >= {"fem_impact/integrators/newmark.py", "fem_impact/integrators/moreau_jean.py",
-                                     "fem_impact/reduce.py"}
+                                     "fem_impact/fem/reduced.py"}
     assert any(r.target == "docs/benchmarks.md" and r.section for r in refs)
 
 

@@ -11,12 +11,12 @@ from petsc4py import PETSc
 from test_contact_law import ConstantLoad, one_by_one
 
 from conftest import CASES, run_case_file
-from fem_impact.case import load_case
-from fem_impact.constraints import build_constraints
+from fem_impact.config.case import load_case
+from fem_impact.nonsmooth.relation import build_constraints
 from fem_impact.integrators import CentralDifference, Newmark, Operators, integrate
-from fem_impact.mesh import build_mesh
-from fem_impact.model import build_model
-from fem_impact.references import column
+from fem_impact.fem.mesh import build_mesh
+from fem_impact.fem.model import build_model
+from fem_impact.config.references import column
 from test_bar_benchmarks import assert_b2, assert_energy
 
 

@@ -114,8 +114,8 @@ def _dumpable(v) -> bool:
 def check_one(raw: bytes, options) -> None:
     from mpi4py import MPI
 
-    from fem_impact.case import CaseError, load_case
-    from fem_impact.limits import check_limits
+    from fem_impact.config.case import CaseError, load_case
+    from fem_impact.app.limits import check_limits
 
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
@@ -158,7 +158,7 @@ def test_set_values_load_or_fail_cleanly(name, options):
 
 def test_the_fuzzer_reaches_both_outcomes():
     """The mutations are not all rejected (or all accepted): the property tests see both outcomes."""
-    from fem_impact.case import CaseError, load_case
+    from fem_impact.config.case import CaseError, load_case
 
     good = (CASES / "impacting_bar.yaml").read_bytes()
     with tempfile.TemporaryDirectory() as folder:

@@ -16,7 +16,7 @@ SMALL = ["mesh.cells=10", "solver.dt=0.01", "solver.t_end=0.05", "output.every=1
 
 
 def error_of(path, overrides=()):
-    from fem_impact.case import CaseError, load_case
+    from fem_impact.config.case import CaseError, load_case
 
     with pytest.raises(CaseError) as info:
         load_case(path, list(overrides))
@@ -67,14 +67,14 @@ def test_fix_names_the_unknown_component():
 def test_width_in_2d_and_height_in_1d_are_refused():
     assert "mesh.width: applies to the built-in bar in 3D only" in error_of(CASE, ["mesh.dim=2", "mesh.width=0.3"])
     assert "mesh.height" in error_of(CASE, ["mesh.height=0.3"])
-    from fem_impact.case import load_case
+    from fem_impact.config.case import load_case
 
     assert load_case(CASE, ["mesh.dim=3", "mesh.width=0.3"]).mesh.width == 0.3
 
 
 @pytest.mark.parametrize("dim", [1, 2, 3])
 def test_fix_all_in_every_dimension(tmp_path, dim, run):
-    from fem_impact.case import load_case
+    from fem_impact.config.case import load_case
 
     summary, history = run(CASE, *SMALL, f"mesh.dim={dim}", "supports=[{nodes: right, fix: all}]",
                            "output.vtk=false")
@@ -85,7 +85,7 @@ def test_fix_all_in_every_dimension(tmp_path, dim, run):
 
 
 def test_probe_outside_the_mesh(run):
-    from fem_impact.case import CaseError
+    from fem_impact.config.case import CaseError
 
     with pytest.raises(CaseError, match="outside the mesh"):
         run(CASE, *SMALL, "output.probes.right=[5.0]")
@@ -98,7 +98,7 @@ def test_probe_outside_the_mesh(run):
 def test_gmsh_file_with_only_a_point_group(tmp_path, run):
     import gmsh
 
-    from fem_impact.case import CaseError
+    from fem_impact.config.case import CaseError
 
     gmsh.initialize()
     gmsh.option.setNumber("General.Terminal", 0)
@@ -128,7 +128,7 @@ def test_overflow_warnings_do_not_leak(tmp_path, override):
 
 
 def test_eta_is_a_duration_and_an_interruption_starts_its_own_line():
-    from fem_impact.output import Progress, duration
+    from fem_impact.app.output import Progress, duration
 
     assert duration(904904000.0) == "29 years" and duration(42.04) == "42.0 s" and duration(7200) == "2.0 h"
 

@@ -9,11 +9,11 @@ import pytest
 from mpi4py import MPI
 
 from conftest import CASES, run_case_file
-from fem_impact.case import load_case
-from fem_impact.constraints import build_constraints
+from fem_impact.config.case import load_case
+from fem_impact.nonsmooth.relation import build_constraints
 from fem_impact.integrators import Newmark, Operators, integrate
-from fem_impact.mesh import build_mesh
-from fem_impact.model import build_model
+from fem_impact.fem.mesh import build_mesh
+from fem_impact.fem.model import build_model
 
 BAR = CASES / "impacting_bar.yaml"
 NO_CONTACT = ["contacts=[]", "output.vtk=false"]

@@ -10,13 +10,13 @@ import pytest
 from mpi4py import MPI
 
 from conftest import CASES, run_case_file, run_cli
-from fem_impact.case import load_case
-from fem_impact.constraints import build_constraints
+from fem_impact.config.case import load_case
+from fem_impact.nonsmooth.relation import build_constraints
 from fem_impact.errors import SimulationError
 from fem_impact.integrators import Operators
 from fem_impact.integrators.central_difference import critical_time_step
-from fem_impact.mesh import build_mesh
-from fem_impact.model import build_model
+from fem_impact.fem.mesh import build_mesh
+from fem_impact.fem.model import build_model
 from test_bar_benchmarks import assert_b2
 
 BAR = CASES / "impacting_bar.yaml"

@@ -1,4 +1,4 @@
-"""Natural modes (fem_impact.modes, ``fem-impact modes``) against closed-form frequencies.
+"""Natural modes (fem_impact.fem.modes, ``fem-impact modes``) against closed-form frequencies.
 
 Rods (1D, E = rho = A = 1, L = 1, c = 1): free-free f_k = k c / (2L) after one rigid-body
 mode, clamped-free f_k = (2k - 1) c / (4L). P1 elements with a consistent mass matrix give
@@ -36,10 +36,10 @@ C_EB = 1.87510407**2 / (2.0 * np.pi)
 
 def analyse(name: str, n: int, *overrides: str, **kwargs):
     """(modes, model) of a case file in this process."""
-    from fem_impact.case import load_case
-    from fem_impact.mesh import build_mesh
-    from fem_impact.model import build_model
-    from fem_impact.modes import compute_modes
+    from fem_impact.config.case import load_case
+    from fem_impact.fem.mesh import build_mesh
+    from fem_impact.fem.model import build_model
+    from fem_impact.fem.modes import compute_modes
 
     case = load_case(CASES / f"{name}.yaml", ["contacts=[]", *overrides])
     model = build_model(case, build_mesh(case, MPI.COMM_SELF))
@@ -73,7 +73,7 @@ ROD_CELLS = (40, 80, 160)
     ("signorini_bar", lambda k: (2 * k - 1) / 4.0, 0),   # clamped (right) - free
 ])
 def test_rod_frequencies_converge_as_h_squared(name, exact, rigid):
-    from fem_impact.modes import participation
+    from fem_impact.fem.modes import participation
 
     k = np.arange(1, 6)
     f_exact = exact(k)
@@ -106,7 +106,7 @@ def test_rod_frequencies_converge_as_h_squared(name, exact, rigid):
 
 def cantilever(dim: int, cells: int, width: float) -> float:
     """f1 of the y-bending mode of the clamped built-in bar, L = 1, h = 0.05, nu = 0."""
-    from fem_impact.modes import participation
+    from fem_impact.fem.modes import participation
 
     fix = "[x, y]" if dim == 2 else "[x, y, z]"
     modes, model = analyse("impacting_bar", 3, "initial={}", f"mesh.dim={dim}", f"mesh.cells={cells}",
@@ -137,7 +137,7 @@ def test_cantilever_against_euler_bernoulli(dim, cells, width, finest):
 
 @pytest.mark.parametrize("dim, rigid", [(2, 3), (3, 6)])
 def test_free_body_rigid_modes(dim, rigid):
-    from fem_impact.modes import participation
+    from fem_impact.fem.modes import participation
 
     modes, model = analyse("impacting_bar", rigid + 2, f"mesh.dim={dim}", "mesh.cells=40")
     assert modes.n_rigid == rigid and modes.rigid[:rigid].all() and not modes.rigid[rigid:].any()
@@ -150,7 +150,7 @@ def test_free_body_rigid_modes(dim, rigid):
 
 
 def test_missed_mode_is_an_error():
-    from fem_impact.modes import ModesError, _check_count
+    from fem_impact.fem.modes import ModesError, _check_count
 
     modes, model = analyse("impacting_bar", 5, "mesh.cells=20")
     _check_count(model.K, model.M, modes.omega2, MPI.COMM_SELF)   # no supports: the full matrices
@@ -159,7 +159,7 @@ def test_missed_mode_is_an_error():
 
 
 def test_mode_count_limits():
-    from fem_impact.modes import ModeCountError
+    from fem_impact.fem.modes import ModeCountError
 
     with pytest.raises(ModeCountError, match="at least 1"):
         analyse("signorini_bar", 0, "mesh.cells=4")
@@ -244,8 +244,8 @@ def test_cli_two_ranks_agree(tmp_path):
 
 
 def test_failed_computation_leaves_no_output(tmp_path, monkeypatch, capsys):
-    import fem_impact.modes as fm
-    from fem_impact.cli import _modes, build_parser
+    import fem_impact.fem.modes as fm
+    from fem_impact.app.cli import _modes, build_parser
 
     monkeypatch.setattr(fm, "RESIDUAL_LIMIT", 1e-30)
     out = tmp_path / "modes"

@@ -1,4 +1,4 @@
-"""The output folder never destroys what fem-impact did not write (issue 11; fem_impact/outdir.py).
+"""The output folder never destroys what fem-impact did not write (issue 11; fem_impact/app/outdir.py).
 
 Every command that writes is pointed at folders holding a user's files (the case file itself, notes,
 a thesis): each must refuse with one line and status 2 and leave every file byte for byte as it
@@ -217,8 +217,8 @@ def test_size_guard_refuses_before_anything_is_written(tmp_path):
 def test_size_guard_estimate_and_force():
     from mpi4py import MPI
 
-    from fem_impact.case import CaseError, load_case
-    from fem_impact.limits import MAX_STEPS, check_limits, estimate
+    from fem_impact.config.case import CaseError, load_case
+    from fem_impact.app.limits import MAX_STEPS, check_limits, estimate
 
     case = load_case(CASES / "impacting_bar.yaml", ["solver.dt=1e-12"])
     est = estimate(case)
@@ -275,7 +275,7 @@ def test_a_folder_made_during_the_run_is_left_and_the_result_kept_beside(tmp_pat
     earlier result) and puts a file in it. The run must not replace it: the file stays, the result is
     kept beside it and the error says where."""
     import fem_impact
-    from fem_impact.outdir import OutputFolderChanged, is_result
+    from fem_impact.app.outdir import OutputFolderChanged, is_result
 
     out = tmp_path / "out"
     if earlier:
@@ -311,7 +311,7 @@ def test_an_empty_folder_made_during_the_run_is_replaced(tmp_path):
 
 def test_a_file_at_the_output_path_made_during_the_run_is_left(tmp_path):
     import fem_impact
-    from fem_impact.outdir import OutputFolderChanged
+    from fem_impact.app.outdir import OutputFolderChanged
 
     out = tmp_path / "out"
     with pytest.raises(OutputFolderChanged, match="not a folder"):
@@ -325,8 +325,8 @@ def test_a_folder_filled_between_the_check_and_the_move_is_not_replaced(tmp_path
     """The move itself: files that appear after the last check (here: just before the rename) make
     rename(2) fail; they are not replaced, and the result is kept beside them."""
     import fem_impact
-    from fem_impact import outdir
-    from fem_impact.outdir import OutputFolderChanged
+    from fem_impact.app import outdir
+    from fem_impact.app.outdir import OutputFolderChanged
 
     out = tmp_path / "out"
     out.mkdir()
@@ -348,7 +348,7 @@ def test_a_folder_filled_between_the_check_and_the_move_is_not_replaced(tmp_path
 HOOK = """
 import shutil, sys
 from pathlib import Path
-import fem_impact.output as output
+import fem_impact.app.output as output
 
 target, step = Path(sys.argv[1]), int(sys.argv[2])
 write = output.HistoryWriter.write
@@ -361,7 +361,7 @@ def hooked(self, state):
     write(self, state)
 
 output.HistoryWriter.write = hooked
-from fem_impact.cli import main
+from fem_impact.app.cli import main
 sys.exit(main(sys.argv[3:]))
 """
 
@@ -390,8 +390,8 @@ def test_a_picture_made_during_the_rendering_is_left(tmp_path, monkeypatch):
     import matplotlib.figure
 
     import fem_impact
-    from fem_impact.outdir import OutputFolderChanged
-    from fem_impact.plots import plot_history
+    from fem_impact.app.outdir import OutputFolderChanged
+    from fem_impact.app.plots import plot_history
 
     out = fem_impact.run(small_case(), tmp_path / "run").outdir
     png = tmp_path / "fig.png"
@@ -474,7 +474,7 @@ WRITE_FAILURES = {"first VTK frame": ("out/results_p0_000000.vtu", "No space lef
 @pytest.mark.parametrize("where", list(WRITE_FAILURES))
 def test_a_failed_write_leaves_the_earlier_result(tmp_path, monkeypatch, where):
     import fem_impact
-    from fem_impact.outdir import OutputWriteError
+    from fem_impact.app.outdir import OutputWriteError
 
     out = tmp_path / "out"
     fem_impact.run(small_case(), out)
@@ -491,7 +491,7 @@ def test_a_failed_write_leaves_the_earlier_result(tmp_path, monkeypatch, where):
 
 FULL_DISK_HOOK = """
 import errno, os, sys
-import fem_impact.output as output
+import fem_impact.app.output as output
 
 class FullDisk:   # a csv writer on a full disk: the first rows fail (a failed write names no file)
     def writerows(self, rows):
@@ -504,7 +504,7 @@ def hooked(self, *args, **kwargs):
     self._csv = FullDisk()
 
 output.HistoryWriter.__init__ = hooked
-from fem_impact.cli import main
+from fem_impact.app.cli import main
 sys.exit(main(sys.argv[1:]))
 """
 

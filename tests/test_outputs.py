@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import CASES, read_history, run_cli
-from fem_impact.case import load_case
+from fem_impact.config.case import load_case
 
 SUMMARY_KEYS = {"wall_time_s", "loop_time_s", "steps", "dofs", "modes", "max_penetration", "max_energy_error",
                 "fem_impact_version"}

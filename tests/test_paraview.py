@@ -62,7 +62,7 @@ def pvpython(*args, timeout=120, xvfb=False):
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """A 1D rod and a 2D strip of the impacting bar, each with its view.py."""
-    from fem_impact.paraview_view import write_view_script
+    from fem_impact.app.paraview_view import write_view_script
 
     base = tmp_path_factory.mktemp("paraview")
     out = {}
@@ -79,7 +79,7 @@ def pvd_times(folder):
 
 
 def test_view_script_is_written_with_the_runs_scale(runs):
-    from fem_impact.paraview_view import displacement_scale
+    from fem_impact.app.paraview_view import displacement_scale
 
     for dim, folder in runs.items():
         text = (folder / "view.py").read_text()

@@ -1,4 +1,4 @@
-"""The progress bar (fem_impact.progress, tqdm): only on a terminal and on rank 0, a label, the count
+"""The progress bar (fem_impact.app.progress, tqdm): only on a terminal and on rank 0, a label, the count
 and the time left; its line is ended before a message."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import io
 import time
 from types import SimpleNamespace
 
-from fem_impact.progress import Progress
+from fem_impact.app.progress import Progress
 
 
 class Terminal(io.StringIO):

@@ -1,4 +1,4 @@
-"""Interrupted runs leave the earlier result intact and no staging folder (issue 11; fem_impact/outdir.py).
+"""Interrupted runs leave the earlier result intact and no staging folder (issue 11; fem_impact/app/outdir.py).
 
 A long run into a folder that holds an earlier result is killed in its time loop with SIGTERM,
 SIGHUP, SIGQUIT or SIGINT (serial: 128 + the signal number, one line; under ``mpirun -n 2`` the
@@ -149,8 +149,8 @@ STUDY = ["study", "convergence", CASE, "--vary", "mesh.cells=10,20,40", "--set",
 
 INTERRUPT_HOOK = """
 import signal, sys
-from fem_impact.outdir import Interrupted
-from fem_impact.studies import levels, worker
+from fem_impact.app.outdir import Interrupted
+from fem_impact.app.studies import levels, worker
 
 after = int(sys.argv[1])   # SIGTERM once this many levels are recorded (0: when the first level starts)
 finish, run_data = levels._finish, worker.run_data
@@ -168,7 +168,7 @@ def hooked_run_data(*args, **kwargs):
     return run_data(*args, **kwargs)
 
 levels._finish, worker.run_data = hooked_finish, hooked_run_data
-from fem_impact.cli import main
+from fem_impact.app.cli import main
 sys.exit(main(sys.argv[2:]))
 """
 
@@ -214,7 +214,7 @@ def test_study_interrupted_before_a_level_completes_leaves_the_folder_as_it_was(
 def test_a_new_study_folder_interrupted_stays_a_result(tmp_path):
     """Interrupted after a level in a folder it made: the folder keeps its marker with the level (a
     rerun takes it, as a result); interrupted before any level: no folder is left."""
-    from fem_impact.outdir import is_result
+    from fem_impact.app.outdir import is_result
 
     out = tmp_path / "S"
     assert interrupted_study(out, 0).returncode == 143
@@ -229,7 +229,7 @@ def test_a_new_study_folder_interrupted_stays_a_result(tmp_path):
 
 FULL_DISK_HOOK = """
 import errno, os, sys
-import fem_impact.output as output
+import fem_impact.app.output as output
 
 init, calls = output.HistoryWriter.__init__, []
 
@@ -240,7 +240,7 @@ def hooked(self, *args, **kwargs):   # the warm-up run, the first level, then th
     init(self, *args, **kwargs)
 
 output.HistoryWriter.__init__ = hooked
-from fem_impact.cli import main
+from fem_impact.app.cli import main
 sys.exit(main(sys.argv[1:]))
 """
 

@@ -22,13 +22,13 @@ import numpy as np
 import pytest
 
 from conftest import CASES, run_cli
-from fem_impact.case import CaseError, load_case
-from fem_impact.references import B1, B2, BarMode, b1_exact_u0, errors, from_case
-from fem_impact.studies import convergence
-from fem_impact.studies import methods as registry
-from fem_impact.studies.levels import Level, StudyStopped, run_levels
-from fem_impact.studies.pareto import pareto_front
-from fem_impact.studies.stability import FORCE_OSCILLATION, chattering, classify, stability_study
+from fem_impact.config.case import CaseError, load_case
+from fem_impact.config.references import B1, B2, BarMode, b1_exact_u0, errors, from_case
+from fem_impact.app.studies import convergence
+from fem_impact.app.studies import methods as registry
+from fem_impact.app.studies.levels import Level, StudyStopped, run_levels
+from fem_impact.app.studies.pareto import pareto_front
+from fem_impact.app.studies.stability import FORCE_OSCILLATION, chattering, classify, stability_study
 
 BAR = CASES / "impacting_bar.yaml"
 SIGNORINI = CASES / "signorini_bar.yaml"
@@ -250,7 +250,7 @@ def test_a_level_that_blows_up_stops_the_study_or_is_recorded(tmp_path, jobs):
 
 # Central difference at Courant 2 on the coarse bar (20 cells, dt = 0.1): blows up within 5 steps.
 ABOVE_COURANT = {"solver.method": "central_difference", "solver.mass": "lumped", "solver.dt": 0.1}
-# 4e8 steps: the run refuses it when it starts (fem_impact.limits), as bad input.
+# 4e8 steps: the run refuses it when it starts (fem_impact.app.limits), as bad input.
 TOO_LONG = {"solver.t_end": 1e7}
 
 
@@ -280,7 +280,7 @@ def test_each_level_reports_a_structured_status(tmp_path, jobs):
 
 def test_a_worker_that_dies_without_a_status_is_a_failed_level(tmp_path):
     """No status file (killed, or dead before it could write one): failed, whatever its stderr says."""
-    from fem_impact.studies.levels import _from_child
+    from fem_impact.app.studies.levels import _from_child
 
     (tmp_path / "x.log").write_text("fem-impact: the run failed: looks like a reason\n")
     outcome = _from_child(Level("x", {}), tmp_path / "x", None, -9, tmp_path / "x.status.json", tmp_path / "x.log")
@@ -290,8 +290,8 @@ def test_a_worker_that_dies_without_a_status_is_a_failed_level(tmp_path):
 def test_no_study_sweep_or_reduction_starts_a_fem_impact_run_process(tmp_path, monkeypatch):
     """-j 2 starts the worker module (the case as data in, a JSON status out); the sweep and the
     reduction table run fem_impact.run in this process."""
-    from fem_impact.studies import reduction_table
-    from fem_impact.sweep import run_sweep
+    from fem_impact.app.studies import reduction_table
+    from fem_impact.app.sweep import run_sweep
 
     started = []
     popen = subprocess.Popen
@@ -305,7 +305,7 @@ def test_no_study_sweep_or_reduction_starts_a_fem_impact_run_process(tmp_path, m
     run_levels(case, [Level("a", {}), Level("b", {"mesh.cells": 40})], tmp_path / "study", jobs=2, quiet=True)
     run_sweep(case, "contacts.0.restitution=0,1", outdir=tmp_path / "sweep", progress=False, report=None)
     reduction_table(case, modes=(2,), outdir=tmp_path / "reduction")
-    workers = [a for a in started if a[1:3] == ["-m", "fem_impact.studies.worker"]]
+    workers = [a for a in started if a[1:3] == ["-m", "fem_impact.app.studies.worker"]]
     assert len(workers) == 2 and all(a[0] == sys.executable for a in workers)
     assert not [a for a in started if "fem_impact" in a or "run" in a], started
     assert (tmp_path / "sweep" / "sweep.csv").is_file() and (tmp_path / "reduction" / "reduction.csv").is_file()
@@ -486,7 +486,7 @@ def test_central_difference_blows_up_above_the_cfl_limit(tmp_path):
 ])
 def test_position_level_multipliers_alone_make_the_contact_force_oscillate(tmp_path, case, method, oscillates):
     """The contact force's RMS deviation from the exact force over the contact phases, relative to
-    it (fem_impact.references.errors): with Carnot's correction 0.096 (B2a) and 0.18 (B1), with mass
+    it (fem_impact.config.references.errors): with Carnot's correction 0.096 (B2a) and 0.18 (B1), with mass
     redistribution 0.10 and 0.18, the ringing of the discrete bar at the ends of a contact;
     position-level multipliers alone make the force jump between 0 and about 3 times its value
     (measured 2.92 on B2a, 2.82 on B1). Threshold FORCE_OSCILLATION = 0.5."""
@@ -526,8 +526,8 @@ def test_chattering_and_classification():
 
 
 def test_reduction_command_still_works(tmp_path):
-    """`fem-impact reduction` lives in fem_impact/studies/reduction.py, importable as before."""
-    from fem_impact.studies import format_reduction, reduction_table  # noqa: F401  (still importable)
+    """`fem-impact reduction` lives in fem_impact/app/studies/reduction.py, importable as before."""
+    from fem_impact.app.studies import format_reduction, reduction_table  # noqa: F401  (still importable)
 
     proc = run_cli("reduction", str(BAR), "--modes", "5", "-o", str(tmp_path / "red"),
                    *sets("mesh.cells=50", "solver.dt=0.01", "solver.t_end=2.5"))
@@ -553,7 +553,7 @@ def test_a_given_solver_key_goes_to_the_methods_that_take_it():
 
 def test_a_stability_study_takes_a_list_valued_change(tmp_path):
     """``--set "loads=[{body: all, ...}]"`` (as the plate's map in the README): a level's changes hold a list."""
-    from fem_impact.studies.stability import stability_study
+    from fem_impact.app.studies.stability import stability_study
 
     result = stability_study(load_case(BAR), methods="moreau-jean", courants=[0.5], restitutions=[], lengths=[1.0],
                              changes=["mesh.cells=10", "solver.t_end=0.5", "reference=null",

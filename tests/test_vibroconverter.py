@@ -105,10 +105,10 @@ def steady_state(h: np.ndarray, frequency: float = DRIVE_FREQUENCY, periods: int
 def _modes(overrides, n=3):
     from mpi4py import MPI
 
-    from fem_impact.case import load_case
-    from fem_impact.mesh import build_mesh
-    from fem_impact.model import build_model
-    from fem_impact.modes import compute_modes
+    from fem_impact.config.case import load_case
+    from fem_impact.fem.mesh import build_mesh
+    from fem_impact.fem.model import build_model
+    from fem_impact.fem.modes import compute_modes
 
     case = load_case(FREE, ["contacts=[]", *overrides])
     model = build_model(case, build_mesh(case, MPI.COMM_SELF))

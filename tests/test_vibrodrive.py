@@ -136,10 +136,10 @@ def test_committed_mesh_is_what_the_script_writes(tmp_path):
 def _first_longitudinal(overrides) -> float:
     from mpi4py import MPI
 
-    from fem_impact.case import load_case
-    from fem_impact.mesh import build_mesh
-    from fem_impact.model import build_model
-    from fem_impact.modes import compute_modes, participation
+    from fem_impact.config.case import load_case
+    from fem_impact.fem.mesh import build_mesh
+    from fem_impact.fem.model import build_model
+    from fem_impact.fem.modes import compute_modes, participation
 
     case = load_case(CASE, ["contacts=[]", *overrides])
     model = build_model(case, build_mesh(case, MPI.COMM_SELF))

@@ -22,7 +22,7 @@ from scipy.linalg.blas import daxpy, dgemv
 
 from ..errors import SimulationError
 from ..parallel import allsum
-from ..petsc_api import mumps_inverse_block
+from ..fem.petsc_api import mumps_inverse_block
 from .parameters import steps_for   # (the one definition; integrators re-exports it)
 
 BLOW_UP = 100.0  # kinetic + strain energy above this many times the energy put in: the run blew up

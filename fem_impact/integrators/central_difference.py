@@ -8,7 +8,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..contact import Delassus
+from ..nonsmooth.lcp import Delassus
 from .base import EnergyBudget, Operators, StepState, axpy
 from .scheme import ContactScheme
 

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..contact import TINY, Delassus, solve_lcp
+from ..nonsmooth.lcp import TINY, Delassus, solve_lcp
 from .base import EnergyBudget, Operators, StepState, axpy
 from .scheme import ContactScheme
 

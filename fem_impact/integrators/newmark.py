@@ -6,7 +6,7 @@ import logging
 
 import numpy as np
 
-from ..contact import Delassus, impact_correction
+from ..nonsmooth.lcp import Delassus, impact_correction
 from .base import Operators, StepState, axpy
 from .scheme import ContactScheme
 

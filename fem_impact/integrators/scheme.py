@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from ..contact import TINY, Delassus, ImpactResult, impact_correction, solve_lcp
+from ..nonsmooth.lcp import TINY, Delassus, ImpactResult, impact_correction, solve_lcp
 from ..errors import SimulationError
 from .base import EnergyBudget, Operators, StepState, owned_values
 

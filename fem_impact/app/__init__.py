@@ -1,0 +1,1 @@
+"""The application: the command line, a run's pipeline and outputs, studies, sweeps, pictures."""

@@ -1,0 +1,710 @@
+"""The output folder's policy, shared by every command that writes: which folders may be written or
+replaced, the staging folder, the lock against a concurrent run, stale debris, and interruption.
+
+- A folder is replaced only when it holds an earlier fem-impact result (the marker file
+  ``.fem-impact.json`` that every command writes, or the files of a result written before the
+  marker existed); any other folder that is not empty is refused, and left as it was.
+- The home folder, the current folder and its parents, the case file's folder and its parents
+  (and the mesh file's) are never output folders.
+- Results are written into a hidden sibling ``.NAME.partial-PID`` and moved into place when
+  complete, under the policy checked again at that moment: a folder that appeared or changed
+  meanwhile and holds files that are not a result is left as it was, and the result is kept
+  beside it (``NAME.result-TIMESTAMP``, :class:`OutputFolderChanged`). A lock (``.NAME.lock``
+  beside the folder, ``flock``: released by the kernel when the process dies) makes a second run
+  into the same folder refuse; whoever holds the lock removes staging folders that a killed
+  process left behind.
+- A study writes into its folder directly (:func:`written_in_place`): its completed levels stay
+  when it fails or is interrupted, for a rerun to resume.
+- SIGTERM, SIGHUP and SIGQUIT end a run as Ctrl-C does (:class:`Interrupted`, a KeyboardInterrupt):
+  the staging folder is removed and the command exits with 128 + the signal number.
+- A write that fails (a full disk, a quota, an I/O error) is :class:`OutputWriteError`, a
+  SimulationError (status 3) naming the file and the reason; the staging folder is removed.
+
+Refusals are :class:`OutputFolderError`, a CaseError: one line and status 2, like other bad input.
+Under MPI, rank 0 decides and does the file work; every rank raises the same error.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import json
+import os
+import shutil
+import signal
+import time
+from pathlib import Path
+
+from .._version import __version__
+from ..errors import CaseError, SimulationError
+
+MARKER = ".fem-impact.json"
+# Leave room for ".partial-PID" and ".lock" around the folder's name (NAME_MAX is 255 bytes).
+MAX_NAME_BYTES = 255 - len("..partial-4194304")
+
+
+class OutputFolderError(CaseError):
+    """An output folder or file that cannot or must not be written (bad input: status 2)."""
+
+    def __init__(self, where, message):
+        super().__init__(where, None, None, message)
+
+
+class OutputFolderChanged(OutputFolderError):
+    """At the final move the output folder (or file) held what is not a fem-impact result: it was left as
+    it was and the complete result was kept beside it, at ``kept``."""
+
+    def __init__(self, where, message, kept):
+        super().__init__(where, message)
+        self.kept = Path(kept)
+
+
+class OutputWriteError(SimulationError):
+    """Results that could not be written (a full disk, a quota, an I/O error): the run fails (status 3)."""
+
+
+def write_error(err: OSError, stage: Path | None = None, final: Path | None = None) -> OutputWriteError:
+    """The one line for an OSError while writing results: the file (as it would be named in ``final``
+    when it lies in the staging folder ``stage``) and the system's reason."""
+    name = err.filename
+    if name is not None and stage is not None and final is not None:
+        with contextlib.suppress(ValueError):
+            name = final / Path(os.fsdecode(name)).relative_to(stage)
+    if err.filename2 is not None:   # a rename: the move into place
+        what = f"cannot move the results into {final if final is not None else os.fsdecode(err.filename2)}"
+    elif name is not None:
+        what = f"cannot write {os.fsdecode(name)}"
+    else:
+        what = f"cannot write the results{f' into {final}' if final is not None else ''}"
+    return OutputWriteError(f"{what}: {err.strerror or err}")
+
+
+@contextlib.contextmanager
+def writing(path):
+    """An OSError of the body names ``path`` (a failed ``write`` or ``close`` of a file object names none)."""
+    try:
+        yield
+    except OSError as err:
+        if err.filename is None:
+            raise OSError(err.errno, err.strerror or str(err), os.fspath(path)) from None
+        raise
+
+
+@contextlib.contextmanager
+def replacing(path):
+    """Yields a temporary name beside ``path``; it replaces ``path`` when the body completes and is removed
+    when it fails (errors name ``path``): a file is either the old one or the new one, whole."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+    try:
+        with writing(path):
+            yield tmp
+            os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
+# --- which folders ---------------------------------------------------------------------------
+
+
+def _real(path) -> Path:
+    return Path(os.path.realpath(path))
+
+
+def _protected(protect=()) -> dict[Path, str]:
+    """Folders that are never output folders, with what they are (for the message)."""
+    places: dict[Path, str] = {}
+
+    def add_with_parents(folder: Path, label: str, parent_label: str):
+        places.setdefault(folder, label)
+        for parent in folder.parents:
+            places.setdefault(parent, parent_label)
+
+    for item in protect:
+        if item is not None:
+            add_with_parents(_real(item).parent, "the folder of " + Path(item).name,
+                             "a folder that holds " + Path(item).name)
+    add_with_parents(_real(os.getcwd()), "the current folder", "a parent of the current folder")
+    home = os.path.expanduser("~")
+    if home not in ("~", "/"):
+        places[_real(home)] = "the home folder"
+    return places
+
+
+def case_inputs(case) -> tuple:
+    """The files a case reads (the case file, a mesh file): their folders are never output folders."""
+    return tuple(p for p in (case.path, case.mesh.file) if p is not None)
+
+
+def is_result(folder: Path) -> bool:
+    """True when ``folder`` holds a fem-impact result (marker, or the files of an earlier version)."""
+    folder = Path(folder)
+    if (folder / MARKER).is_file():
+        return True
+    try:
+        if "fem_impact_version" in json.loads((folder / "summary.json").read_text()):
+            return True
+    except (OSError, ValueError, TypeError):
+        pass
+    legacy = [("case.resolved.yaml",), ("study.json",), ("level.json",), ("sweep.csv", "run01"),
+              ("reduction.csv", "full")]
+    return any(all((folder / name).exists() for name in names) for names in legacy)
+
+
+def check(outdir, protect=(), option: str = "-o") -> Path:
+    """The absolute output folder if the policy allows writing it; raises OutputFolderError.
+
+    ``protect``: files (the case, the mesh) whose folders and their parents must not be replaced.
+    """
+    text = os.fspath(outdir)
+    shown = text
+    if not text.strip():
+        raise OutputFolderError(f"{option} {text!r}", "give a folder name")
+    if "\0" in text:
+        raise OutputFolderError(f"{option} {text!r}", "a folder name cannot hold a NUL character")
+    path = Path(os.path.abspath(text))
+    real = _real(path)
+    what = _protected(protect).get(real)
+    if what is not None:
+        raise OutputFolderError(shown, f"is {what}: it cannot be an output folder (the results replace the "
+                                       "folder's contents); choose a folder of its own, e.g. results/NAME")
+    if len(os.fsencode(path.name)) > MAX_NAME_BYTES:
+        raise OutputFolderError(shown[:60] + "...", f"the folder name is too long ({len(os.fsencode(path.name))} "
+                                                    f"bytes; at most {MAX_NAME_BYTES})")
+    ancestor = path.parent
+    while not ancestor.exists():
+        if ancestor.is_symlink():
+            raise OutputFolderError(shown, f"{ancestor} is a broken symbolic link")
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise OutputFolderError(shown, f"{ancestor} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise OutputFolderError(shown, f"cannot write into {ancestor} (permission denied)")
+    refusal = _refusal(path)
+    if refusal is not None:
+        raise OutputFolderError(shown, refusal + ". Choose a new or empty folder (an earlier result of "
+                                                 "fem-impact is replaced)" if refusal.startswith("the folder holds")
+                                else refusal)
+    return path
+
+
+def _refusal(path: Path) -> str | None:
+    """Why the policy does not let results replace what ``path`` holds now; None for nothing there, an empty
+    folder or an earlier result."""
+    if path.is_symlink():
+        return "is a symbolic link; give the folder itself"
+    if not path.exists():
+        return None
+    if not path.is_dir():
+        return "the output path exists and is not a folder"
+    try:
+        entries = sorted(p.name for p in path.iterdir())
+    except OSError as err:
+        return f"cannot read the folder: {err.strerror}"
+    if entries and not is_result(path):
+        example = ", ".join(repr(e) for e in entries[:3]) + (", ..." if len(entries) > 3 else "")
+        return (f"the folder holds files that are not a fem-impact result ({len(entries)} entries: {example}); it is "
+                "left as it was")
+    return None
+
+
+def _keep_beside(result: Path, target: Path) -> Path:
+    """Move the complete ``result`` (a folder or a file) to a new name beside ``target``,
+    ``NAME.result-TIMESTAMP`` (a file keeps its suffix), never over anything: the name is taken
+    first (mkdir, or an exclusive create), which fails on whatever exists."""
+    is_file = result.is_file()
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    for n in range(1, 1000):
+        tag = f".result-{stamp}" + (f"-{n}" if n > 1 else "")
+        kept = target.with_name(target.stem + tag + target.suffix) if is_file else target.with_name(target.name + tag)
+        try:
+            if is_file:
+                os.close(os.open(kept, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+            else:
+                kept.mkdir()
+        except FileExistsError:
+            continue
+        os.rename(result, kept)   # over the empty folder (or file) just taken
+        return kept
+    raise OSError(errno.EEXIST, "no free name beside it for the result", str(target))
+
+
+# --- the claim: lock, stale debris, staging ---------------------------------------------------
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove_stale(parent: Path, name: str) -> list[Path]:
+    """Staging and replaced folders of ``name`` left by processes that no longer exist."""
+    removed = []
+    for kind in ("partial", "old"):
+        for p in parent.glob(f".{_glob_escape(name)}.{kind}-*"):
+            pid = p.name.rsplit("-", 1)[1]
+            if pid.isdigit() and (int(pid) == 0 or not _alive(int(pid))):
+                if kind == "old" and _refusal(p) is not None:   # (only ever a result moved aside)
+                    continue
+                shutil.rmtree(p, ignore_errors=True)
+                removed.append(p)
+    return removed
+
+
+def _glob_escape(name: str) -> str:
+    return "".join(f"[{c}]" if c in "*?[" else c for c in name)
+
+
+class OutputFolder:
+    """A claimed output folder: checked, locked; ``staged()`` writes it atomically."""
+
+    def __init__(self, path: Path, comm, command: str, source=None):
+        self.path, self.comm, self.command, self.source = path, comm, command, source
+        self._lock_fd = None
+        self._lock_path = path.parent / f".{path.name}.lock"
+        self._created: list[Path] = []
+        self.stale: list[Path] = []
+
+    # rank 0 only
+    def _acquire(self) -> None:
+        missing = []
+        p = self.path.parent
+        while not p.exists():
+            missing.append(p)
+            p = p.parent
+        try:
+            for folder in reversed(missing):
+                folder.mkdir()
+                self._created.append(folder)
+            while True:
+                fd = os.open(self._lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError as err:
+                    holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+                    os.close(fd)
+                    if err.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
+                        raise OutputFolderError(str(self.path), f"another fem-impact process (pid {holder}) is "
+                                                                "writing this folder; wait for it to finish or "
+                                                                "choose another folder") from None
+                    raise
+                # The holder before us may have removed the file after we opened it: lock the file in place.
+                try:
+                    same = os.fstat(fd).st_ino == os.stat(self._lock_path).st_ino
+                except FileNotFoundError:
+                    same = False
+                if same:
+                    break
+                os.close(fd)
+            self._lock_fd = fd
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            self.stale = _remove_stale(self.path.parent, self.path.name)
+        except OSError as err:
+            self._release()
+            raise OutputFolderError(str(self.path), f"cannot create the output folder: "
+                                                    f"{err.strerror or err}") from None
+        except BaseException:
+            self._release()
+            raise
+
+    def _release(self, failed: bool = True) -> None:
+        if self._lock_fd is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(self._lock_path)
+            os.close(self._lock_fd)
+            self._lock_fd = None
+        if failed:   # folders made for the output that stayed empty
+            for folder in reversed(self._created):
+                with contextlib.suppress(OSError):
+                    folder.rmdir()
+        self._created = []
+
+    def write_marker(self, folder: Path) -> None:
+        data = {"written_by": f"fem-impact {self.command}", "fem_impact_version": __version__,
+                "source": None if self.source is None else str(self.source)}
+        (Path(folder) / MARKER).write_text(json.dumps(data, indent=2) + "\n")
+
+    @contextlib.contextmanager
+    def staged(self):
+        """Write into ``.NAME.partial-PID`` beside the folder; move it over the folder when complete.
+
+        A failed or interrupted body removes the staging folder and leaves the folder as it was; so
+        does a failed write (:class:`OutputWriteError`). At the move the policy is checked again
+        (:meth:`install`).
+        """
+        comm = self.comm
+        install_signal_handlers()   # again: PETSc, imported meanwhile, installs its own
+        stage = self.path.parent / f".{self.path.name}.partial-{os.getpid()}"
+        error = None
+        if comm.rank == 0:
+            try:
+                stage.mkdir()
+            except OSError as err:
+                error = f"cannot create the staging folder {stage}: {err.strerror}"
+        error = comm.bcast(error, root=0)
+        if error:
+            raise OutputFolderError(str(self.path), error)
+        stage = Path(comm.bcast(str(stage), root=0))
+        try:
+            yield stage
+            comm.barrier()
+            failure = None
+            if comm.rank == 0:
+                try:
+                    with writing(stage / MARKER):
+                        self.write_marker(stage)
+                    self.install(stage)
+                    self._created = []   # they hold the result now
+                except OutputFolderChanged as err:
+                    failure = ("changed", err.file, err.message, str(err.kept))
+                except OSError as err:
+                    failure = ("write", str(write_error(err, stage, self.path)))
+            failure = comm.bcast(failure, root=0)
+            if failure is not None:
+                raise OutputFolderChanged(*failure[1:]) if failure[0] == "changed" else OutputWriteError(failure[1])
+        except BaseException as err:
+            interrupted = isinstance(err, KeyboardInterrupt)
+            if interrupted:
+                ignore_signals()   # a second signal (mpirun sends one) must not cut the cleanup short
+            # Interrupted, every rank removes it: the signal may have reached one rank only, and mpirun
+            # then kills the others.
+            if comm.rank == 0 or interrupted:
+                shutil.rmtree(stage, ignore_errors=True)
+            if interrupted and comm.rank != 0:   # (rank 0, if stuck, is killed with the lock file left)
+                with contextlib.suppress(OSError):
+                    os.unlink(self._lock_path)
+            if isinstance(err, OSError):
+                raise write_error(err, stage, self.path) from None
+            raise
+        comm.barrier()
+
+    def install(self, stage: Path) -> None:
+        """Move the complete ``stage`` into place (rank 0, holding the lock), under the policy checked again:
+        between the check at the start and now the folder may have appeared or changed.
+
+        The move itself never replaces files: rename(2) puts a folder over an empty folder only, and
+        fails on one with files (which may appear between this check and the move). An earlier result
+        is first moved aside (``.NAME.old-PID``) and removed once the new one is in place; it is put
+        back when the move fails. When the folder holds what is not a result, it is left as it was and
+        the result is kept beside it: :class:`OutputFolderChanged`.
+        """
+        path = self.path
+        refusal = _refusal(path)
+        old = None
+        if refusal is None and path.is_dir() and any(path.iterdir()):
+            old = path.parent / f".{path.name}.old-{os.getpid()}"
+            try:
+                os.rename(path, old)
+            except FileNotFoundError:   # (gone meanwhile: nothing to move aside)
+                old = None
+        try:
+            if refusal is None:
+                try:
+                    os.rename(stage, path)
+                except OSError as err:
+                    if err.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR):
+                        raise
+                    refusal = _refusal(path) or "the output path was taken during the run"
+        except BaseException:
+            if old is not None:
+                os.rename(old, path)
+            raise
+        if refusal is not None:
+            earlier = ""
+            if old is not None:   # (the folder appeared again between the two renames)
+                try:
+                    os.rename(old, path)
+                except OSError:
+                    earlier = f"; the earlier result is in {_keep_beside(old, path)}"
+            kept = _keep_beside(stage, path)
+            raise OutputFolderChanged(str(path), f"{refusal} (checked again at the end of the {self.command}, "
+                                                 f"before the results were moved into place); the results are "
+                                                 f"in {kept}{earlier}", kept)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def claim(outdir, comm, command: str, protect=(), source=None):
+    """Check and lock ``outdir`` for the body; yields an :class:`OutputFolder`.
+
+    Raises OutputFolderError (on every rank) when the policy refuses the folder or another
+    process holds it. On leaving, the lock is released; on failure, parent folders this claim
+    created are removed again if empty.
+    """
+    install_signal_handlers()
+    out = None
+    error = None
+    if comm.rank == 0:
+        try:
+            path = check(outdir, protect)
+            out = OutputFolder(path, comm, command, source)
+            out._acquire()
+        except OutputFolderError as err:
+            error = (err.file, err.message)
+    error = comm.bcast(error, root=0)
+    if error:
+        raise OutputFolderError(*error)
+    if comm.rank != 0:
+        out = OutputFolder(Path(os.path.abspath(outdir)), comm, command, source)
+    ok = False
+    try:
+        yield out
+        ok = True
+    finally:
+        if comm.rank == 0:
+            out._release(failed=not ok)
+
+
+@contextlib.contextmanager
+def written_in_place(outdir, comm, command: str, protect=(), source=None):
+    """Claim ``outdir`` for a command that writes into it directly, not through a staging folder: a study,
+    whose completed levels (``OUTDIR/levels/NAME``) are kept for a rerun to resume.
+
+    The folder is made at once (mkdir, which does not take over a folder that appeared since the
+    check: that one is checked again). The marker is written at once only into a new or empty folder
+    (so that it is recognized with its first level); into an earlier result, at completion.
+
+    Leaving with an error, the exception gets ``left``, one sentence on what the folder keeps: the
+    levels this run completed, or "the output folder was left as it was" (then what this claim made
+    is removed again). An OSError becomes :class:`OutputWriteError`.
+    """
+    with claim(outdir, comm, command, protect, source) as out:
+        made, before, error = set(), {}, None
+        if comm.rank == 0:
+            try:
+                made = _open_in_place(out)
+                before = _levels(out.path)
+            except OutputFolderError as err:
+                error = (err.file, err.message)
+            except OSError as err:
+                error = (str(out.path), f"cannot create the output folder: {err.strerror or err}")
+        error = comm.bcast(error, root=0)
+        if error:
+            raise OutputFolderError(*error)
+        try:
+            yield out
+            if comm.rank == 0:
+                with writing(out.path / MARKER):
+                    out.write_marker(out.path)
+        except BaseException as err:
+            if comm.rank == 0:
+                err.left = _left_in_place(out.path, before, made)
+            if isinstance(err, OSError):
+                converted = write_error(err, final=out.path)
+                converted.left = getattr(err, "left", None)
+                raise converted from None
+            raise
+
+
+def _open_in_place(out: OutputFolder) -> set:
+    """Make the folder (or check it again) for writing in place; returns what was made: "folder", "marker"."""
+    made = set()
+    try:
+        out.path.mkdir()
+        made.add("folder")
+    except FileExistsError:
+        refusal = _refusal(out.path)
+        if refusal is not None:
+            raise OutputFolderError(str(out.path), refusal) from None
+    if "folder" in made or not any(out.path.iterdir()):
+        out.write_marker(out.path)
+        made.add("marker")
+    for cache in out.path.glob(".cache-*"):   # a killed study's private cache (we hold the lock)
+        shutil.rmtree(cache, ignore_errors=True)
+    if not (out.path / "levels").exists():
+        made.add("levels")
+    return made
+
+
+def _levels(folder: Path) -> dict:
+    """The recorded levels of a study folder: name -> identity of its ``level.json`` (rewritten by replace)."""
+    found = {}
+    for record in (folder / "levels").glob("*/level.json"):
+        with contextlib.suppress(OSError):
+            st = record.stat()
+            found[record.parent.name] = (st.st_ino, st.st_mtime_ns)
+    return found
+
+
+def _left_in_place(folder: Path, before: dict, made: set) -> str:
+    """What a study that ends early leaves in its folder, in words; when it recorded no level, what it
+    made is removed (the folder, the marker, an empty ``levels/``), so that the folder is as it was."""
+    now = _levels(folder)
+    new = [name for name, ident in now.items() if before.get(name) != ident]
+    if new:
+        others = len(now) - len(new)
+        return (f"{len(new)} completed level{'s' if len(new) > 1 else ''} of this run "
+                f"{'are' if len(new) > 1 else 'is'} kept in {folder / 'levels'}"
+                + (f", with {others} of an earlier run" if others else "")
+                + "; run the same command again to resume")
+    try:
+        if "levels" in made and (folder / "levels").exists():
+            (folder / "levels").rmdir()
+        if "marker" in made:
+            (folder / MARKER).unlink()
+        if "folder" in made:
+            folder.rmdir()
+    except OSError:   # (something else was left in it: a killed level's staging folder)
+        return "no level was completed"
+    return "the output folder was left as it was"
+
+
+# --- single files (plot, animate) ------------------------------------------------------------
+
+_MAGIC = {".png": (b"\x89PNG",), ".gif": (b"GIF8",), ".jpg": (b"\xff\xd8",), ".jpeg": (b"\xff\xd8",),
+          ".pdf": (b"%PDF",), ".svg": (b"<?xml", b"<svg"), ".mp4": (b"ftyp",)}
+
+
+def check_file(output, protect=(), option: str = "-o") -> Path:
+    """An output file (a picture, an animation): its folder must exist; an existing file is replaced
+    only when it is a picture of the same kind, never a folder or another file."""
+    text = os.fspath(output)
+    if not text.strip():
+        raise OutputFolderError(f"{option} {text!r}", "give a file name")
+    if "\0" in text:
+        raise OutputFolderError(f"{option} {text!r}", "a file name cannot hold a NUL character")
+    path = Path(os.path.abspath(text))
+    if len(os.fsencode(path.name)) > MAX_NAME_BYTES:
+        raise OutputFolderError(f"{option} {text[:60]}...", "the file name is too long")
+    if not path.parent.is_dir():
+        raise OutputFolderError(f"{option} {text}", f"no folder {path.parent}" if not path.parent.exists()
+                                else f"{path.parent} is not a folder")
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise OutputFolderError(f"{option} {text}", f"cannot write into {path.parent} (permission denied)")
+    if any(_real(path) == _real(p) for p in protect if p is not None):
+        raise OutputFolderError(f"{option} {text}", "is an input of this command; choose another file")
+    refusal = _file_refusal(path)
+    if refusal is not None:
+        raise OutputFolderError(f"{option} {text}", refusal)
+    return path
+
+
+def _file_refusal(path: Path) -> str | None:
+    """Why a picture must not replace what ``path`` is now; None for nothing there or a picture of its kind."""
+    if path.is_dir():
+        return "is a folder; give a file name"
+    if not path.exists():
+        return None
+    magic = _MAGIC.get(path.suffix.lower(), ())
+    try:
+        with open(path, "rb") as f:
+            head = f.read(12)
+    except OSError as err:
+        return f"cannot read the existing file: {err.strerror}"
+    if not any(head.startswith(m) or m in head[:12] for m in magic):
+        return (f"the file exists and is not a {path.suffix or 'picture'} picture; it is left as it was (choose "
+                "another name)")
+    return None
+
+
+@contextlib.contextmanager
+def atomic_file(path: Path):
+    """Yields a temporary name beside ``path`` (same suffix); it replaces ``path`` when the body completes.
+
+    The temporary file is made first: a place where no file can be made is refused
+    (:class:`OutputFolderError`); a write that fails later is :class:`OutputWriteError`. At the end
+    :func:`check_file`'s policy is checked again: a file that appeared meanwhile and is not a picture of
+    the kind is left as it was, and the picture kept beside it (:class:`OutputFolderChanged`).
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+    try:
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644))
+    except OSError as err:
+        raise OutputFolderError(str(path), f"cannot write the file: {err.strerror or err}") from None
+    try:
+        with writing(path):
+            yield tmp
+            _install_file(tmp, path)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        if err.filename is not None and os.fsdecode(err.filename) == str(tmp):
+            err.filename = str(path)
+        raise write_error(err) from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
+def _install_file(tmp: Path, path: Path) -> None:
+    """Put the finished ``tmp`` at ``path`` under the policy checked again; never over another file: a new
+    name is taken with link(2), which fails on whatever exists (rename would replace it)."""
+    refusal = _file_refusal(path)
+    if refusal is None and not path.exists():
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            refusal = _file_refusal(path) or "a file of that name was made during the rendering"
+        except OSError as err:
+            if err.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EMLINK):
+                raise
+            os.replace(tmp, path)   # (no hard links on this file system: the check just made must do)
+        else:
+            os.unlink(tmp)
+            return
+    if refusal is None:
+        os.replace(tmp, path)   # a picture of the kind, replaced
+        return
+    kept = _keep_beside(tmp, path)
+    raise OutputFolderChanged(str(path), f"{refusal} (checked again before the picture was written); the picture "
+                                         f"is in {kept}", kept)
+
+
+# --- interruption ----------------------------------------------------------------------------
+
+
+class Interrupted(KeyboardInterrupt):
+    """A run ended by a signal (SIGTERM, SIGHUP, SIGQUIT, SIGINT): a KeyboardInterrupt with ``signum``."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+HANDLED = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+
+
+def _raise(signum, frame):
+    # The process is ending: a second signal (mpirun follows one with another, a user presses Ctrl-C
+    # twice) must not interrupt the cleanup. The next claim() installs the handlers again.
+    ignore_signals()
+    raise Interrupted(signum)
+
+
+def install_signal_handlers() -> None:
+    """SIGTERM, SIGHUP, SIGQUIT and SIGINT raise :class:`Interrupted` (in the main thread; else nothing)."""
+    try:
+        for sig in (*HANDLED, signal.SIGINT):
+            signal.signal(sig, _raise)
+    except ValueError:   # not the main thread (a study's worker): the process's owner handles signals
+        pass
+
+
+def ignore_signals() -> None:
+    """After an interruption: the process is ending, further signals wait for nothing."""
+    try:
+        for sig in (*HANDLED, signal.SIGINT):
+            signal.signal(sig, signal.SIG_IGN)
+    except ValueError:
+        pass
+
+
+def exit_status(err: KeyboardInterrupt) -> int:
+    """128 + the signal number: 130 for Ctrl-C, 143 for SIGTERM, 129 for SIGHUP, 131 for SIGQUIT."""
+    return 128 + getattr(err, "signum", signal.SIGINT)
+
+
+def signal_name(err: KeyboardInterrupt) -> str:
+    return signal.Signals(getattr(err, "signum", signal.SIGINT)).name

@@ -1,0 +1,280 @@
+"""Observers of the time loop: history CSV, ParaView time series, run statistics (the progress bar: progress.py)."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import os
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+from ..fem import dolfinx_api as dx
+from ..nonsmooth.relation import Constraints
+from ..errors import ModelInputError
+from ..integrators import StepState
+from ..fem.model import AXES, Model, pad_vector
+from .outdir import writing
+from ..parallel import allsum
+from .progress import Progress, duration  # noqa: F401  (re-exported: pipeline, sweep, cli)
+
+ENERGY_COLUMNS = ("kinetic", "strain", "external_work", "damping_loss", "impact_loss", "contact_loss", "energy_error")
+
+
+class NodalFields:
+    """Physical fields of the full model: the state vectors are the nodal values.
+
+    The reduced model has its own reader (``reduce.ReducedFields``) with the same two methods,
+    so observers never need to know which model produced a step.
+    """
+
+    def __init__(self, cons: Constraints):
+        self.cons = cons
+
+    def at(self, state: StepState, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Displacement and velocity at a few owned dofs."""
+        return state.U[dofs], state.V[dofs]
+
+    def frame(self, state: StepState) -> dict[str, np.ndarray]:
+        """Owned values of u, v, a and the contact force on the structure (-P^T F_N)."""
+        return {"u": state.U, "v": state.V, "a": state.A,
+                "contact_force": -(self.cons.P_local @ state.force)}
+
+    def velocity_functionals(self, rows: np.ndarray, comm: MPI.Comm):
+        """A reader of ``rows^T v`` at each step, for a few fixed rows (owned entries, n_local x k):
+        k dot products and one reduction per step."""
+        rows = np.ascontiguousarray(rows.T)
+
+        def read(state: StepState) -> np.ndarray:
+            return allsum(comm, rows @ state.V)
+        return read
+
+
+@dataclass
+class Probes:
+    """Named points, each read at the mesh node nearest to it (one owner rank per probe)."""
+
+    names: list[str]
+    owned_dofs: np.ndarray     # (n_probes x dim) local dof of each component, -1 off-owner
+    distance: np.ndarray       # distance from the asked point to the node used
+    dim: int
+
+    def values(self, state: StepState, comm: MPI.Comm, fields) -> np.ndarray:
+        """(u, v) at every probe as one flat array [p0.ux, p0.uy, ..., p0.vx, ...]."""
+        out = np.zeros((len(self.names), 2, self.dim))
+        mine = self.owned_dofs[:, 0] >= 0
+        if mine.any():
+            out[mine, 0], out[mine, 1] = fields.at(state, self.owned_dofs[mine])
+        return allsum(comm, out).reshape(-1)
+
+    def columns(self) -> list[str]:
+        return [f"{name}.{q}{AXES[c]}" for name in self.names for q in "uv" for c in range(self.dim)]
+
+
+class BodyMomenta:
+    """Momentum of every body per component, ``p_b = m_b . V`` with ``m_b = 1_b^T M`` built once
+    (``Model.momentum_rows``): columns ``BODY.px`` (``BODY.py``, ``BODY.pz``)."""
+
+    def __init__(self, model: Model, fields):
+        self.dim = model.meshdata.dim
+        self.names = list(model.momentum_rows)
+        self.mass = {name: float(model.comm.allreduce(rows[:, 0].sum())) for name, rows in model.momentum_rows.items()}
+        rows = (np.column_stack([model.momentum_rows[name] for name in self.names]) if self.names
+                else np.zeros((model.U0.getLocalSize(), 0)))
+        self.read = fields.velocity_functionals(rows, model.comm)
+
+    def values(self, state: StepState) -> np.ndarray:
+        return self.read(state) if self.names else np.zeros(0)
+
+    def columns(self) -> list[str]:
+        return [f"{name}.p{AXES[c]}" for name in self.names for c in range(self.dim)]
+
+
+def find_probes(case, model: Model) -> Probes:
+    dim, bs, comm = model.meshdata.dim, model.bs, model.comm
+    coords = model.node_coords[: model.n_owned_nodes, :dim]
+    names, dofs, distances = [], [], []
+    for name, point in case.output.probes.items():
+        key = ("output", "probes", name)
+        point = np.asarray(pad_vector(point, dim, case, key, "probe"), dtype=float)
+        if coords.size:
+            d = np.linalg.norm(coords - point, axis=1)
+            k = int(np.argmin(d))
+            mine = (float(d[k]), model.first_node + k)
+        else:
+            mine = (np.inf, -1)
+        best = min(comm.allgather(mine))  # nearest node; ties go to the lowest global index
+        _check_inside(case, model, key, point)
+        local = best[1] - model.first_node
+        owned = 0 <= local < model.n_owned_nodes and best[1] >= 0
+        names.append(name)
+        dofs.append([local * bs + c if owned else -1 for c in range(dim)])
+        distances.append(best[0])
+    return Probes(names, np.array(dofs, dtype=np.int64).reshape(-1, dim), np.array(distances), dim)
+
+
+def _check_inside(case, model: Model, key, point) -> None:
+    """A probe farther from the mesh than 1e-6 of its size is a mistake (a unit, a sign), not the nearest node."""
+    coords = model.node_coords[:, : model.meshdata.dim]
+    dim = model.meshdata.dim
+    lo = np.min(model.comm.allgather(coords.min(axis=0) if coords.size else np.full(dim, np.inf)), axis=0)
+    hi = np.max(model.comm.allgather(coords.max(axis=0) if coords.size else np.full(dim, -np.inf)), axis=0)
+    tol = 1e-6 * float(np.max(hi - lo))
+    lo, hi = (np.where(np.abs(b) < tol, 0.0, b) for b in (lo, hi))   # (round-off of the mesh generator)
+    full = np.zeros(3)
+    full[: len(point)] = point
+    distance = model.comm.allreduce(dx.distance_to_mesh(model.meshdata.mesh, full, tol), op=MPI.MIN)
+    if distance > tol:
+        box = ", ".join(f"[{a:g}, {b:g}]" for a, b in zip(lo, hi, strict=True))
+        raise ModelInputError(key, f"the point {[float(v) for v in point]} is outside the mesh (which spans "
+                                   f"{box}); a probe must lie on the structure")
+
+
+class HistoryWriter:
+    """``history.csv``: one row for t = 0 and one per step (README.md, "What a run writes").
+
+    With ``path`` None nothing is written: the rows are kept (on rank 0) for :meth:`columns_data`.
+    """
+
+    def __init__(self, path: Path | None, cons: Constraints, probes: Probes, comm: MPI.Comm, fields,
+                 flush_every: int = 2000, momenta: BodyMomenta | None = None, scheme_energy: bool = False,
+                 name: str = "run"):
+        self.cons, self.probes, self.comm, self.fields = cons, probes, comm, fields
+        self.name = name
+        # FEM_IMPACT_RECORD=DIR: every run also keeps its rows unrounded in DIR (tools/same_histories.py).
+        self._recorded: list | None = [] if os.environ.get("FEM_IMPACT_RECORD") and comm.rank == 0 else None
+        self.momenta = momenta
+        self.rows: list[list[float]] = []
+        self.flush_every = flush_every
+        self.columns = ["t"]
+        for c in cons.contacts:
+            self.columns += [f"{c.name}.gap", f"{c.name}.force", f"{c.name}.impulse"]
+        # Body momenta come last, after the energies: columns added later keep the
+        # positions of the earlier ones.
+        self.columns += probes.columns() + list(ENERGY_COLUMNS) + (momenta.columns() if momenta else [])
+        self.scheme_energy = scheme_energy   # a scheme that conserves more than kinetic + strain (central difference)
+        if scheme_energy:
+            self.columns.append("scheme_energy")
+        self._keep = comm.rank == 0
+        self.path = path
+        self._file = open(path, "w", newline="") if comm.rank == 0 and path is not None else None
+        if self._file:
+            self._csv = csv.writer(self._file)
+            with writing(path):
+                self._csv.writerow(self.columns)
+
+    def write(self, state: StepState) -> None:
+        row = [state.t]
+        for c in self.cons.contacts:
+            r = c.rows
+            row += [state.gap[r].min(), state.force[r].sum(), state.impulse[r].sum()]
+        row += self.probes.values(state, self.comm, self.fields).tolist() if self.probes.names else []
+        e = state.energy
+        row += [e.kinetic, e.strain, e.external_work, e.damping_loss, e.impact_loss, e.contact_loss, e.error]
+        if self.momenta is not None:
+            row += self.momenta.values(state).tolist()
+        if self.scheme_energy:
+            row.append(e.scheme)
+        if self._keep:
+            self.rows.append(row)
+            if self._file and len(self.rows) >= self.flush_every:
+                self.flush()
+
+    def flush(self) -> None:
+        if self._file:
+            if self._recorded is not None:
+                self._recorded += self.rows
+            with writing(self.path):   # (a failed write names no file)
+                self._csv.writerows([[f"{v:.12g}" for v in row] for row in self.rows])
+            self.rows.clear()
+
+    def close(self) -> None:
+        """Write what is left and close the file; the file is closed even when that write fails."""
+        file = self._file
+        if file is None:
+            self._record(self.rows)   # (a run that writes no file keeps its rows)
+            return
+        try:
+            self.flush()
+            with writing(self.path):
+                file.close()
+        except BaseException:
+            with contextlib.suppress(OSError):
+                file.close()
+            raise
+        finally:
+            self._file = None
+        self._record(self._recorded)
+
+    def _record(self, rows: list | None) -> None:
+        """With FEM_IMPACT_RECORD, save the rows under ``$FEM_IMPACT_RECORD/<the pytest test running, if any>/``."""
+        if self._recorded is None or rows is None:
+            return
+        self._recorded = None   # (once)
+        test = os.environ.get("PYTEST_CURRENT_TEST", "no-test").rsplit(" (", 1)[0]
+        folder = Path(os.environ["FEM_IMPACT_RECORD"]) / re.sub(r"[^A-Za-z0-9_.-]+", "_", test)
+        folder.mkdir(parents=True, exist_ok=True)
+        data = np.array(rows, dtype=float).reshape(len(rows), len(self.columns))
+        stem = f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', self.name)}-{os.getpid()}-{time.monotonic_ns()}"
+        np.savez(folder / f"{stem}.npz", columns=np.array(self.columns), data=data)
+
+    def columns_data(self) -> dict[str, np.ndarray] | None:
+        """The kept rows as columns by name (a writer without a file; None on ranks other than 0)."""
+        if not self._keep or self.path is not None:
+            return None
+        data = np.array(self.rows, dtype=float).reshape(len(self.rows), len(self.columns))
+        return {name: data[:, i].copy() for i, name in enumerate(self.columns)}
+
+
+class VTKWriter:
+    """``results.pvd``: u, v, a and the contact force on the structure (-P^T F_N) every N steps."""
+
+    def __init__(self, path: Path, model: Model, fields, every: int, last_step: int):
+        self.fields, self.every, self.last_step = fields, every, last_step
+        self.series = dx.VTKSeries(model.comm, path, model.V, ("u", "v", "a", "contact_force"))
+        self.frames = 0
+
+    def write(self, state: StepState) -> None:
+        if state.step % self.every and state.step != self.last_step:
+            return
+        self.series.write(state.t, self.fields.frame(state))
+        self.frames += 1
+
+    def close(self) -> None:
+        # dolfinx 0.5's VTKFile writes its .pvd again when destroyed: drop it now, while its
+        # folder (the staging folder) exists, not after that has been moved or removed.
+        series, self.series = self.series, None
+        if series is not None:
+            series.close()
+
+
+class RunStatistics:
+    """Extremes and totals over the run for the summary: penetration (rigid rows), compression
+    of the elastic stops, energy residual, impulses."""
+
+    def __init__(self, cons: Constraints):
+        self.cons = cons
+        self.elastic = cons.compliance > 0.0
+        self.max_penetration = 0.0
+        self.max_stop_compression = 0.0
+        self.max_energy_error = 0.0
+        self.energy_scale = 0.0
+        self.max_energy = 0.0
+        self.total_impulse = {c.name: 0.0 for c in cons.contacts}
+
+    def write(self, state: StepState) -> None:
+        e = state.energy
+        if state.gap.size:
+            # An elastic stop is meant to be pressed into: that is its compression, not a violation.
+            self.max_penetration = max(self.max_penetration, float(-state.gap[~self.elastic].min(initial=0.0)))
+            self.max_stop_compression = max(self.max_stop_compression,
+                                            float(-state.gap[self.elastic].min(initial=0.0)))
+        self.max_energy_error = max(self.max_energy_error, abs(e.error))
+        self.energy_scale = max(self.energy_scale, e.initial, abs(e.external_work))
+        self.max_energy = max(self.max_energy, e.total)
+        for c in self.cons.contacts:
+            self.total_impulse[c.name] += float(state.impulse[c.rows].sum())

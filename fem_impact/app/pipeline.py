@@ -1,0 +1,321 @@
+"""The pipeline of one run: case -> mesh -> model -> constraints -> integrator -> outputs, written atomically."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+from .._version import __version__
+from ..config.case import Case, load_case
+from .limits import check_limits
+from .outdir import case_inputs, claim, writing
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class System:
+    """What the time loop integrates, and how to read physical fields from its state."""
+
+    operators: object
+    fields: object
+    U0: object
+    V0: object
+    summary: dict
+
+
+def full_model(case: Case, model, cons) -> System:
+    """The finite-element system itself (the full methods: moreau_jean, newmark, central_difference)."""
+    from ..integrators import Operators
+    from .output import NodalFields
+
+    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
+                    massless=model.massless, stop_compliance=cons.compliance)
+    return System(ops, NodalFields(cons), model.U0, model.V0, {"modes": None})
+
+
+def reduced_model(case: Case, model, cons) -> System:
+    """Kept modes plus the static correction of the truncated ones (method ``modal``)."""
+    from ..fem.reduced import prepare_reduced
+
+    red, summary = prepare_reduced(case, model, cons)
+    return System(red.operators, red.fields, red.Z0, red.Zdot0, summary)
+
+
+def model_of(case: Case):
+    """What a method integrates: the reduced model for ``modal``, else the full model."""
+    return reduced_model if case.solver.method == "modal" else full_model
+
+
+def make_integrator(case: Case, operators):
+    """The time integrator of ``solver.method`` (the reduced model: of its ``solver.scheme``)."""
+    from ..integrators import INTEGRATORS
+
+    solver = case.solver
+    return INTEGRATORS[solver.scheme if solver.method == "modal" else solver.method].from_solver(operators, solver)
+
+
+def default_outdir(case: Case) -> Path:
+    return Path.cwd() / "results" / case.name
+
+
+@contextlib.contextmanager
+def staged_directory(outdir: Path, comm: MPI.Comm, command: str = "run", protect=()):
+    """Claim ``outdir`` (fem_impact.app.outdir: policy, lock) and write it atomically: yields the staging folder.
+
+    A failed or interrupted run removes its staging folder and leaves ``outdir`` as it was.
+    """
+    with claim(outdir, comm, command, protect) as out, out.staged() as stage:
+        yield stage
+
+
+@dataclass
+class Result:
+    """What a run gives back (:func:`run`).
+
+    Attributes
+    ----------
+    summary : dict
+        The run's summary, as ``summary.json`` holds it (plus ``outdir``).
+    outdir : Path or None
+        The output folder; None when nothing was written.
+    history : dict of str to numpy.ndarray
+        ``history.csv``'s columns by name (``t``, ``wall.force``, ``kinetic``, ...): one value
+        for t = 0 and one per step.
+    """
+
+    summary: dict
+    outdir: Path | None
+    _history: dict | None = None
+
+    @property
+    def history(self) -> dict[str, np.ndarray]:
+        """history.csv's columns by name (read from the folder on first use when the run wrote one)."""
+        if self._history is None:
+            from .plots import history_columns
+
+            self._history = history_columns(self.outdir)
+        return self._history
+
+
+def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
+        stop_on_energy_gain: bool = False, force: bool = False) -> Result:
+    """Run a case: the public entry point (``fem-impact run`` is a thin layer over it).
+
+    Parameters
+    ----------
+    case : Case
+        From :func:`fem_impact.load_case` or :meth:`fem_impact.Case.from_dict`.
+    outdir : path-like, optional
+        None (the default): nothing is written to disk, the history is kept in memory. A
+        folder: exactly what ``fem-impact run -o OUTDIR`` writes (results.pvd, history.csv,
+        summary.json, case.resolved.yaml), atomically, under the output-folder policy of
+        :mod:`fem_impact.app.outdir` (a folder that is not an earlier result is never replaced).
+    progress : bool or callable
+        True for the time loop's progress bar (on a terminal, rank 0), or a callable
+        ``(step, total)`` of the caller's own.
+    comm : mpi4py communicator, optional
+        Default ``MPI.COMM_WORLD``.
+    stop_on_energy_gain : bool
+        Raise :class:`~fem_impact.integrators.EnergyCreated` (a SimulationError) as soon as the
+        scheme creates energy; by default the summary records it (``energy_created_at``).
+    force : bool
+        Run even when the size estimate is beyond the limits (:mod:`fem_impact.app.limits`).
+
+    Raises
+    ------
+    CaseError
+        The case does not fit the mesh or the limits (before anything is written), or the output
+        folder is refused: at the start, or at the end when it appeared or changed during the run
+        (:class:`~fem_impact.app.outdir.OutputFolderChanged`: the result is kept beside it, at ``kept``).
+    SimulationError
+        The run could not go on, or its files could not be written (a full disk:
+        :class:`~fem_impact.app.outdir.OutputWriteError`); an output folder is then left as it was.
+    """
+    t_start = time.perf_counter()
+    comm = MPI.COMM_WORLD if comm is None else comm
+    if outdir is None:
+        with case.errors_at_keys():
+            return _run(case, None, comm, progress, force, t_start, stop_on_energy_gain)
+    with claim(Path(outdir), comm, "run", protect=case_inputs(case), source=case.path) as out, \
+            case.errors_at_keys():
+        return _run(case, out, comm, progress, force, t_start, stop_on_energy_gain)
+
+
+def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, progress=True,
+             stop_on_energy_gain: bool = False, force: bool = False) -> dict:
+    """Run a case file into ``outdir`` (default ``results/<name>``); returns the summary.
+
+    The command's path: :func:`load_case` with the ``--set`` overrides, then :func:`run`.
+    """
+    case = load_case(path, overrides)
+    return run(case, outdir if outdir is not None else default_outdir(case), progress, comm,
+               stop_on_energy_gain, force).summary
+
+
+def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
+         stop_on_energy_gain: bool) -> Result:
+    """The pipeline; ``out`` is the claimed output folder, or None to write nothing."""
+    outdir = out.path if out is not None else None
+    check_limits(case, outdir, comm, force)
+    # dolfinx and PETSc load in about a second: only once the case file is known to be sound.
+    from ..nonsmooth.relation import build_constraints, check_initial_state
+    from ..integrators import EnergyWatch, integrate, steps_for
+    from ..fem.mesh import build_mesh
+    from ..fem.model import build_model
+    from .output import BodyMomenta, HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
+
+    solver = case.solver
+    meshdata = build_mesh(case, comm)
+    model = build_model(case, meshdata)
+    cons = build_constraints(case, model)
+    check_initial_state(case, cons, model)
+    probes = find_probes(case, model)
+    system = model_of(case)(case, model, cons)
+    integrator = make_integrator(case, system.operators)
+    n_steps = steps_for(solver.t_end, solver.dt)
+    setup_time = time.perf_counter() - t_start
+    log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
+
+    with out.staged() if out is not None else contextlib.nullcontext(None) as stage:
+        fields = system.fields
+        momenta = BodyMomenta(model, fields)
+        history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
+                                scheme_energy=integrator.scheme_energy, name=case.name)
+        stats = RunStatistics(cons)
+        observers = [history, stats]
+        vtk = None
+        if case.output.vtk and stage is not None:
+            vtk = VTKWriter(stage / "results.pvd", model, fields, case.output.every, n_steps)
+            observers.append(vtk)
+        t_loop = time.perf_counter()
+        try:
+            if hasattr(fields, "write"):   # the reduced model's fields remember the previous step
+                observers.append(fields)
+            watch = EnergyWatch(stop_on_energy_gain)
+            final = integrate(integrator, system.U0, system.V0, solver.t_end, observers, watch=watch,
+                              progress=progress if callable(progress) else Progress(comm) if progress else None)
+        except BaseException:
+            # Both closed now (the VTK file writes again when destroyed, after the staging folder is gone),
+            # without hiding the run's own error behind a write that fails too.
+            for writer in (history, vtk):
+                if writer is not None:
+                    with contextlib.suppress(OSError):
+                        writer.close()
+            raise
+        try:
+            history.close()
+        finally:
+            if vtk is not None:
+                vtk.close()
+        loop_time = time.perf_counter() - t_loop
+        summary = {
+            "case": case.name,
+            "method": solver.method,
+            "scheme": integrator.name,
+            "wall_time_s": time.perf_counter() - t_start,
+            "setup_time_s": setup_time,
+            "loop_time_s": loop_time,
+            "steps": final.step,
+            "dt": solver.dt,
+            "t_end": final.t,
+            "dofs": model.dofs,
+            "constraints": cons.p,
+            **system.summary,
+            "mpi_ranks": comm.size,
+            "mesh": meshdata.description,
+            "max_penetration": stats.max_penetration,
+            "max_stop_compression": stats.max_stop_compression,
+            "max_energy_error": stats.max_energy_error,
+            "max_energy_error_relative": stats.max_energy_error / stats.energy_scale if stats.energy_scale else 0.0,
+            "initial_energy": final.energy.initial,
+            "final_energy": final.energy.total,
+            "max_energy": stats.max_energy,
+            # Energy the scheme created (E above E0 + W_ext(t), or a loss below zero): 0 and null when none.
+            "energy_created": watch.created if watch.energy_was_created else 0.0,
+            "energy_created_relative": watch.created_relative if watch.energy_was_created else 0.0,
+            "energy_created_at": watch.created_at,
+            "max_energy_ratio": watch.max_ratio,
+            "impact_loss": final.energy.impact_loss,
+            "contact_loss": final.energy.contact_loss,
+            "total_impulse": stats.total_impulse,
+            "body_mass": momenta.mass,
+            "vtk_frames": vtk.frames if vtk else 0,
+            "fem_impact_version": __version__,
+        }
+        if comm.rank == 0 and stage is not None:
+            with writing(stage / "summary.json"):
+                (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+            with writing(stage / "case.resolved.yaml"):
+                case.write_resolved(stage / "case.resolved.yaml")
+            if vtk is not None:
+                from .paraview_view import write_view_script
+
+                with writing(stage / "view.py"):
+                    write_view_script(stage, meshdata.dim, final_dir=outdir)
+    summary["outdir"] = str(outdir.resolve()) if outdir is not None else None
+    columns = None if outdir is not None else comm.bcast(history.columns_data(), root=0)
+    return Result(summary, outdir.resolve() if outdir is not None else None, columns)
+
+
+def energy_warning(summary: dict) -> str | None:
+    """One line when the run created energy (printed on stderr at the end of a run), else None."""
+    if summary.get("energy_created_at") is None:
+        return None
+    return (f"warning: the contacts created energy in {summary['case']} ({summary['method']}, dt = "
+            f"{summary['dt']:.4g} s): {summary['energy_created']:.4g} J above E0 + W_ext ("
+            f"{summary['energy_created_relative']:.3g} of the energy scale), first at t = "
+            f"{summary['energy_created_at']:.6g} s; max E / (E0 + W_ext) = {summary['max_energy_ratio']:.3g}. "
+            f"{energy_advice(summary)}")
+
+
+def energy_advice(summary: dict) -> str:
+    """What to change after energy was created, for the method that ran."""
+    reduced = summary.get("modes") is not None
+    if summary.get("scheme", summary["method"]) != "moreau_jean":
+        switch = "solver.scheme: moreau_jean" if reduced else "solver.method: moreau_jean"
+        return f"The results are not physical: use {switch} (stable at any step), or a smaller dt"
+    if reduced and summary.get("static_correction"):
+        return ("The reduced model's contact rows are compliant (static correction); under a load that varies "
+                "over a step they gain energy of order dt^2: use a smaller dt")
+    return ("Moreau-Jean's contacts cannot create energy beyond round-off: check the case (a smaller dt), and "
+            "report it if it persists")
+
+
+def describe(summary: dict) -> str:
+    """The one-paragraph report printed at the end of a run."""
+    return (
+        f"{summary['case']}: {summary['steps']} steps of {summary['dt']:.4g} s to t = {summary['t_end']:.4g} s, "
+        f"{summary['dofs']} unknowns, {summary['constraints']} contact rows, {summary['method']} "
+        f"on {summary['mpi_ranks']} rank(s). Wall time {summary['wall_time_s']:.2f} s "
+        f"(setup {summary['setup_time_s']:.2f} s, loop {summary['loop_time_s']:.2f} s, "
+        f"{1e3 * summary['loop_time_s'] / max(summary['steps'], 1):.3f} ms/step). "
+        f"Max penetration {summary['max_penetration']:.3g}"
+        + (f", elastic stops compressed by up to {summary['max_stop_compression']:.3g}"
+           if summary.get("max_stop_compression") else "")
+        + "; energy-balance residual "
+        f"{summary['max_energy_error']:.3g} ({summary['max_energy_error_relative']:.2g} of the energy scale); "
+        f"impact loss {summary['impact_loss']:.4g}, contact loss {summary['contact_loss']:.4g}. "
+        f"Results in {summary['outdir']} (results.pvd, history.csv, summary.json, case.resolved.yaml)."
+        + _reduction_note(summary)
+    )
+
+
+def _reduction_note(summary: dict) -> str:
+    if summary.get("modes") is None:
+        return ""
+    flex = ", ".join(f"{k} {v:.3g}" for k, v in summary["neglected_flexibility"].items())
+    note = (f" Reduced model: {summary['modes']} modes ({summary['rigid_modes']} rigid; "
+            f"{summary['modes_reason']}), cut-off "
+            f"{summary['cutoff_hz']:.4g} Hz, static correction {'on' if summary['static_correction'] else 'off'}"
+            f"{', neglected flexibility ' + flex if flex else ''}.")
+    if summary.get("reused_from_cache"):
+        note += f" Reused from the cache: {' and '.join(summary['reused_from_cache'])}."
+    return note

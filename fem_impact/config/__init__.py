@@ -1,0 +1,1 @@
+"""The case file: validation, defaults, and the one place that turns a Case into domain objects."""

@@ -1,0 +1,1016 @@
+"""Case files: YAML loading, validation into dataclasses, --set overrides and the resolved dump."""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import dataclasses
+import difflib
+import keyword
+import logging
+import math
+import operator
+import os
+import re
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+from pydantic import ValidationError
+
+from ..errors import CaseError, ModelInputError
+from ..expressions import RESERVED, Expression, ExpressionError, parse_expression
+from ..integrators.parameters import (DEFAULT_METHOD, METHODS, MODAL_SCHEMES, SCHEMAS, SOLVER, KeyProblem,
+                                     SolverParameters, valid_keys)
+from ..integrators.parameters import tag as _schema_tag
+
+SHAPES = ("bar",)
+BAR_ELEMENTS = ("simplex", "hex")   # triangles/tetrahedra, or quadrilaterals/hexahedra (2D/3D bar)
+MASS_MATRICES = ("consistent", "lumped", "redistributed")
+CONTACT_TYPES = ("obstacle", "pair")
+CONTACT_COUPLINGS = ("each", "mean")
+COMPONENTS = ("x", "y", "z")
+SPACE = ("x", "y", "z")  # variables of initial fields
+TIME = ("t",)  # variables of loads
+_CSV_NAME = re.compile(r"[A-Za-z0-9_-]+")
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class MeshSpec:
+    shape: str | None = None
+    file: Path | None = None
+    dim: int | None = None
+    length: float = 1.0
+    cells: int = 100
+    height: float | None = None
+    width: float | None = None
+    elements: str = "simplex"
+
+    # The built-in bar's documented defaults, defined here only: the mesh, the size estimate
+    # (limits) and the exact solutions (references) read them from the case.
+    @property
+    def bar_dim(self) -> int:
+        """The built-in bar's dimension: ``dim``, by default 1 (a rod)."""
+        return self.dim or 1
+
+    def bar_dimensions(self) -> tuple[float, float]:
+        """Cross-section (height, width) of the built-in bar: by default height length/20, width = height."""
+        height = self.height if self.height is not None else self.length / 20.0
+        return height, self.width if self.width is not None else height
+
+
+@dataclass
+class Material:
+    E: float
+    rho: float
+    nu: float = 0.0
+    area: float = 1.0
+
+
+@dataclass
+class Damping:
+    alpha: float = 0.0
+    beta: float = 0.0
+
+
+@dataclass
+class BodyValue:
+    body: str | None
+    value: list[Expression]
+
+
+@dataclass
+class Initial:
+    displacement: list[BodyValue] = field(default_factory=list)
+    velocity: list[BodyValue] = field(default_factory=list)
+
+
+@dataclass
+class Support:
+    nodes: str
+    fix: list[int]
+    all_components: bool = False   # fix: all (every component the mesh's dimension has)
+
+
+@dataclass
+class Load:
+    nodes: str | None = None
+    body: str | None = None
+    force: list[Expression] | None = None
+    acceleration: list[Expression] | None = None
+
+
+@dataclass
+class Contact:
+    name: str
+    type: str
+    nodes: list[str]
+    normal: list[float]
+    gap: float | None = None
+    restitution: float = 0.0
+    coupling: str = "each"      # "each": a row per node (pair); "mean": one row on the group's mean
+    stiffness: float | None = None   # N/m per row: an elastic stop (None: rigid)
+
+
+@dataclass
+class Output:
+    every: int = 10
+    probes: dict[str, list[float]] = field(default_factory=dict)
+    vtk: bool = True
+
+
+@dataclass
+class Case:
+    """A validated case; `lines` maps key paths to 1-based lines of the case file.
+
+    `overrides` maps the key paths set with ``--set`` to the option text, so that
+    errors about them point to the command line instead of the file.
+    """
+
+    name: str
+    path: Path | None   # the case file; None for a case built in Python (Case.from_dict)
+    mesh: MeshSpec
+    material: Material | None
+    materials: dict[str, Material] | None
+    damping: Damping
+    initial: Initial
+    supports: list[Support]
+    loads: list[Load]
+    contacts: list[Contact]
+    solver: SolverParameters   # the schema of its method (fem_impact.integrators.parameters)
+    output: Output
+    parameters: dict[str, float] = field(default_factory=dict)
+    lines: dict[tuple, int] = field(default_factory=dict)
+    overrides: dict[tuple, str] = field(default_factory=dict)
+    reference: str | None = None   # name of a known exact solution (fem_impact.config.references)
+    source: dict = field(default_factory=dict, repr=False)   # the data as given (with the changes), unvalidated
+    base_dir: Path = field(default_factory=Path.cwd, repr=False)   # where relative paths in `source` start
+
+    @classmethod
+    def from_dict(cls, data, base_dir=None) -> Case:
+        """Validate a case given as a mapping, exactly as a case file with the same content.
+
+        Parameters
+        ----------
+        data : mapping
+            The case as a case file's YAML would give it (numbers as numbers, expressions as
+            strings); it is not modified.
+        base_dir : path-like, optional
+            The folder that relative paths in `data` (``mesh.file``) start from; default the
+            current folder.
+
+        Raises
+        ------
+        CaseError
+            On bad input; its ``key`` is the dotted key path (``material.E``), its ``file`` None.
+        """
+        folder = Path(os.path.abspath(base_dir if base_dir is not None else Path.cwd()))
+        if not isinstance(data, Mapping):
+            raise CaseError(None, None, None, f"expected a mapping of keys, got {type(data).__name__}")
+        return _validated(copy.deepcopy(dict(data)), None, folder, None, {}, {})
+
+    def with_changes(self, changes) -> Case:
+        """A copy of the case with keys changed, validated again (this case is not modified).
+
+        Parameters
+        ----------
+        changes : mapping or iterable of str
+            ``{"solver.dt": 1e-3, "contacts.0.restitution": 0.5}`` (dotted key paths to values;
+            list items by their index), or ``--set`` options ``["solver.dt=1e-3"]`` (values
+            read as YAML). Changing ``solver.method`` drops the keys of the previous method
+            that the new one does not take (its valid keys are then checked as usual).
+
+        Raises
+        ------
+        CaseError
+            When a change does not fit the case; the message names the change.
+        """
+        data = copy.deepcopy(self.source)
+        before = _solver_tag(data)
+        if isinstance(changes, Mapping):
+            origins = {_set_key(data, str(key), value, f"the change {key}={value!r}"): f"the change {key}={value!r}"
+                       for key, value in changes.items()}
+        else:
+            origins = {_apply_override(data, option): f"--set {option}" for option in changes}
+        _follow_kind_changes(data, before, origins)
+        return _validated(data, self.path, self.base_dir, self.lines, {**self.overrides, **origins}, origins)
+
+    @property
+    def file(self) -> str | None:
+        """The case file as shown in messages (None for a case built in Python)."""
+        return None if self.path is None else _display(self.path)
+
+    @contextlib.contextmanager
+    def errors_at_keys(self):
+        """Within: a ModelInputError of a model builder becomes a CaseError with the file, line and key.
+
+        The one place where the builders' domain errors meet the case file (or dict, or --set).
+        """
+        try:
+            yield self
+        except ModelInputError as err:
+            raise self.error(err.key, err.message) from None
+
+    def error(self, key_path, message) -> CaseError:
+        """Build a CaseError for `key_path` (e.g. ``("contacts", 0, "nodes")``) with its line."""
+        return _error(self.file, self.lines, self.overrides, tuple(key_path), message)
+
+    def resolved(self) -> dict:
+        """Return the whole case as plain data with every default filled in.
+
+        Expressions appear as written; the mesh file path is absolute, so the dump reads
+        back the same from any folder.
+        """
+        mesh = dataclasses.asdict(self.mesh)
+        mesh["file"] = None if self.mesh.file is None else str(self.mesh.file)
+        data = {"name": self.name, "parameters": dict(self.parameters), "reference": self.reference, "mesh": mesh}
+        if self.material is not None:
+            data["material"] = dataclasses.asdict(self.material)
+        else:
+            data["materials"] = {body: dataclasses.asdict(m) for body, m in self.materials.items()}
+        data["damping"] = dataclasses.asdict(self.damping)
+        data["initial"] = {"displacement": _body_values_data(self.initial.displacement),
+                           "velocity": _body_values_data(self.initial.velocity)}
+        data["supports"] = [{"nodes": s.nodes, "fix": "all" if s.all_components else [COMPONENTS[i] for i in s.fix]}
+                            for s in self.supports]
+        data["loads"] = [{key: _sources(value) if key in ("force", "acceleration") else value
+                          for key, value in vars(load).items() if value is not None}
+                         for load in self.loads]
+        data["contacts"] = [{key: value for key, value in dataclasses.asdict(c).items()
+                             if not (key == "restitution" and c.stiffness is not None)}   # (an elastic stop's)
+                            | {"nodes": c.nodes[0] if c.type == "obstacle" else list(c.nodes)}
+                            for c in self.contacts]
+        data["solver"] = self.solver.as_case()
+        data["output"] = dataclasses.asdict(self.output)
+        return data
+
+    def expressions(self):
+        """Every expression of the case as (key path, Expression): loads and initial fields."""
+        for which in ("displacement", "velocity"):
+            items = getattr(self.initial, which)
+            for i, item in enumerate(items):
+                key = ("initial", which) if item.body is None else ("initial", which, i, "value")
+                for comp, expr in enumerate(item.value):
+                    yield key + (comp,), expr
+        for i, load in enumerate(self.loads):
+            for name in ("force", "acceleration"):
+                for comp, expr in enumerate(getattr(load, name) or ()):
+                    yield ("loads", i, name, comp), expr
+
+    def write_resolved(self, path) -> Path:
+        """Write the resolved case as YAML to `path` (a folder gets ``case.resolved.yaml``)."""
+        path = Path(path)
+        if path.is_dir():
+            path = path / "case.resolved.yaml"
+        text = yaml.safe_dump(self.resolved(), sort_keys=False)
+        path.write_text(text, encoding="utf-8")
+        return path
+
+
+def _sources(expressions):
+    return [e.source for e in expressions]
+
+
+def _body_values_data(items):
+    """Initial field as plain data: the all-nodes list, or the per-body list of mappings."""
+    if len(items) == 1 and items[0].body is None:
+        return _sources(items[0].value)
+    return [{"body": item.body, "value": _sources(item.value)} for item in items]
+
+
+# --- YAML -------------------------------------------------------------------------------
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader with YAML 1.2 core-schema booleans, integers and floats (``70e9`` is a number)."""
+
+
+_TAG = "tag:yaml.org,2002:"
+# Copy the resolver table without the YAML 1.1 bool/int/float/timestamp rules so the global
+# SafeLoader is untouched and `010` is ten, `on` a string and `1e-3` a float.
+_Loader.yaml_implicit_resolvers = {
+    first: [(tag, regexp) for tag, regexp in resolvers
+            if tag not in (_TAG + "bool", _TAG + "int", _TAG + "float", _TAG + "timestamp")]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_Loader.add_implicit_resolver(_TAG + "bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
+                              list("tTfF"))
+_Loader.add_implicit_resolver(_TAG + "int", re.compile(r"^[-+]?[0-9]+$"), list("-+0123456789"))
+_Loader.add_implicit_resolver(
+    _TAG + "float",
+    re.compile(r"""^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?
+                   |[-+]?\.?(?:inf|Inf|INF)|\.?(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789.iInN"))
+_Loader.add_constructor(_TAG + "int", lambda loader, node: int(loader.construct_scalar(node)))
+
+
+def yaml_value(text: str):
+    """One value typed as in a case file (YAML 1.2: ``2.5e3`` is a number); raises yaml.YAMLError.
+
+    The same guards as a case file: no duplicate keys, no deep nesting, no alias bombs.
+    """
+    try:
+        return _parse_yaml(text, "--set")[0]
+    except CaseError as exc:
+        raise yaml.YAMLError(f"{exc.key}: {exc.message}" if exc.key else exc.message) from None
+
+
+# A case file is a few hundred values a few levels deep: far beyond these, it is a mistake or an attack.
+MAX_DEPTH = 64
+MAX_VALUES = 100_000
+
+
+def _expanded_size(node, memo) -> int:
+    """Values a node stands for once its aliases are expanded (an alias counts as often as it is used)."""
+    key = id(node)
+    if key not in memo:
+        memo[key] = 0   # (a recursive alias counts nothing the second time)
+        if isinstance(node, yaml.MappingNode):
+            memo[key] = 1 + sum(_expanded_size(k, memo) + _expanded_size(v, memo) for k, v in node.value)
+        elif isinstance(node, yaml.SequenceNode):
+            memo[key] = 1 + sum(_expanded_size(item, memo) for item in node.value)
+        else:
+            memo[key] = 1
+    return memo[key]
+
+
+def _parse_yaml(text, file):
+    """Return (node tree, data) of a YAML document; syntax errors become CaseError with the line."""
+    loader = None
+    try:
+        loader = _Loader(text)
+        node = loader.get_single_node()
+        lines = {}
+        if node is not None:
+            _record_lines(node, (), lines, set(), file)  # before construction flattens merge keys
+            size = _expanded_size(node, {})
+            if size > MAX_VALUES:
+                raise CaseError(file, None, None, f"the document stands for {size:.3g} values once its aliases "
+                                                  f"(*name) are expanded, more than {MAX_VALUES}")
+        return loader.construct_document(node) if node is not None else None, lines
+    except RecursionError:
+        raise CaseError(file, None, None, f"the YAML is nested too deeply (at most {MAX_DEPTH} levels)") from None
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        problem = " ".join(str(exc.problem or exc.context).split())
+        raise CaseError(file, None, mark.line + 1 if mark else None,
+                        f"invalid YAML: {problem}") from None
+    except yaml.YAMLError as exc:
+        raise CaseError(file, None, None, f"invalid YAML: {' '.join(str(exc).split())}") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
+def _record_lines(node, path, lines, seen, file):
+    """Record the line of every mapping key and sequence item under `path`; reject duplicate keys."""
+    if id(node) in seen:  # an alias: its lines were recorded where the anchor is
+        return
+    seen.add(id(node))
+    if len(path) > MAX_DEPTH:
+        raise CaseError(file, _dotted(path[:3]) + ".(...)", node.start_mark.line + 1,
+                        f"nested more than {MAX_DEPTH} levels deep")
+    if isinstance(node, yaml.MappingNode):
+        keys = set()
+        for key_node, value_node in node.value:
+            key = key_node.value if isinstance(key_node, yaml.ScalarNode) else id(key_node)
+            line = key_node.start_mark.line + 1
+            if key in keys:
+                raise CaseError(file, _dotted(path + (key,)), line, "duplicate key")
+            keys.add(key)
+            lines[path + (key,)] = line
+            _record_lines(value_node, path + (key,), lines, seen, file)
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            lines[path + (index,)] = item.start_mark.line + 1
+            _record_lines(item, path + (index,), lines, seen, file)
+
+
+# --- errors -----------------------------------------------------------------------------
+
+
+class _Invalid(Exception):
+    """A validation failure at a key path, turned into a CaseError once file and lines are known."""
+
+    def __init__(self, path, message):
+        super().__init__(path, message)
+        self.path, self.message = path, message
+
+
+def _dotted(path):
+    """Key path as text: ``("contacts", 0, "normal")`` -> ``"contacts[0].normal"``."""
+    text = ""
+    for part in path:
+        text += f"[{part}]" if isinstance(part, int) else f".{part}" if text else str(part)
+    return text
+
+
+def _display(path):
+    """The case file as shown in messages: relative to the current folder when inside it."""
+    relative = os.path.relpath(path)
+    return str(path) if relative.startswith("..") else relative
+
+
+def _error(file, lines, overrides, path, message):
+    """CaseError for `path`: its line (or the nearest ancestor's), or the --set option that gave it."""
+    for prefix, origin in overrides.items():
+        if path[:len(prefix)] == prefix:
+            shown = origin if origin.isprintable() else repr(origin)   # (one line: no raw newline)
+            return CaseError(file, _dotted(path) or None, None, f"{message} (from {shown})")
+    line = next((lines[path[:n]] for n in range(len(path), 0, -1) if path[:n] in lines), None)
+    return CaseError(file, _dotted(path) or None, line, message)
+
+
+# --- overrides --------------------------------------------------------------------------
+
+
+def _apply_override(data, option):
+    """Apply one ``KEY.PATH=VALUE`` option to `data` in place and return the key path."""
+    key, equals, text = option.partition("=")
+    segments = key.strip().split(".")
+    if not equals or not all(segments):
+        raise CaseError("--set", None, None, f"expected KEY.PATH=VALUE, got {option!r}")
+    try:
+        value = yaml_value(text)
+    except yaml.YAMLError as exc:
+        raise CaseError("--set", key, None, f"cannot read the value {text!r}: "
+                        f"{' '.join(str(getattr(exc, 'problem', exc)).split())}") from None
+    return _set_key(data, key.strip(), value, "--set")
+
+
+def _set_key(data, key: str, value, origin: str):
+    """Set the dotted ``key`` of `data` (in place) to `value`; returns the key path.
+
+    Missing mappings on the way are created; a list item is named by its index. `origin`
+    names the change in errors (``"--set"``, or the change of ``Case.with_changes``).
+    """
+    segments = key.split(".")
+    if not all(segments):
+        raise CaseError(origin, None, None, f"expected a dotted key path, got {key!r}")
+    target, path = data, ()
+    for depth, segment in enumerate(segments, 1):
+        if isinstance(target, list):
+            if not segment.isdigit() or int(segment) >= len(target):
+                raise CaseError(origin, _dotted(path + (segment,)), None,
+                                f"no item {segment}: {_dotted(path)} has {len(target)} items")
+            segment = int(segment)
+        elif not isinstance(target, dict):
+            raise CaseError(origin, _dotted(path), None, f"is not a mapping or a list; cannot set {key}")
+        path += (segment,)
+        if depth == len(segments):
+            target[segment] = copy.deepcopy(value)
+        else:
+            if isinstance(target, dict) and target.get(segment) is None:
+                target[segment] = {}
+            target = target[segment]
+    return path
+
+
+# --- generic validation -----------------------------------------------------------------
+
+_REQUIRED = object()
+
+
+def _show(value):
+    """A value as quoted in a message."""
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    return "null" if value is None else repr(value)
+
+
+def _mapping(value, path):
+    """A mapping with string keys (null counts as empty)."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise _Invalid(path, f"expected a mapping, got {_show(value)}")
+    for key in value:
+        if not isinstance(key, str):
+            raise _Invalid(path, f"keys must be names (strings), got {key!r}")
+    return value
+
+
+def _fields(value, path, spec, section=None):
+    """Validate a mapping against `spec` and return the converted values.
+
+    Parameters
+    ----------
+    value : object
+        The mapping from the case file.
+    path : tuple
+        Its key path.
+    spec : dict
+        ``key -> (converter, default)``, or ``key -> converter`` when the default is the
+        `section` dataclass's own (the one place it is written); a converter is
+        ``(value, path) -> result`` raising _Invalid; default ``_REQUIRED`` makes the key
+        mandatory. An explicit null on an optional key means its default (so a resolved
+        dump reads back).
+    section : dataclass, optional
+        The section the values are for: the defaults of the keys given without one.
+    """
+    if section is not None:
+        own = {f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory()
+               for f in dataclasses.fields(section)
+               if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING}
+        spec = {key: entry if isinstance(entry, tuple) else (entry, own[key]) for key, entry in spec.items()}
+    data = _mapping(value, path)
+    for key in data:
+        if key not in spec:
+            close = difflib.get_close_matches(key, list(spec), n=1)
+            hint = f"did you mean '{close[0]}'?" if close else f"valid keys: {', '.join(spec)}"
+            raise _Invalid(path + (key,), f"unknown key '{key}'; {hint}")
+    result = {}
+    for key, (convert, default) in spec.items():
+        if key in data and (data[key] is not None or default is _REQUIRED):
+            result[key] = convert(data[key], path + (key,))
+        elif default is _REQUIRED:
+            raise _Invalid(path + (key,), "missing required key")
+        else:
+            result[key] = default
+    return result
+
+
+def _number(value, path):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _Invalid(path, f"expected a number, got {_show(value)}")
+    if not math.isfinite(value):
+        raise _Invalid(path, f"expected a finite number, got {value}")
+    return float(value)
+
+
+_BOUNDS = {"gt": (operator.gt, ">", "("), "ge": (operator.ge, ">=", "["),
+           "lt": (operator.lt, "<", ")"), "le": (operator.le, "<=", "]")}
+
+
+def _range_text(bounds) -> str:
+    """``{"gt": 0, "lt": 1}`` -> ``"in (0, 1)"``; ``{"ge": 0}`` -> ``">= 0"``."""
+    if len(bounds) == 2:
+        (low, a), (high, b) = bounds.items()
+        return f"in {_BOUNDS[low][2]}{a:g}, {b:g}{_BOUNDS[high][2]}"
+    return " ".join(f"{_BOUNDS[name][1]} {bound:g}" for name, bound in bounds.items())
+
+
+def _real(**bounds):
+    """Converter for a finite number within `bounds` (keywords gt, ge, lt, le)."""
+    text = _range_text(bounds)
+
+    def convert(value, path):
+        number = _number(value, path)
+        if not all(_BOUNDS[name][0](number, bound) for name, bound in bounds.items()):
+            raise _Invalid(path, f"must be {text}, got {value!r}")
+        return number
+    return convert
+
+
+def _integer(low, high=None):
+    """Converter for an integer in [low, high]; integral floats such as ``1e3`` are accepted."""
+    def convert(value, path):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _Invalid(path, f"expected an integer, got {_show(value)}")
+        if value < low or (high is not None and value > high):
+            wanted = f">= {low}" if high is None else f"in [{low}, {high}]"
+            raise _Invalid(path, f"must be {wanted}, got {value}")
+        return value
+    return convert
+
+
+def _string(value, path):
+    if not isinstance(value, str) or not value:
+        raise _Invalid(path, f"expected a non-empty string, got {_show(value)}")
+    return value
+
+
+def _csv_name(value, path):
+    """A name used as a column prefix in history.csv."""
+    if not isinstance(value, str) or not _CSV_NAME.fullmatch(value):
+        raise _Invalid(path, f"expected a name of letters, digits, '_' and '-', got {_show(value)}")
+    return value
+
+
+def _boolean(value, path):
+    if not isinstance(value, bool):
+        raise _Invalid(path, f"expected true or false, got {_show(value)}")
+    return value
+
+
+def _choice(*options):
+    def convert(value, path):
+        if not isinstance(value, str) or value not in options:
+            raise _Invalid(path, f"must be one of {', '.join(options)}; got {_show(value)}")
+        return value
+    return convert
+
+
+def _list(item):
+    """Converter for a list of items converted with `item`."""
+    def convert(value, path):
+        if not isinstance(value, list):
+            raise _Invalid(path, f"expected a list, got {_show(value)}")
+        return [item(entry, path + (index,)) for index, entry in enumerate(value)]
+    return convert
+
+
+def _vector(item):
+    """Converter for a list of 1 to 3 components."""
+    def convert(value, path):
+        if not isinstance(value, list):
+            raise _Invalid(path, f"expected a list of 1 to 3 components, got {_show(value)}")
+        if not 1 <= len(value) <= 3:
+            raise _Invalid(path, f"must have 1 to 3 components, got {len(value)}")
+        return [item(entry, path + (index,)) for index, entry in enumerate(value)]
+    return convert
+
+
+def _mapping_of(item, key=_string):
+    """Converter for a mapping of names (checked with `key`) to items."""
+    def convert(value, path):
+        return {key(name, path + (name,)): item(entry, path + (name,))
+                for name, entry in _mapping(value, path).items()}
+    return convert
+
+
+def _expression(allowed, parameters):
+    """Converter for an expression in the variables `allowed` and the case's `parameters`."""
+    def convert(value, path):
+        try:
+            return parse_expression(value, allowed, parameters)
+        except ExpressionError as exc:
+            raise _Invalid(path, str(exc)) from None
+    return convert
+
+
+# --- sections ---------------------------------------------------------------------------
+
+
+def _case_name(value, path):
+    name = _string(value, path)
+    if name in (".", "..") or any(c in name for c in "/\\\0"):
+        raise _Invalid(path, f"must be usable as a folder name, got {name!r}")
+    return name
+
+
+def _mesh(value, path, folder):
+    f = _fields(value, path, {
+        "shape": _choice(*SHAPES), "file": _string, "dim": _integer(1, 3),
+        "length": _real(gt=0), "cells": _integer(1, 2**31 - 1),   # (PETSc's 32-bit indices)
+        "height": _real(gt=0), "width": _real(gt=0), "elements": _choice(*BAR_ELEMENTS)}, MeshSpec)
+    if f["shape"] is None and f["file"] is None:
+        raise _Invalid(path, f"give 'shape' (a built-in shape: {', '.join(SHAPES)}) or 'file' (a Gmsh file)")
+    if f["shape"] is not None and f["file"] is not None:
+        raise _Invalid(path, f"give either 'shape' ({', '.join(SHAPES)}) or 'file', not both")
+    for key, dims in (("height", (2, 3)), ("width", (3,))):
+        if f[key] is not None and (f["file"] is not None or (f["dim"] or 1) not in dims):
+            where = "a mesh file" if f["file"] is not None else f"{f['dim'] or 1}D"
+            raise _Invalid(path + (key,), f"applies to the built-in bar in {' and '.join(f'{d}D' for d in dims)} "
+                                          f"only; it has no effect in {where}: remove it")
+    if f["file"] is not None:
+        f["file"] = Path(os.path.abspath(folder / f["file"]))
+        if not f["file"].is_file():
+            raise _Invalid(path + ("file",), f"mesh file not found: {f['file']}")
+    elif f["dim"] is None:
+        f["dim"] = 1
+    return MeshSpec(**f)
+
+
+def _material(value, path):
+    return Material(**_fields(value, path, {
+        "E": (_real(gt=0), _REQUIRED), "rho": (_real(gt=0), _REQUIRED),
+        "nu": _real(ge=0, lt=0.5), "area": _real(gt=0)}, Material))
+
+
+def _damping(value, path):
+    return Damping(**_fields(value, path, {"alpha": _real(ge=0), "beta": _real(ge=0)}, Damping))
+
+
+def _body_values(value, path, parameters):
+    """An initial field: a list of component expressions, or a list of {body, value} mappings."""
+    expressions = _vector(_expression(SPACE, parameters))
+    if isinstance(value, list) and all(isinstance(entry, dict) for entry in value):
+        spec = {"body": (_string, _REQUIRED), "value": (expressions, _REQUIRED)}
+        return [BodyValue(**_fields(entry, path + (index,), spec)) for index, entry in enumerate(value)]
+    return [BodyValue(None, expressions(value, path))]
+
+
+def _initial(value, path, parameters):
+    field_ = lambda v, p: _body_values(v, p, parameters)  # noqa: E731
+    return Initial(**_fields(value, path, {"displacement": (field_, []), "velocity": (field_, [])}))
+
+
+def _fix(value, path):
+    """Fixed components: 'all' or a list of x, y, z -> sorted component indices."""
+    if value == "all":
+        return [0, 1, 2]
+    names = [value] if isinstance(value, str) else value
+    if not isinstance(names, list) or not names:
+        raise _Invalid(path, f"expected 'all' or a list of x, y, z; got {_show(value)}")
+    for index, name in enumerate(names):
+        if name not in COMPONENTS:
+            raise _Invalid(path + (index,) if isinstance(value, list) else path,
+                           f"unknown component {_show(name)}; expected 'all' or a list of x, y, z")
+    return sorted({COMPONENTS.index(n) for n in names})
+
+
+def _support(value, path):
+    f = _fields(value, path, {"nodes": (_string, _REQUIRED), "fix": (_fix, "all")})
+    fixed = value.get("fix", "all") if isinstance(value, dict) else "all"
+    return Support(**f, all_components=fixed in ("all", None))
+
+
+def _load(value, path, parameters):
+    f = _fields(value, path, {
+        "nodes": (_string, None), "body": (_string, None),
+        "force": (_vector(_expression(TIME, parameters)), None),
+        "acceleration": (_vector(_expression(TIME, parameters)), None)})
+    if (f["nodes"] is None) == (f["body"] is None):
+        raise _Invalid(path, "give either 'nodes' (with 'force') or 'body' (with 'acceleration')")
+    on, wanted, other = (("nodes", "force", "acceleration") if f["nodes"] is not None
+                         else ("body", "acceleration", "force"))
+    if f[other] is not None:
+        raise _Invalid(path + (other,), f"not allowed with '{on}' (use '{wanted}')")
+    if f[wanted] is None:
+        raise _Invalid(path + (wanted,), f"missing required key (a load on '{on}' needs '{wanted}')")
+    return Load(**f)
+
+
+def _contact(value, path):
+    f = _fields(value, path, {
+        "name": (_csv_name, _REQUIRED), "type": (_choice(*CONTACT_TYPES), _REQUIRED),
+        "nodes": (lambda nodes, _: nodes, _REQUIRED), "normal": (_vector(_number), _REQUIRED),
+        "gap": _real(), "restitution": _real(ge=0, le=1),
+        "coupling": _choice(*CONTACT_COUPLINGS), "stiffness": _real(gt=0)}, Contact)
+    nodes = [f["nodes"]] if isinstance(f["nodes"], str) else f["nodes"]
+    if f["type"] == "obstacle":
+        if not (isinstance(nodes, list) and len(nodes) == 1):
+            raise _Invalid(path + ("nodes",), f"an obstacle contact takes one node group, "
+                                              f"got {_show(f['nodes'])}")
+        f["gap"] = 0.0 if f["gap"] is None else f["gap"]
+    elif not (isinstance(nodes, list) and len(nodes) == 2):
+        raise _Invalid(path + ("nodes",), f"a pair contact takes a list of two node groups, "
+                                          f"got {_show(f['nodes'])}")
+    f["nodes"] = [_string(group, path + ("nodes", i)) for i, group in enumerate(nodes)]
+    if len(set(f["nodes"])) != len(f["nodes"]):
+        raise _Invalid(path + ("nodes",), "the two node groups must differ")
+    length = math.hypot(*f["normal"])
+    if length == 0.0:
+        raise _Invalid(path + ("normal",), "must have a nonzero length")
+    f["normal"] = [component / length for component in f["normal"]]
+    if f["stiffness"] is not None and value.get("restitution") is not None:
+        # Its spring stores the approach and gives it back: no impact law, so no restitution.
+        keys = ", ".join(key for key in CONTACT_KEYS if key != "restitution")
+        raise _Invalid(path + ("restitution",), f"an elastic stop (stiffness given) does not use 'restitution': "
+                                                f"its spring gives back what it stores; keys of an elastic stop: "
+                                                f"{keys} (or remove stiffness for a rigid contact)")
+    return Contact(**f)
+
+
+CONTACT_KEYS = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness")
+
+
+def _contacts(value, path):
+    contacts = _list(_contact)(value, path)
+    names = [contact.name for contact in contacts]
+    for index, name in enumerate(names):
+        if name in names[:index]:
+            raise _Invalid(path + (index, "name"), f"duplicate contact name '{name}'")
+    return contacts
+
+
+def _modes(value, path):
+    if value == "auto":
+        return value
+    try:
+        return _integer(1)(value, path)
+    except _Invalid:
+        raise _Invalid(path, f"expected 'auto' or an integer >= 1, got {_show(value)}") from None
+
+
+def _solver(value, path):
+    """The solver section, validated by the schema of its method (fem_impact.integrators.parameters)."""
+    # (an explicit null means the default, as everywhere in a case file)
+    data = {key: entry for key, entry in _mapping(value, path).items() if entry is not None}
+    method, scheme = data.get("method", DEFAULT_METHOD), data.get("scheme", MODAL_SCHEMES[0])
+    if not isinstance(method, str) or method not in METHODS:
+        raise _Invalid(path + ("method",), f"must be one of {', '.join(METHODS)}; got {_show(data['method'])}")
+    if method == "modal" and (not isinstance(scheme, str) or scheme not in MODAL_SCHEMES):
+        raise _Invalid(path + ("scheme",), f"must be one of {', '.join(MODAL_SCHEMES)}; got {_show(data['scheme'])}")
+    schema = SCHEMAS[_schema_tag(data)]
+    try:
+        return SOLVER.validate_python(data)
+    except ValidationError as exc:
+        raise _from_pydantic(exc.errors()[0], path, schema) from None
+
+
+def _method_name(schema) -> str:
+    """How messages name a schema's method: ``newmark``, or ``modal (scheme newmark)``."""
+    name = next(tag for tag, s in SCHEMAS.items() if s is schema)
+    method, _, scheme = name.partition("/")
+    return f"{method} (scheme {scheme})" if scheme else method
+
+
+def _owners(takes) -> list[str]:
+    """The methods whose schema `takes`: ``modal`` when all its schemes do, else ``modal (scheme X)``."""
+    owners = []
+    for method in METHODS:
+        schemas = [schema for tag, schema in SCHEMAS.items() if tag.partition("/")[0] == method]
+        taking = [schema for schema in schemas if takes(schema)]
+        if taking == schemas:
+            owners.append(method)
+        else:
+            owners += [_method_name(schema) for schema in taking]
+    return owners
+
+
+def _from_pydantic(error: dict, path: tuple, schema) -> _Invalid:
+    """A pydantic error as the case file reports it: the key path, and the project's own words."""
+    loc = tuple(part for part in error["loc"] if part not in SCHEMAS)   # (the union's tag is not a key)
+    kind, given, ctx = error["type"], error.get("input"), error.get("ctx") or {}
+    if isinstance(ctx.get("error"), KeyProblem):
+        return _Invalid(path + loc + (ctx["error"].key,), str(ctx["error"]))
+    key = loc[-1] if loc else None
+    field_info = schema.model_fields.get(key) if isinstance(key, str) else None
+    if kind == "extra_forbidden":
+        valid = valid_keys(schema)
+        owners = _owners(lambda other: key in other.model_fields)
+        if owners:
+            return _Invalid(path + loc, f"method {_method_name(schema)} does not use '{key}' (a key of "
+                                        f"{', '.join(owners)}); its keys: {', '.join(valid)}")
+        close = difflib.get_close_matches(str(key), valid, n=1)
+        hint = f"did you mean '{close[0]}'? (" if close else "("
+        return _Invalid(path + loc, f"unknown key '{key}'; {hint}keys of method {_method_name(schema)}: "
+                                    f"{', '.join(valid)})")
+    if kind == "missing":
+        return _Invalid(path + loc, "missing required key")
+    if kind in ("float_type", "float_parsing", "int_type", "int_parsing"):
+        return _Invalid(path + loc, f"expected a number, got {_show(given)}")
+    if kind == "bool_type":
+        return _Invalid(path + loc, f"expected true or false, got {_show(given)}")
+    if kind == "finite_number":
+        return _Invalid(path + loc, f"expected a finite number, got {given}")
+    if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal") and field_info:
+        bounds = {name: getattr(item, name) for item in field_info.metadata for name in _BOUNDS
+                  if getattr(item, name, None) is not None}
+        return _Invalid(path + loc, f"must be {_range_text(bounds)}, got {given!r}")
+    if kind == "literal_error" and field_info:
+        options = typing.get_args(field_info.annotation)
+        owners = _owners(lambda other: key in other.model_fields
+                         and given in typing.get_args(other.model_fields[key].annotation))
+        where = f" (a value for method {', '.join(owners)})" if owners else ""
+        return _Invalid(path + loc, f"must be one of {', '.join(options)} with method {_method_name(schema)}; "
+                                    f"got {_show(given)}{where}")
+    if kind == "value_error":
+        return _Invalid(path + loc, str(ctx.get("error", error["msg"])))
+    return _Invalid(path + loc, error["msg"])
+
+
+def _solver_tag(data):
+    solver = data.get("solver") if isinstance(data, dict) else None
+    return _schema_tag(solver) if isinstance(solver, dict) else None
+
+
+def _follow_kind_changes(data, before: str | None, changed) -> None:
+    """A change of kind drops the file's keys that the new kind does not take.
+
+    A change of solver.method (or scheme) drops the previous method's keys; a change that makes a
+    contact an elastic stop (its stiffness) drops its restitution. They belonged to what the file
+    chose; keys the changes themselves give are kept (and checked as usual).
+    """
+    for path in changed:
+        if len(path) == 3 and path[0] == "contacts" and path[2] == "stiffness" \
+                and ("contacts", path[1], "restitution") not in changed:
+            contact = data["contacts"][path[1]]
+            if isinstance(contact, dict) and contact.get("stiffness") is not None:
+                contact.pop("restitution", None)
+    solver = data.get("solver") if isinstance(data, dict) else None
+    if not isinstance(solver, dict) or _schema_tag(solver) == before or _schema_tag(solver) not in SCHEMAS:
+        return
+    schema = SCHEMAS[_schema_tag(solver)]
+    dropped = [key for key in list(solver) if key not in schema.model_fields and ("solver", key) not in changed]
+    for key in dropped:
+        del solver[key]
+    if dropped:
+        log.info("solver.method %s: dropped %s (keys of the previous method)", _method_name(schema),
+                 ", ".join(dropped))
+
+
+def _output(value, path):
+    return Output(**_fields(value, path, {
+        "every": _integer(1), "probes": _mapping_of(_vector(_number), _csv_name), "vtk": _boolean}, Output))
+
+
+def _parameters(value, path):
+    """Named numbers for the expressions: identifiers that shadow no variable, constant or function."""
+    parameters = {}
+    for name, number in _mapping(value, path).items():
+        if not name.isidentifier() or keyword.iskeyword(name):
+            raise _Invalid(path + (name,), f"a parameter name must be an identifier (letters, digits and '_', "
+                                           f"not starting with a digit), got {name!r}")
+        if name in RESERVED:
+            raise _Invalid(path + (name,), f"'{name}' is reserved (the names {', '.join(RESERVED)} have a meaning "
+                                           "in expressions); choose another name")
+        parameters[name] = _number(number, path + (name,))
+    return parameters
+
+
+def _reference(value, path):
+    """The name of a known exact solution; the solutions live in fem_impact.config.references."""
+    from .references import REFERENCES  # (numpy: loaded only when a case names a reference)
+
+    if not isinstance(value, str) or value not in REFERENCES:
+        raise _Invalid(path, f"unknown reference {_show(value)}; known references: "
+                             + ", ".join(f"{name} ({REFERENCES[name].title})" for name in REFERENCES))
+    return value
+
+
+def _case(data, folder: Path, default_name: str):
+    """Validate the whole case mapping (lines and overrides are added by the caller)."""
+    # The parameters first: every expression of the other sections may use them.
+    parameters = _parameters(data.get("parameters"), ("parameters",)) if isinstance(data, dict) else {}
+    f = _fields(data, (), {
+        "name": (_case_name, default_name),
+        "mesh": (lambda value, path: _mesh(value, path, folder), _REQUIRED),
+        "material": (_material, None), "materials": (_mapping_of(_material), None),
+        "damping": (_damping, Damping()),
+        "initial": (lambda value, path: _initial(value, path, parameters), Initial()),
+        "supports": (_list(_support), []),
+        "loads": (_list(lambda value, path: _load(value, path, parameters)), []),
+        "contacts": (_contacts, []), "solver": (_solver, _REQUIRED), "output": (_output, Output()),
+        "parameters": (lambda value, path: parameters, {}), "reference": (_reference, None)})
+    if (f["material"] is None) == (f["materials"] is None):
+        raise _Invalid(("material",) if "material" in data else (),
+                       "give either 'material' (for every body) or 'materials' (per body), not both")
+    if f["materials"] == {}:
+        raise _Invalid(("materials",), "must give at least one body")
+    return Case(path=None, **f)
+
+
+def load_case(path, overrides=()) -> Case:
+    """Load, override and validate a case file.
+
+    Parameters
+    ----------
+    path : path-like
+        The case file (YAML).
+    overrides : iterable of str
+        ``KEY.PATH=VALUE`` options from ``--set``; VALUE is read as YAML.
+
+    Returns
+    -------
+    Case
+
+    Raises
+    ------
+    CaseError
+        On any bad input, naming the file, key and line.
+    """
+    case_path = Path(os.path.abspath(path))
+    file = _display(case_path)
+    try:
+        text = case_path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise CaseError(file, None, None, "case file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CaseError(file, None, None, f"cannot read the case file: {exc}") from None
+    data, lines = _parse_yaml(text, file)
+    if not isinstance(data, dict):
+        raise CaseError(file, None, None, "the file is empty" if data is None
+                        else "expected a mapping of keys at the top level")
+    before = _solver_tag(data)
+    options = {_apply_override(data, option): f"--set {option}" for option in overrides}
+    _follow_kind_changes(data, before, options)
+    return _validated(data, case_path, case_path.parent, lines, options, options)
+
+
+def _validated(data: dict, case_path: Path | None, folder: Path, lines, overrides: dict, changed: dict) -> Case:
+    """Validate `data` into a Case; `overrides` maps changed key paths to their origin (for messages),
+    `changed` those of this very call (a parameter they set must be used)."""
+    file = None if case_path is None else _display(case_path)
+    source = copy.deepcopy(data)
+    try:
+        case = _case(data, folder, case_path.stem if case_path is not None else "case")
+    except _Invalid as exc:
+        raise _error(file, lines or {}, overrides, exc.path, exc.message) from None
+    case.path, case.base_dir, case.source = case_path, folder, source
+    case.lines, case.overrides = dict(lines or {}), dict(overrides)
+    _check_set_parameters(case, changed)
+    return case
+
+
+def _check_set_parameters(case: Case, changed) -> None:
+    """A parameter set with --set (or a change) that no expression uses is a typo, not a silent no-op."""
+    used = set()
+    for _, expr in case.expressions():
+        used |= expr.constants
+    for path in changed:
+        names = [path[1]] if len(path) == 2 and path[0] == "parameters" else (
+            sorted(case.parameters) if path == ("parameters",) else [])
+        for name in names:
+            if name in case.parameters and name not in used:
+                known = ", ".join(sorted(used)) or "none"
+                raise case.error(("parameters", name), f"no expression of the case uses parameter '{name}' "
+                                                       f"(used: {known})")

@@ -1,0 +1,228 @@
+"""The only module that calls version-bound dolfinx 0.5 API (meshes, spaces, assembly, VTK)."""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+import ufl
+from dolfinx import fem, io, mesh
+from dolfinx.fem import petsc as fem_petsc
+from dolfinx.io import gmshio
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from ..app.outdir import install_signal_handlers
+
+# PETSc, initialized by the imports above, installs its own handlers for SIGHUP and SIGQUIT (a page
+# of text and MPI_Abort): a run ends on them as on Ctrl-C instead (fem_impact.app.outdir).
+install_signal_handlers()
+
+# FFCx logs every JIT compilation at INFO level on the root logger: keep it quiet.
+for _name in ("ffcx", "UFL", "FFC", "dijitso"):
+    logging.getLogger(_name).setLevel(logging.WARNING)
+
+
+def _not_a_build_line(record: logging.LogRecord) -> bool:
+    return record.levelno >= logging.WARNING or record.name != "root"
+
+
+# While the JIT compiles a form, setuptools lowers the root logger to INFO (distutils' threshold):
+# its "running build_ext" and compiler lines would reach a script's stderr through the root
+# handler ffcx installs (logging.basicConfig at its import).
+for _handler in logging.root.handlers:
+    _handler.addFilter(_not_a_build_line)
+
+Mesh = mesh.Mesh
+
+
+def interval(comm: MPI.Comm, cells: int, length: float) -> Mesh:
+    """A 1D mesh of ``cells`` equal cells on [0, length]."""
+    return mesh.create_interval(comm, cells, [0.0, length])
+
+
+def rectangle(comm: MPI.Comm, nx: int, ny: int, length: float, height: float, hex: bool = False) -> Mesh:
+    """A triangle (``hex``: quadrilateral) mesh of [0, length] x [0, height]."""
+    cell = mesh.CellType.quadrilateral if hex else mesh.CellType.triangle
+    return mesh.create_rectangle(comm, [np.array([0.0, 0.0]), np.array([length, height])], [nx, ny], cell_type=cell)
+
+
+def box(comm: MPI.Comm, n: tuple[int, int, int], size: tuple[float, float, float], hex: bool = False) -> Mesh:
+    """A tetrahedron (``hex``: hexahedron) mesh of [0, Lx] x [0, Ly] x [0, Lz]."""
+    cell = mesh.CellType.hexahedron if hex else mesh.CellType.tetrahedron
+    return mesh.create_box(comm, [np.zeros(3), np.array(size, dtype=float)], list(n), cell_type=cell)
+
+
+def gmsh_model_to_mesh(model, comm: MPI.Comm, gdim: int):
+    """Mesh and cell tags from a gmsh model held on rank 0 (``read_from_msh`` is broken in 0.5.2)."""
+    msh, cell_tags, _facet_tags = gmshio.model_to_mesh(model, comm, 0, gdim=gdim)
+    return msh, cell_tags
+
+
+def locate_vertices(msh: Mesh, marker) -> np.ndarray:
+    """Local indices of the vertices whose coordinates (3 x n array) satisfy ``marker``."""
+    return mesh.locate_entities(msh, 0, marker)
+
+
+def vector_space(msh: Mesh):
+    """Continuous P1 displacement space with one component per geometric dimension."""
+    return fem.VectorFunctionSpace(msh, ("CG", 1))
+
+
+def scalar_space(msh: Mesh):
+    return fem.FunctionSpace(msh, ("CG", 1))
+
+
+def node_coordinates(V) -> np.ndarray:
+    """Coordinates (n_blocks x 3) of the nodes of P1 space ``V``, local numbering (owned, then ghosts)."""
+    Q = scalar_space(V.mesh)
+    if not np.array_equal(Q.dofmap.list.array, V.dofmap.list.array):
+        raise RuntimeError("scalar and vector P1 dof maps differ; cannot tabulate node coordinates")
+    return Q.tabulate_dof_coordinates()
+
+
+def vertex_dofs(V, vertices: np.ndarray) -> np.ndarray:
+    """Local node (block) indices of the given local vertices."""
+    return fem.locate_dofs_topological(V, 0, vertices)
+
+
+def owned_nodes(V) -> tuple[int, int]:
+    """(number of owned nodes on this rank, global index of the first one)."""
+    index_map = V.dofmap.index_map
+    return index_map.size_local, index_map.local_range[0]
+
+
+def cell_nodes(V) -> np.ndarray:
+    """Node (block) indices of every local cell (owned and ghost), one row per cell."""
+    return V.dofmap.list.array.reshape(-1, V.dofmap.cell_dofs(0).size)
+
+
+def assemble_matrix(form) -> PETSc.Mat:
+    A = fem_petsc.assemble_matrix(fem.form(form))
+    A.assemble()
+    return A
+
+
+def assemble_vector(form) -> PETSc.Vec:
+    b = fem_petsc.assemble_vector(fem.form(form))
+    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    return b
+
+
+def body_measure(msh: Mesh, cell_tags):
+    """Cell measure that can be restricted to a body with ``dx(tag)``."""
+    return ufl.Measure("dx", domain=msh, subdomain_data=cell_tags)
+
+
+def function(V, name: str):
+    f = fem.Function(V)
+    f.name = name
+    return f
+
+
+class VTKSeries:
+    """A ParaView time series (.pvd, one .vtu/.pvtu piece per frame) of nodal vector fields.
+
+    dolfinx 0.5 cannot write a one-component vector space, so 1D fields are written as 3D
+    vectors (x component filled) on the same nodes: ParaView's Warp By Vector works the same.
+    """
+
+    def __init__(self, comm: MPI.Comm, path, V, names):
+        self.bs = V.dofmap.index_map_bs
+        W = V if self.bs > 1 else fem.VectorFunctionSpace(V.mesh, ("CG", 1), dim=3)
+        self.out_bs = W.dofmap.index_map_bs
+        self.functions = {name: function(W, name) for name in names}
+        self._file = io.VTKFile(comm, str(path), "w")
+        self._path, self._comm = Path(path), comm
+        self._frames = 0
+
+    def write(self, t: float, owned_values: dict) -> None:
+        """Write one frame; ``owned_values`` maps a field name to its owned dof values.
+
+        dolfinx 0.5 ignores a failed write of a frame's files (a full disk leaves them empty or cut
+        short): each rank reads the end of its piece back, and all raise OSError if one is incomplete.
+        """
+        for name, values in owned_values.items():
+            f = self.functions[name]
+            blocks = values.reshape(-1, self.bs)
+            f.x.array.reshape(-1, self.out_bs)[: blocks.shape[0], : self.bs] = blocks
+            f.x.scatter_forward()
+        self._file.write_function(list(self.functions.values()), t)
+        stem, rank = self._path.stem, self._comm.rank
+        files = [self._path.with_name(f"{stem}_p{rank}_{self._frames:06d}.vtu")]
+        if rank == 0:
+            files.append(self._path.with_name(f"{stem}{self._frames:06d}.pvtu"))
+        self._frames += 1
+        bad = next((str(f) for f in files if not _complete_xml(f)), None)
+        bad = self._comm.allgather(bad)
+        if any(bad):
+            raise _unwritten(Path(next(b for b in bad if b)))
+
+    def close(self) -> None:
+        # dolfinx 0.5 rewrites the .pvd when the file object is destroyed: destroy it now,
+        # before the output folder is moved into place (or removed, when this fails).
+        file, self._file = self._file, None
+        if file is None:
+            return
+        try:
+            file.close()
+        except RuntimeError:   # "Could not write VTKFile": the .pvd
+            del file
+            raise _unwritten(self._path) from None
+        del file
+        if self._comm.rank == 0:
+            _drop_repeated_pieces(self._path)
+
+
+def _complete_xml(path: Path) -> bool:
+    """Whether an XML file dolfinx wrote is there to its last line (``</VTKFile>``)."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, 2)
+            f.seek(max(f.tell() - 16, 0))
+            return f.read().rstrip().endswith(b"</VTKFile>")
+    except OSError:
+        return False
+
+
+def _unwritten(path: Path) -> OSError:
+    """The error of a file dolfinx could not write (it gives no reason): a full disk, or an I/O error."""
+    try:
+        full = os.statvfs(path.parent).f_bavail == 0
+    except OSError:
+        full = False
+    if full:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    return OSError(errno.EIO, "the file was not written completely", str(path))
+
+
+def _drop_repeated_pieces(pvd: Path) -> None:
+    """dolfinx 0.5 lists every piece once per field in each .pvtu, so ParaView would load the
+    mesh several times over: keep each piece once."""
+    for pvtu in pvd.parent.glob(f"{pvd.stem}*.pvtu"):
+        lines = pvtu.read_text().splitlines(keepends=True)
+        seen, kept = set(), []
+        for line in lines:
+            if line.lstrip().startswith("<Piece "):
+                if line in seen:
+                    continue
+                seen.add(line)
+            kept.append(line)
+        if len(kept) < len(lines):
+            pvtu.write_text("".join(kept))
+
+
+def distance_to_mesh(msh: Mesh, point: np.ndarray, tol: float) -> float:
+    """Distance from ``point`` (3 coordinates) to this rank's cells when within ``tol``, else inf."""
+    from dolfinx import geometry
+
+    tdim = msh.topology.dim
+    tree = geometry.BoundingBoxTree(msh, tdim, padding=tol)
+    candidates = geometry.compute_collisions(tree, point.reshape(1, 3)).links(0)
+    if len(candidates) == 0:
+        return np.inf
+    cells = geometry.squared_distance(msh, tdim, candidates, np.tile(point, (len(candidates), 1)))
+    return float(np.sqrt(np.min(cells)))

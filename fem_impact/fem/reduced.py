@@ -1,0 +1,457 @@
+"""The reduced model (docs/theory.md s. 8): kept modes dynamically, the truncated ones statically.
+
+``U = Y1 Z + S_k (R(t) - P^T lam)`` with ``S_k = K^-1 - Y1 diag(1/w1^2) Y1^T`` on the elastic
+subspace. The modal equations ``Z'' + diag(mu1) Z' + diag(w1^2) Z + (P Y1)^T lam = Y1^T R`` are
+handed to the same Newmark integrator and contact law as the full model, as small operators
+replicated on every rank; the residual flexibility makes the contact rows compliant
+(``P S_k P^T``). Nothing of size N is touched in the loop: physical fields are rebuilt from
+precomputed columns only for probes (a few dofs) and output frames.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from ..app import cache
+from ..config.case import Case
+from ..nonsmooth.relation import Constraints
+from ..errors import ModelInputError
+from ..integrators import Operators, StepState
+from ..integrators.base import direct_solver_settings, factorize
+from .model import Model, load_factor
+from .modes import ModeCountError, Modes, compute_modes, free_dof_count, solver_settings
+from ..parallel import allsum
+
+log = logging.getLogger(__name__)
+
+RIGID_ROW = 1e-9   # neglected flexibility ratio below which a row counts as rigid (no compliance)
+AUTO_LIMIT = 400   # most modes `modes: auto` will consider
+# Static solves of free bodies: the shift is FLEX_SHIFT times the first elastic w^2, and each of
+# the FLEX_SWEEPS sweeps divides the error by 1 + w_1^2/shift = 1001 (converged: the shift does not
+# change the result, so the first w^2 is not part of the cache key).
+FLEX_SHIFT = 1e-3
+FLEX_SWEEPS = 8
+
+
+class Flexibility:
+    """Static solves on the elastic subspace: ``x = K^+ f`` with rigid-body modes projected out.
+
+    For free bodies ``K`` is singular: the load is first freed of its rigid-body resultant
+    (inertia relief, ``f - M Phi_r Phi_r^T f``), then ``(K + sigma M) x = f + sigma M x`` is
+    iterated from a shifted factorization (each sweep divides the error by ``1 + w_1^2/sigma``)
+    and the result is made mass-orthogonal to the rigid modes.
+    """
+
+    def __init__(self, K: PETSc.Mat, M: PETSc.Mat, rigid_local: np.ndarray, first_elastic_w2: float):
+        self.M, self.rigid = M, rigid_local
+        self.comm = K.getComm().tompi4py()
+        self.sigma = FLEX_SHIFT * first_elastic_w2 if rigid_local.shape[1] else 0.0
+        A = K.copy()
+        if self.sigma:
+            A.axpy(self.sigma, M, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        self.solve = factorize(A)
+        self.b, self.x = K.createVecs()
+        self.Mx = K.createVecs()[0]
+
+    def _remove_rigid(self, local: np.ndarray, use_mass_on_left: bool) -> np.ndarray:
+        """``f - M Phi (Phi^T f)`` (loads) or ``x - Phi (Phi^T M x)`` (displacements)."""
+        if not self.rigid.shape[1]:
+            return local
+        if use_mass_on_left:
+            coef = allsum(self.comm, self.rigid.T @ local)
+            return local - self._mass(self.rigid @ coef)
+        coef = allsum(self.comm, self.rigid.T @ self._mass(local))
+        return local - self.rigid @ coef
+
+    def _mass(self, local: np.ndarray) -> np.ndarray:
+        self.b.array[:] = local
+        self.M.mult(self.b, self.Mx)
+        return self.Mx.array_r.copy()
+
+    def apply(self, f_local: np.ndarray) -> np.ndarray:
+        """K^+ f for one column (owned entries)."""
+        f = self._remove_rigid(f_local, use_mass_on_left=True)
+        x = np.zeros_like(f)
+        for _ in range(FLEX_SWEEPS if self.sigma else 1):
+            self.b.array[:] = f + self.sigma * self._mass(x) if self.sigma else f
+            self.solve(self.b, self.x)
+            x = self.x.array_r.copy()
+        return self._remove_rigid(x, use_mass_on_left=False)
+
+
+class ModalLoad:
+    """``Y1^T R(t)`` from the projected load vectors, on a small replicated vector."""
+
+    def __init__(self, constant: np.ndarray, varying: list):
+        self.constant, self.varying = constant, varying
+        self.time_dependent = bool(varying)
+
+    def evaluate(self, t: float, out: np.ndarray) -> np.ndarray:
+        out[:] = self.constant
+        for f, r in self.varying:
+            out += load_factor(f, t) * r
+        return out
+
+
+@dataclass
+class StaticCorrection:
+    """The quasi-static part ``S_k (R(t) - P^T lam)`` seen from the contact rows (``StaticPart``)."""
+
+    compliance: np.ndarray         # P S_k P^T
+    rigid_rows: np.ndarray
+    load_offsets: np.ndarray       # P S_k [R_c, b_1, ...]           (p x nl)
+    load_gram: np.ndarray          # [R_c, b_i]^T S_k [R_c, b_i]      (nl x nl)
+    functions: list                # the time functions of b_1, ... (R_c has 1)
+    _recent: dict = field(default_factory=dict, repr=False)   # t -> coefficients, last two times
+
+    def coefficients(self, t: float) -> np.ndarray:
+        """(1, f_1(t), ...): asked for several times per step, so the last two times are kept."""
+        cache = self._recent
+        if t not in cache:
+            if len(cache) >= 2:
+                cache.pop(next(iter(cache)))
+            cache[t] = np.array([1.0] + [load_factor(f, t) for f in self.functions])
+        return cache[t]
+
+    def __post_init__(self):
+        # Constant loads only (the common case): the load terms are constants, computed once.
+        self._constant = not self.functions
+        self._offset0 = self.load_offsets[:, 0].copy()
+        self._energy0 = 0.5 * float(self.load_gram[0, 0])
+
+    def offset(self, t: float) -> np.ndarray:
+        if self._constant:
+            return self._offset0
+        return self.load_offsets @ self.coefficients(t)
+
+    def energy(self, t: float, force: np.ndarray) -> float:
+        """1/2 f^T S_k f with f = R(t) - P^T force."""
+        if self._constant:
+            return self._energy0 - force @ self._offset0 + 0.5 * force @ (self.compliance @ force)
+        c = self.coefficients(t)
+        return 0.5 * (c @ self.load_gram @ c) - force @ (self.load_offsets @ c) + 0.5 * force @ self.compliance @ force
+
+    def work(self, t0: float, t1: float, f0: np.ndarray, f1: np.ndarray, gamma: float) -> float:
+        """Work of the loads on the static displacement over a step: R_mean^T S_k (f1 - f0)."""
+        if self._constant:
+            return -float(self._offset0 @ (f1 - f0))
+        c0, c1 = self.coefficients(t0), self.coefficients(t1)
+        c_mean = (1.0 - gamma) * c0 + gamma * c1
+        return c_mean @ self.load_gram @ (c1 - c0) - c_mean @ self.load_offsets.T @ (f1 - f0)
+
+
+class ReducedFields:
+    """Physical fields from the modal state: ``u = Y1 Z + X_R c(t) - X_P F`` (+ velocities).
+
+    The static part is massless: its velocity is its change over the last step divided by dt.
+    Probes read the same few rows every step, so their rows of Y1, X_R and X_P are cut out once
+    and the static part of the previous step is kept, not recomputed.
+    """
+
+    def __init__(self, Y1: np.ndarray, XR: np.ndarray | None, XP: np.ndarray | None, static, cons: Constraints, dt):
+        self.Y1, self.XR, self.XP, self.static, self.cons, self.dt = Y1, XR, XP, static, cons, dt
+        self._previous = None   # (t, force) of the previous step, for the static part's velocity
+        self._blocks: dict[bytes, tuple] = {}     # rows -> (Y1, X_R, X_P rows, [t, static part])
+
+    def _block(self, rows):
+        if isinstance(rows, slice):
+            return self.Y1, self.XR, self.XP, None
+        key = rows.tobytes()
+        if key not in self._blocks:
+            static = self.static is not None
+            self._blocks[key] = (self.Y1[rows], self.XR[rows] if static else None, self.XP[rows] if static else None,
+                                 [None, None])
+        return self._blocks[key]
+
+    def _static_and_rate(self, XR, XP, state: StepState, last: list | None = None):
+        """The static part ``X_R c(t) - X_P F`` seen through (XR, XP), and its change over the last
+        step divided by dt (0 on the first). ``last``: [t, value] of the previous call, reused."""
+        now = XR @ self.static.coefficients(state.t) - XP @ state.force
+        rate = 0.0
+        if self._previous is not None and self._previous[0] < state.t:
+            t0, f0 = self._previous
+            before = last[1] if last is not None and last[0] == t0 else XR @ self.static.coefficients(t0) - XP @ f0
+            rate = (now - before) / (state.t - t0)
+        if last is not None:
+            last[:] = [state.t, now]
+        return now, rate
+
+    def _parts(self, state: StepState, rows):
+        Y, XR, XP, last = self._block(rows)
+        u = Y @ state.U
+        v = Y @ state.V
+        if self.static is None:
+            return u, v
+        now, rate = self._static_and_rate(XR, XP, state, last)
+        return u + now, v + rate
+
+    def at(self, state: StepState, dofs: np.ndarray):
+        return self._parts(state, dofs)
+
+    def frame(self, state: StepState) -> dict[str, np.ndarray]:
+        u, v = self._parts(state, slice(None))
+        return {"u": u, "v": v, "a": self.Y1 @ state.A, "contact_force": -(self.cons.P_local @ state.force)}
+
+    def velocity_functionals(self, rows: np.ndarray, comm: MPI.Comm):
+        """A reader of ``rows^T v`` at each step for a few fixed rows (owned entries, n_local x k),
+        e.g. body momenta: the rows are projected on the modes and the static columns once, so a
+        step costs k x n1 operations on replicated data and no reduction."""
+        rows_Y = allsum(comm, rows.T @ self.Y1)
+        rows_R = allsum(comm, rows.T @ self.XR) if self.static is not None else None
+        rows_P = allsum(comm, rows.T @ self.XP) if self.static is not None else None
+        last = [None, None]
+
+        def read(state: StepState) -> np.ndarray:
+            values = rows_Y @ state.V
+            if self.static is not None:
+                values = values + self._static_and_rate(rows_R, rows_P, state, last)[1]
+            return values
+        return read
+
+    def write(self, state: StepState) -> None:
+        """Observer hook, registered last: remembers the step for the next velocity difference."""
+        self._previous = (state.t, state.force.copy())
+
+
+@dataclass
+class ReducedModel:
+    operators: Operators
+    fields: ReducedFields
+    Z0: np.ndarray
+    Zdot0: np.ndarray
+    modes: int
+    cutoff_hz: float
+    neglected_flexibility: np.ndarray   # per contact row: (P S_k P^T)_jj / ((P K^+ P^T)_jj + c_j)
+    flexibility_columns: np.ndarray     # K^+ [P^T, R_c, b_1, ...] (owned rows): reusable
+
+
+def static_load_columns(model: Model, cons: Constraints) -> np.ndarray:
+    """[P^T, R_c, b_1, ...]: the load patterns whose static response the reduction needs (owned rows)."""
+    load = model.load
+    R_cols = [load.constant.array_r.copy()] + [b.array_r.copy() for _, b in load.varying]
+    return np.column_stack([cons.P_local.toarray()] + R_cols)
+
+
+def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correction: bool, alpha: float,
+                  beta: float, dt: float, flexibility_columns: np.ndarray | None = None) -> ReducedModel:
+    """The reduced operators for the first ``n1`` modes of ``modes`` (rigid ones included).
+
+    ``flexibility_columns`` (K^+ applied to ``static_load_columns``, from an earlier run of the
+    same scene) skips the static solves.
+    """
+    comm = model.comm
+    Y1 = np.ascontiguousarray(modes.Y_local[:, :n1])
+    w2 = np.asarray(modes.omega2[:n1], dtype=float)
+    P_local = cons.P_local
+    Pr = allsum(comm, (P_local.T @ Y1))                       # P Y1 (p x n1)
+    load = model.load
+    columns = static_load_columns(model, cons)
+    R_cols = [columns[:, k] for k in range(cons.p, columns.shape[1])]
+    R_modal = [allsum(comm, Y1.T @ r) for r in R_cols]
+    modal_load = ModalLoad(R_modal[0], [(f, r) for (f, _), r in zip(load.varying, R_modal[1:], strict=True)])
+
+    M_U0, M_V0 = model.M.createVecs()
+    model.M.mult(model.U0, M_U0)
+    model.M.mult(model.V0, M_V0)
+    Z0 = allsum(comm, Y1.T @ M_U0.array_r)
+    Zdot0 = allsum(comm, Y1.T @ M_V0.array_r)
+
+    # Residual flexibility of the truncated modes, from static solves on the elastic subspace.
+    elastic = ~modes.rigid
+    if flexibility_columns is None:
+        rigid_local = modes.Y_local[:, modes.rigid]
+        first_w2 = float(modes.omega2[elastic][0]) if elastic.any() else 1.0
+        flex = Flexibility(model.regular_stiffness(), model.M, rigid_local, first_w2)
+        flexibility_columns = np.column_stack([flex.apply(columns[:, j]) for j in range(columns.shape[1])])
+    full = flexibility_columns
+    kept_elastic = elastic[:n1]
+    Y1e, w1e = Y1[:, kept_elastic], w2[kept_elastic]
+    P_dense = columns[:, : cons.p]
+    X = full - Y1e @ (allsum(comm, Y1e.T @ columns) / w1e[:, None])
+    XP, XR = X[:, : cons.p], X[:, cons.p:]
+    flex_full = np.diag(allsum(comm, P_dense.T @ full[:, : cons.p])) if cons.p else np.zeros(0)
+    compliance = allsum(comm, P_dense.T @ XP)
+    compliance = 0.5 * (compliance + compliance.T)
+    # Against the whole compliance the contact sees: the structure's and an elastic stop's in series.
+    seen = flex_full + cons.compliance
+    neglected = np.divide(np.diag(compliance), seen, out=np.zeros(cons.p), where=seen > 0)
+
+    static = None
+    if static_correction:
+        rigid_rows = neglected <= RIGID_ROW
+        static = StaticCorrection(
+            compliance=np.where(np.outer(rigid_rows, rigid_rows), 0.0, compliance),
+            rigid_rows=rigid_rows,
+            load_offsets=allsum(comm, P_dense.T @ XR).reshape(cons.p, XR.shape[1]),
+            load_gram=allsum(comm, np.column_stack(R_cols).T @ XR),
+            functions=[f for f, _ in load.varying],
+        )
+    # The modal equations are diagonal: M = I, K = diag(w1^2), C = diag(alpha + beta w1^2).
+    C = (alpha + beta * w2) if (alpha or beta) else None
+    ops = Operators(np.ones(n1), w2.copy(), C, modal_load, Pr.T.copy(), cons.d0, cons.restitution, static=static,
+                    stop_compliance=cons.compliance)
+    fields = ReducedFields(Y1, XR if static else None, XP if static else None, static, cons, dt)
+    cutoff = float(np.sqrt(w2[-1]) / (2 * np.pi))
+    log.info("reduced model: %d modes (cut-off %.4g Hz), static correction %s", n1, cutoff, static_correction)
+    return ReducedModel(ops, fields, Z0, Zdot0, n1, cutoff, neglected, full)
+
+
+def prepare_reduced(case: Case, model: Model, cons: Constraints) -> tuple[ReducedModel, dict]:
+    """Modes (given or chosen), static solves (both cached) and the reduced model of a case."""
+    solver, comm = case.solver, model.comm
+    scene = cache.key(comm, model.K, model.M, model.fixed)
+    reused = set()
+    if solver.modes == "auto":
+        available = free_dof_count(model)
+        cap = max(1, min(available - 1, AUTO_LIMIT))
+        n_try = min(cap, 32)
+        f_scene, scene_why = scene_frequency(case, model)
+        while True:
+            modes = _modes(model, n_try, scene, reused)
+            columns = _flexibility(model, cons, modes, scene, reused)
+            n1, reason = choose_mode_count(modes, cons, columns, solver.tolerance, f_scene, scene_why)
+            if n1 is not None:
+                break
+            if n_try >= cap:
+                raise ModelInputError(("solver", "tolerance"), f"no count of modes up to {n_try} meets it: {reason}; "
+                                                               "loosen solver.tolerance, or use the full model "
+                                                               "(method: moreau_jean)")
+            n_try = min(cap, 2 * n_try)
+    else:
+        n1, reason = solver.modes, "as given (solver.modes)"
+        # One mode more than kept tells whether a rigid-body mode would be left out.
+        try:
+            modes = _modes(model, n1 + 1, scene, reused)
+        except ModeCountError as err:
+            if err.requested != err.available + 1:
+                raise ModelInputError(("solver", "modes"), str(err).replace(str(n1 + 1), str(n1), 1)) from None
+            modes = _modes(model, n1, scene, reused)   # all modes of a small model
+        if modes.n > n1 and modes.rigid[n1]:
+            raise ModelInputError(("solver", "modes"), f"keeps {n1} modes but the model moves freely in at least "
+                                                       f"{int(modes.rigid.sum())} rigid-body modes: keep them all "
+                                                       f"(modes >= {int(modes.rigid.sum())}), or add supports")
+        columns = _flexibility(model, cons, modes, scene, reused)
+    red = build_reduced(model, cons, modes, n1, solver.static_correction, case.damping.alpha, case.damping.beta,
+                        solver.dt, columns)
+    if reused:
+        log.info("reused from the cache (%s): %s", cache.cache_dir(), " and ".join(sorted(reused)))
+    summary = {
+        "modes": red.modes, "modes_reason": reason, "rigid_modes": int(modes.rigid[:n1].sum()),
+        "cutoff_hz": red.cutoff_hz, "static_correction": solver.static_correction,
+        "neglected_flexibility": {c.name: float(red.neglected_flexibility[c.rows].max()) for c in cons.contacts},
+        "reused_from_cache": sorted(reused),
+    }
+    return red, summary
+
+
+def static_settings() -> dict:
+    """What decides the static solves besides the operators and the load patterns: part of their cache key."""
+    return {"shift": FLEX_SHIFT, "sweeps": FLEX_SWEEPS, **direct_solver_settings()}
+
+
+def _modes(model: Model, n: int, scene: str, reused: set) -> Modes:
+    comm = model.comm
+    settings = solver_settings()
+    name = f"modes-{cache.key(comm, scene, n, settings)}"
+    stored = cache.load(name, comm)
+    if stored is not None:
+        reused.add("modes")
+        return Modes(stored["omega2"], stored["Y_local"], stored["residual"], stored["rigid"],
+                     float(stored["scale"]), float(stored["shift"]), comm)
+    modes = compute_modes(model, n, tol=settings["tol"], check_count=settings["check_count"])
+    cache.save(name, comm, omega2=modes.omega2, Y_local=modes.Y_local, residual=modes.residual,
+               rigid=modes.rigid, scale=modes.scale, shift=modes.shift)
+    return modes
+
+
+def _flexibility(model: Model, cons: Constraints, modes: Modes, scene: str, reused: set) -> np.ndarray:
+    """K^+ applied to the load and contact patterns (static solves), cached."""
+    comm, columns = model.comm, static_load_columns(model, cons)
+    name = f"static-{cache.key(comm, scene, modes.Y_local[:, modes.rigid], columns, static_settings())}"
+    stored = cache.load(name, comm)
+    if stored is not None:
+        reused.add("static solves")
+        return stored["columns"]
+    elastic = ~modes.rigid
+    first_w2 = float(modes.omega2[elastic][0]) if elastic.any() else 1.0
+    flex = Flexibility(model.regular_stiffness(), model.M, modes.Y_local[:, modes.rigid], first_w2)
+    result = np.column_stack([flex.apply(columns[:, j]) for j in range(columns.shape[1])])
+    cache.save(name, comm, columns=result)
+    return result
+
+
+#: Kept modes must reach this many times the highest frequency of the loads (resonance and the
+#: response just above it need the modes around and above the drive).
+LOAD_BAND_FACTOR = 2.0
+#: The loads' band: the frequency below which this fraction of their spectral energy lies.
+LOAD_BAND_ENERGY = 0.99
+
+
+def scene_frequency(case: Case, model: Model) -> tuple[float, str]:
+    """The highest frequency the scene needs the kept modes to reach, and why.
+
+    Half the output sampling rate (what the output resolves), and ``LOAD_BAND_FACTOR`` times
+    the band of the time-dependent loads: their time functions sampled at dt over the run
+    (at most 2^18 samples), the frequency below which ``LOAD_BAND_ENERGY`` of their spectral
+    energy (mean removed, Hann window) lies.
+    """
+    solver = case.solver
+    f_output = 1.0 / (2.0 * case.output.every * solver.dt)
+    f_load, source = 0.0, None
+    n = int(min(2**18, max(16, np.ceil(solver.t_end / solver.dt) + 1)))
+    t = np.arange(n) * solver.dt
+    for f, _ in model.load.varying:
+        with np.errstate(all="ignore"):
+            values = np.broadcast_to(np.asarray(f.evaluate(t=t), dtype=float), t.shape)
+        if not np.all(np.isfinite(values)):
+            continue   # a load that overflows stops the run with its own message
+        spectrum = np.abs(np.fft.rfft((values - values.mean()) * np.hanning(n))) ** 2
+        if spectrum.sum() <= 0.0:
+            continue
+        band = np.fft.rfftfreq(n, solver.dt)[np.searchsorted(np.cumsum(spectrum) / spectrum.sum(), LOAD_BAND_ENERGY)]
+        if band > f_load:
+            f_load, source = band, f.source
+    if LOAD_BAND_FACTOR * f_load > f_output:
+        return LOAD_BAND_FACTOR * f_load, (f"{LOAD_BAND_FACTOR:g} x the band of the load '{source}' "
+                                           f"({f_load:.4g} Hz)")
+    return f_output, "half the output rate"
+
+
+def choose_mode_count(modes: Modes, cons: Constraints, columns: np.ndarray, tolerance: float,
+                      f_scene: float, scene_why: str = "half the output rate") -> tuple[int | None, str]:
+    """The smallest n1 (all rigid modes included) whose neglected flexibility at every contact
+    row, ``(P S_k P^T)_jj / ((P K^+ P^T)_jj + c_j)`` (c: an elastic stop's compliance), is at
+    most ``tolerance`` and whose cut-off frequency reaches ``f_scene`` (``scene_frequency``:
+    what the output resolves, what the loads drive).
+
+    Returns (n1, why) or (None, what falls short with all of ``modes``).
+    """
+    comm = modes.comm
+    P = cons.P_local.toarray()
+    freq = np.sqrt(modes.omega2) / (2 * np.pi)
+    n_rigid = int(modes.rigid.sum())
+    if cons.p:
+        flex = np.diag(allsum(comm, P.T @ columns[:, : cons.p]))
+        PY = allsum(comm, P.T @ modes.Y_local)
+        contribution = np.where(modes.rigid, 0.0, PY**2 / np.where(modes.rigid, 1.0, modes.omega2))
+        seen = flex + cons.compliance          # an elastic stop's compliance in series
+        neglected = (flex[:, None] - np.cumsum(contribution, axis=1)) / np.where(seen > 0, seen, 1.0)[:, None]
+        worst = neglected.max(axis=0)          # after keeping 1, 2, ... modes
+    else:
+        worst = np.zeros(modes.n)
+    ok = (worst <= tolerance) & (freq >= f_scene) & (np.arange(1, modes.n + 1) >= max(n_rigid, 1))
+    if not ok.any():
+        return None, (f"with {modes.n} modes the neglected flexibility is {worst[-1]:.3g} (tolerance "
+                      f"{tolerance:g}) and the cut-off {freq[-1]:.4g} Hz (the scene needs {f_scene:.4g} Hz: "
+                      f"{scene_why})")
+    n1 = int(np.argmax(ok)) + 1
+    first_flex = int(np.argmax(worst <= tolerance)) + 1 if (worst <= tolerance).any() else modes.n
+    binding = "neglected flexibility" if first_flex >= n1 else "cut-off frequency"
+    return n1, (f"smallest count with neglected flexibility {worst[n1 - 1]:.3g} <= {tolerance:g} at every contact "
+                f"row and cut-off {freq[n1 - 1]:.4g} Hz >= {f_scene:.4g} Hz ({scene_why}); "
+                f"{binding} decided")

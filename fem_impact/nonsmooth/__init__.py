@@ -1,0 +1,1 @@
+"""The nonsmooth layer: the contact relation (P, d0, rows), contact laws, the one-step contact problem."""

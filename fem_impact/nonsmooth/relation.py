@@ -1,0 +1,149 @@
+"""The constraint matrix P and gaps d0 from the contact definitions (node pairs known in advance)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from mpi4py import MPI
+from scipy import sparse
+from scipy.spatial import cKDTree
+
+from ..config.case import Case
+from ..errors import ModelInputError
+from ..fem.model import Model, NodeSet, pad_vector
+from ..parallel import allsum
+
+
+@dataclass
+class ContactRows:
+    """Rows of ``P`` that belong to one named contact of the case file."""
+
+    name: str
+    index: int          # position in the case file's contacts list
+    rows: slice
+
+
+@dataclass
+class Constraints:
+    """``P U <= d0``: ``P_local`` holds this rank's owned rows of ``P^T`` (sparse, n_local x p).
+
+    Every rank holds all p rows, so the small p x p contact problems can be solved redundantly.
+    """
+
+    P_local: sparse.csr_matrix
+    d0: np.ndarray
+    restitution: np.ndarray
+    contacts: list[ContactRows]
+    compliance: np.ndarray      # 1/stiffness of an elastic stop per row (m/N); 0 on rigid rows
+
+    @property
+    def p(self) -> int:
+        return self.d0.size
+
+    def project(self, local_values: np.ndarray, comm: MPI.Comm) -> np.ndarray:
+        """P x for a distributed vector given by its owned entries (a global sum over ranks)."""
+        return allsum(comm, self.P_local.T @ local_values)
+
+
+def build_constraints(case: Case, model: Model) -> Constraints:
+    dim, bs = model.meshdata.dim, model.bs
+    n_local = model.U0.getLocalSize()
+    columns, gaps, restitution, compliance, contacts = [], [], [], [], []
+    for i, contact in enumerate(case.contacts):
+        key = ("contacts", i)
+        normal = np.asarray(pad_vector(contact.normal, dim, case, key + ("normal",), "normal"), dtype=float)
+        normal /= np.linalg.norm(normal)
+        if contact.type == "obstacle":
+            nodes = model.node_set(case, contact.nodes[0], key + ("nodes",))
+            col = _rows(n_local, bs, normal, nodes)
+            gap = np.full(len(nodes), contact.gap if contact.gap is not None else 0.0)
+        else:
+            a = model.node_set(case, contact.nodes[0], key + ("nodes",))
+            b = model.node_set(case, contact.nodes[1], key + ("nodes",))
+            order = match_pairs(case, key, a, b, normal)
+            b = NodeSet(b.name, b.coords[order], b.global_node[order], b.local_node[order])
+            col = _rows(n_local, bs, normal, a) - _rows(n_local, bs, normal, b)
+            mesh_gap = (b.coords - a.coords)[:, :dim] @ normal
+            gap = np.full(len(a), contact.gap) if contact.gap is not None else mesh_gap
+        if contact.coupling == "mean":
+            # One row on the group's mean normal displacement (a distributing coupling): its
+            # force P^T lam is shared equally by the nodes, as a load on a node group is.
+            col = sparse.csr_matrix(col.mean(axis=1))
+            gap = np.array([gap.mean()])
+        start = sum(len(g) for g in gaps)
+        contacts.append(ContactRows(contact.name, i, slice(start, start + len(gap))))
+        columns.append(col)
+        gaps.append(gap)
+        restitution.append(np.full(len(gap), contact.restitution))
+        compliance.append(np.full(len(gap), 1.0 / contact.stiffness if contact.stiffness else 0.0))
+    if not columns:
+        return Constraints(sparse.csr_matrix((n_local, 0)), np.zeros(0), np.zeros(0), [], np.zeros(0))
+    # Supports act first: a held dof cannot move, so it does not enter a constraint.
+    free = np.ones(n_local)
+    free[model.fixed] = 0.0
+    P_local = (sparse.diags(free) @ sparse.hstack(columns)).tocsr()
+    P_local.eliminate_zeros()
+    cons = Constraints(P_local, np.concatenate(gaps), np.concatenate(restitution), contacts,
+                       np.concatenate(compliance))
+    norms = np.sqrt(model.comm.allreduce(np.asarray(P_local.power(2).sum(axis=0)).ravel(), op=MPI.SUM))
+    for c in contacts:
+        if np.any(norms[c.rows] == 0.0):
+            raise ModelInputError(("contacts", c.index, "nodes"),
+                                  "acts on nodes whose normal direction is fixed by a support")
+    return cons
+
+
+def _rows(n_local: int, bs: int, normal: np.ndarray, nodes: NodeSet) -> sparse.csr_matrix:
+    """Columns of P^T (owned part) for rows ``n . u_node``, one per node of the set."""
+    owned = np.flatnonzero(nodes.local_node >= 0)
+    dofs = (nodes.local_node[owned][:, None] * bs + np.arange(normal.size)).ravel()
+    rows_of = np.repeat(owned, normal.size)
+    values = np.tile(normal, owned.size)
+    return sparse.csr_matrix((values, (dofs, rows_of)), shape=(n_local, len(nodes)))
+
+
+def _nodes(n: int) -> str:
+    return f"{n} node" if n == 1 else f"{n} nodes"
+
+
+def match_pairs(case: Case, key: tuple, a: NodeSet, b: NodeSet, normal: np.ndarray) -> np.ndarray:
+    """For each node of ``a``, the index of the node of ``b`` facing it along ``normal``."""
+    dim = normal.size
+    if len(a) != len(b):
+        raise ModelInputError(
+            key + ("nodes",),
+            f"pair groups '{a.name}' ({_nodes(len(a))}) and '{b.name}' ({_nodes(len(b))}) do not match up",
+        )
+    # Pairs face each other along the normal: compare positions projected on the plane normal to it.
+    def tangential(x):
+        x = x[:, :dim]
+        return x - np.outer(x @ normal, normal)
+
+    ta, tb = tangential(a.coords), tangential(b.coords)
+    scale = max(np.ptp(np.vstack([a.coords, b.coords]), axis=0).max(), 1e-300)
+    dist, order = cKDTree(tb).query(ta)
+    if np.any(dist > 1e-6 * scale) or len(np.unique(order)) != len(order):
+        worst = int(np.argmax(dist))
+        raise ModelInputError(
+            key + ("nodes",),
+            f"pair groups '{a.name}' and '{b.name}' do not match up along the normal: node at "
+            f"{np.round(a.coords[worst, :dim], 6).tolist()} has no partner (off by {dist[worst]:.3g})",
+        )
+    return order
+
+
+def check_initial_state(case: Case, cons: Constraints, model: Model) -> None:
+    """The initial displacement must satisfy P U0 <= d0."""
+    if cons.p == 0:
+        return
+    violation = cons.project(model.U0.array_r, model.comm) - cons.d0
+    scale = max(np.abs(cons.d0).max(), np.abs(model.U0.norm(3)), 1e-300)
+    for c in cons.contacts:
+        worst = violation[c.rows].max()
+        if worst > 1e-9 * scale:
+            raise ModelInputError(
+                ("contacts", c.index),
+                f"the initial state violates contact '{c.name}': penetration {worst:.4g} at t = 0 "
+                "(check the gap, the normal and initial.displacement)",
+            )
