@@ -7,7 +7,8 @@ import numpy as np
 from mpi4py import MPI
 
 from conftest import CASES, run_case_file
-from fem_impact import cache, modes
+from fem_impact.app import cache
+from fem_impact.fem import modes
 from fem_impact.fem.modes import solver_settings
 from fem_impact.fem.reduced import static_settings
 

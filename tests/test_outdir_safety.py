@@ -417,7 +417,8 @@ ENOSPC = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 def full_disk_at(where: str, monkeypatch):
     """Make the run's writing fail as on a full disk at ``where`` (the errors a real one gives: a failed
     write names no file; dolfinx leaves a frame's file cut short and says nothing)."""
-    from fem_impact import dolfinx_api, outdir, output
+    from fem_impact.app import outdir, output
+    from fem_impact.fem import dolfinx_api
 
     if where == "first VTK frame":
         monkeypatch.setattr(dolfinx_api, "_complete_xml", lambda path: False)
