@@ -51,15 +51,16 @@ def reduced_model(case: Case, model, cons) -> System:
 
 def model_of(case: Case):
     """What a method integrates: the reduced model for ``modal``, else the full model."""
-    return reduced_model if case.solver.method == "modal" else full_model
+    from ..integrators import is_reduced
+
+    return reduced_model if is_reduced(case.solver) else full_model
 
 
 def make_integrator(case: Case, operators):
     """The time integrator of ``solver.method`` (the reduced model: of its ``solver.scheme``)."""
-    from ..integrators import INTEGRATORS
+    from ..integrators import integrator_class, scheme_of
 
-    solver = case.solver
-    return INTEGRATORS[solver.scheme if solver.method == "modal" else solver.method].from_solver(operators, solver)
+    return integrator_class(scheme_of(case.solver)).from_solver(operators, case.solver)
 
 
 def default_outdir(case: Case) -> Path:
@@ -188,7 +189,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         fields = system.fields
         momenta = BodyMomenta(model, fields)
         history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
-                                scheme_energy=integrator.scheme_energy, name=case.name)
+                                scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name)
         stats = RunStatistics(cons)
         observers = [history, stats]
         vtk = None

@@ -22,8 +22,8 @@ from pydantic import ValidationError
 
 from ..errors import CaseError, ModelInputError
 from ..expressions import RESERVED, Expression, ExpressionError, parse_expression
-from ..integrators.parameters import (DEFAULT_METHOD, METHODS, MODAL_SCHEMES, SCHEMAS, SOLVER, KeyProblem,
-                                     SolverParameters, valid_keys)
+from ..integrators.parameters import (DEFAULT_METHOD, METHODS, MODAL_SCHEMES, REDUCED, SCHEMAS, KeyProblem,
+                                     SolverParameters, solver_schema, valid_keys)
 from ..integrators.parameters import tag as _schema_tag
 
 SHAPES = ("bar",)
@@ -113,6 +113,13 @@ class Contact:
     restitution: float = 0.0
     coupling: str = "each"      # "each": a row per node (pair); "mean": one row on the group's mean
     stiffness: float | None = None   # N/m per row: an elastic stop (None: rigid)
+    law: str = "newton"         # the contact law (fem_impact.nonsmooth.laws): newton, elastic_stop, or registered
+    law_keys: dict = field(default_factory=dict)   # the law's own keys, as its schema validated them
+
+    @property
+    def law_is_inferred(self) -> bool:
+        """Whether the law follows from the keys (newton, or elastic_stop when a stiffness is given)."""
+        return self.law == ("elastic_stop" if self.stiffness is not None else "newton")
 
 
 @dataclass
@@ -239,10 +246,7 @@ class Case:
         data["loads"] = [{key: _sources(value) if key in ("force", "acceleration") else value
                           for key, value in vars(load).items() if value is not None}
                          for load in self.loads]
-        data["contacts"] = [{key: value for key, value in dataclasses.asdict(c).items()
-                             if not (key == "restitution" and c.stiffness is not None)}   # (an elastic stop's)
-                            | {"nodes": c.nodes[0] if c.type == "obstacle" else list(c.nodes)}
-                            for c in self.contacts]
+        data["contacts"] = [_contact_data(c) for c in self.contacts]
         data["solver"] = self.solver.as_case()
         data["output"] = dataclasses.asdict(self.output)
         return data
@@ -268,6 +272,18 @@ class Case:
         text = yaml.safe_dump(self.resolved(), sort_keys=False)
         path.write_text(text, encoding="utf-8")
         return path
+
+
+def _contact_data(contact: Contact) -> dict:
+    """A contact as the case file gives it: the law's keys as the contact's own; ``law`` where it does
+    not follow from them."""
+    if contact.law_is_inferred:   # (an elastic stop has no restitution)
+        skip = ("law", "law_keys") + (("restitution",) if contact.stiffness is not None else ())
+        data = {key: value for key, value in dataclasses.asdict(contact).items() if key not in skip}
+    else:
+        data = {key: value for key, value in dataclasses.asdict(contact).items()
+                if key not in ("law", "law_keys", "restitution", "stiffness")} | {"law": contact.law, **contact.law_keys}
+    return data | {"nodes": contact.nodes[0] if contact.type == "obstacle" else list(contact.nodes)}
 
 
 def _sources(expressions):
@@ -739,11 +755,65 @@ def _load(value, path, parameters):
 
 
 def _contact(value, path):
+    law = _mapping(value, path).get("law")
+    if law is not None and law not in BUILT_IN_LAWS:
+        return _registered_law_contact(value, path)
     f = _fields(value, path, {
         "name": (_csv_name, _REQUIRED), "type": (_choice(*CONTACT_TYPES), _REQUIRED),
         "nodes": (lambda nodes, _: nodes, _REQUIRED), "normal": (_vector(_number), _REQUIRED),
         "gap": _real(), "restitution": _real(ge=0, le=1),
-        "coupling": _choice(*CONTACT_COUPLINGS), "stiffness": _real(gt=0)}, Contact)
+        "coupling": _choice(*CONTACT_COUPLINGS), "stiffness": _real(gt=0),
+        "law": _choice(*BUILT_IN_LAWS)}, Contact)
+    f = _contact_relation(f, value, path)
+    inferred = "elastic_stop" if f["stiffness"] is not None else "newton"
+    if value.get("law") is not None and f["law"] != inferred:
+        needs = "a stiffness" if f["law"] == "elastic_stop" else "no stiffness"
+        raise _Invalid(path + ("law",), f"law {f['law']} takes {needs}; got law {f['law']} with keys "
+                                        f"{', '.join(str(k) for k in value)}")
+    f["law"] = inferred
+    f["law_keys"] = {"stiffness": f["stiffness"]} if f["stiffness"] is not None else {"restitution": f["restitution"]}
+    if f["stiffness"] is not None and value.get("restitution") is not None:
+        # Its spring stores the approach and gives it back: no impact law, so no restitution.
+        keys = ", ".join(key for key in CONTACT_KEYS if key != "restitution")
+        raise _Invalid(path + ("restitution",), f"an elastic stop (stiffness given) does not use 'restitution': "
+                                                f"its spring gives back what it stores; keys of an elastic stop: "
+                                                f"{keys} (or remove stiffness for a rigid contact)")
+    return Contact(**f)
+
+
+def _registered_law_contact(value, path):
+    """A contact whose ``law`` is one registered beyond the built-in ones: its keys are the law's."""
+    from pydantic import ValidationError
+
+    from ..nonsmooth.laws import LAWS
+
+    name = value["law"]
+    if not isinstance(name, str) or name not in LAWS:
+        raise _Invalid(path + ("law",), f"must be one of {', '.join(LAWS)}; got {_show(name)}")
+    law = LAWS[name]
+    relation = ("name", "type", "nodes", "normal", "gap", "coupling", "law")
+    f = _fields({k: v for k, v in value.items() if k in relation}, path, {
+        "name": (_csv_name, _REQUIRED), "type": (_choice(*CONTACT_TYPES), _REQUIRED),
+        "nodes": (lambda nodes, _: nodes, _REQUIRED), "normal": (_vector(_number), _REQUIRED),
+        "gap": _real(), "coupling": _choice(*CONTACT_COUPLINGS), "law": _string}, Contact)
+    f = _contact_relation(f, value, path)
+    given = {k: v for k, v in value.items() if k not in relation}
+    try:
+        f["law_keys"] = law.keys.model_validate(given).model_dump()
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        key = error["loc"][0] if error["loc"] else None
+        if error["type"] == "extra_forbidden":
+            keys = ", ".join([*relation, *law.keys.model_fields])
+            raise _Invalid(path + (key,), f"contact law {name} does not use '{key}'; keys of a contact with "
+                                          f"law {name}: {keys}") from None
+        raise _Invalid(path + ((key,) if key else ()), error["msg"]) from None
+    return Contact(**{k: v for k, v in f.items() if k in ("name", "type", "nodes", "normal", "gap", "coupling",
+                                                          "law", "law_keys")})
+
+
+def _contact_relation(f: dict, value, path) -> dict:
+    """The relation's keys of a contact: node groups per type, the gap of an obstacle, a unit normal."""
     nodes = [f["nodes"]] if isinstance(f["nodes"], str) else f["nodes"]
     if f["type"] == "obstacle":
         if not (isinstance(nodes, list) and len(nodes) == 1):
@@ -760,16 +830,11 @@ def _contact(value, path):
     if length == 0.0:
         raise _Invalid(path + ("normal",), "must have a nonzero length")
     f["normal"] = [component / length for component in f["normal"]]
-    if f["stiffness"] is not None and value.get("restitution") is not None:
-        # Its spring stores the approach and gives it back: no impact law, so no restitution.
-        keys = ", ".join(key for key in CONTACT_KEYS if key != "restitution")
-        raise _Invalid(path + ("restitution",), f"an elastic stop (stiffness given) does not use 'restitution': "
-                                                f"its spring gives back what it stores; keys of an elastic stop: "
-                                                f"{keys} (or remove stiffness for a rigid contact)")
-    return Contact(**f)
+    return f
 
 
-CONTACT_KEYS = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness")
+CONTACT_KEYS = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness", "law")
+BUILT_IN_LAWS = ("newton", "elastic_stop")   # (their keys are the contact's own, as before laws were named)
 
 
 def _contacts(value, path):
@@ -797,11 +862,11 @@ def _solver(value, path):
     method, scheme = data.get("method", DEFAULT_METHOD), data.get("scheme", MODAL_SCHEMES[0])
     if not isinstance(method, str) or method not in METHODS:
         raise _Invalid(path + ("method",), f"must be one of {', '.join(METHODS)}; got {_show(data['method'])}")
-    if method == "modal" and (not isinstance(scheme, str) or scheme not in MODAL_SCHEMES):
+    if method == REDUCED and (not isinstance(scheme, str) or scheme not in MODAL_SCHEMES):
         raise _Invalid(path + ("scheme",), f"must be one of {', '.join(MODAL_SCHEMES)}; got {_show(data['scheme'])}")
     schema = SCHEMAS[_schema_tag(data)]
     try:
-        return SOLVER.validate_python(data)
+        return solver_schema().validate_python(data)
     except ValidationError as exc:
         raise _from_pydantic(exc.errors()[0], path, schema) from None
 

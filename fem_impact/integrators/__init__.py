@@ -1,16 +1,19 @@
 """Time integrators, chosen by name from a registry (``solver.method`` in the case file).
 
-``parameters`` (light: pydantic only) says what each method takes; the integrators themselves
-(PETSc) load on first use, so that a case file is validated without them.
+``parameters`` (light: pydantic only) holds the registry, the single list of methods, and what
+each takes; the integrators themselves (PETSc) load on first use, so that a case file is
+validated without them. A new method is a class and a :func:`register` call.
 """
 
-from .parameters import DEFAULT_METHOD, MODAL_SCHEMES, SCHEMAS, SOLVER
+from .parameters import (DEFAULT_METHOD, METHODS, MODAL_SCHEMES, REDUCED, SCHEMAS, integrator_class, is_reduced,
+                         register, scheme_of, solver_schema)
 
 _LAZY = {"EnergyBudget": "base", "EnergyCreated": "base", "EnergyWatch": "base", "Operators": "base",
          "SimulationError": "base", "StepState": "base", "integrate": "base", "steps_for": "base",
          "CentralDifference": "central_difference", "MoreauJean": "moreau_jean", "Newmark": "newmark"}
 
-__all__ = ["DEFAULT_METHOD", "INTEGRATORS", "MODAL_SCHEMES", "SCHEMAS", "SOLVER", *_LAZY]
+__all__ = ["DEFAULT_METHOD", "INTEGRATORS", "METHODS", "MODAL_SCHEMES", "REDUCED", "SCHEMAS", "integrator_class",
+           "is_reduced", "register", "scheme_of", "solver_schema", *_LAZY]
 
 
 def __getattr__(name):
@@ -19,9 +22,5 @@ def __getattr__(name):
     if name in _LAZY:
         return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
     if name == "INTEGRATORS":   # the integrator of each time scheme (the reduced model uses its solver.scheme's)
-        from .central_difference import CentralDifference
-        from .moreau_jean import MoreauJean
-        from .newmark import Newmark
-
-        return {MoreauJean.name: MoreauJean, Newmark.name: Newmark, CentralDifference.name: CentralDifference}
+        return {method: integrator_class(method) for method in METHODS if method != REDUCED}
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,9 +1,12 @@
-"""What each time-integration method takes in the case file's ``solver`` section.
+"""The registry of time-integration methods, and what each takes in the case file's ``solver`` section.
 
 One typed schema per method (pydantic): its keys, defaults, ranges, units and meaning, in one
-place. ``SOLVER`` is their union, discriminated by ``method`` (and, for the reduced model, by
-``scheme``); ``METHODS`` is the single list of methods that the case file, the pipeline and the
-studies read. A key that a method does not use is refused (``extra="forbid"``).
+place. :func:`register` puts a method in the registry, the single list of methods (``METHODS``)
+that the case file, ``--help``, the pipeline and the studies read: its schema, its integrator
+class, and whether it can step the reduced model (then ``method: modal, scheme: NAME`` takes the
+reduction's keys and the method's, a schema derived here). :func:`solver_schema` is their union,
+discriminated by ``method`` (and, for the reduced model, by ``scheme``). A key that a method does
+not use is refused (``extra="forbid"``).
 
 This module is light on purpose (pydantic only, no PETSc): a case file is validated before
 anything heavy is imported.
@@ -12,12 +15,14 @@ anything heavy is imported.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Annotated, Literal, Union
 
 from pydantic import (BaseModel, ConfigDict, Discriminator, Field, PlainValidator, Tag, TypeAdapter,
-                      field_validator, model_validator)
+                      create_model, field_validator, model_validator)
 
 DEFAULT_METHOD = "moreau_jean"
+REDUCED = "modal"   # the method that is a choice of model: the reduced one, stepped by its `scheme`
 
 
 class KeyProblem(ValueError):
@@ -138,35 +143,86 @@ class CentralDifferenceParameters(SolverParameters):
                                                                         "step) or consistent")
 
 
-class ModalMoreauJeanParameters(_ReductionKeys, _MoreauJeanKeys, SolverParameters):
-    """``modal`` with ``scheme: moreau_jean`` (default): the reduced model stepped by Moreau-Jean."""
+@dataclass(frozen=True)
+class Method:
+    """A registered time-integration method."""
 
-    method: Literal["modal"]
-    scheme: Literal["moreau_jean"] = "moreau_jean"
-    mass: Literal["consistent", "lumped"] = Field("consistent", description="mass matrix of the modes")
-
-
-class ModalNewmarkParameters(_ReductionKeys, _NewmarkKeys, SolverParameters):
-    """``modal`` with ``scheme: newmark``: the reduced model stepped by the paper's Newmark scheme."""
-
-    method: Literal["modal"]
-    scheme: Literal["newmark"]
-    mass: Literal["consistent", "lumped"] = Field("consistent", description="mass matrix of the modes")
+    name: str          # solver.method
+    schema: type[SolverParameters]
+    integrator: str | type   # the class, or "module:Class" (imported on first use: PETSc loads late)
+    summary: str       # what it is, in a few words
+    title: str         # its name in a sentence ("Moreau-Jean")
+    reduced: bool      # may step the reduced model (``method: modal, scheme: NAME``)
 
 
-# The union's tags: the method, and the reduced model's scheme.
-SCHEMAS: dict[str, type[SolverParameters]] = {
-    "moreau_jean": MoreauJeanParameters,
-    "newmark": NewmarkParameters,
-    "central_difference": CentralDifferenceParameters,
-    "modal/moreau_jean": ModalMoreauJeanParameters,
-    "modal/newmark": ModalNewmarkParameters,
-}
-# solver.method -> what it is (the single list of methods); the reduced model's time schemes.
-METHODS = {"moreau_jean": "Moreau-Jean (full model)", "newmark": "Newmark, the paper's scheme (full model)",
-           "central_difference": "explicit central difference (full model)",
-           "modal": "reduced model: kept modes plus the static correction"}
-MODAL_SCHEMES = ("moreau_jean", "newmark")
+_REGISTRY: dict[str, Method] = {}
+# Views of the registry, updated in place by register() (modules import them once):
+METHODS: dict[str, str] = {}                          # solver.method -> what it is (the single list)
+SCHEMAS: dict[str, type[SolverParameters]] = {}       # the union's tags: NAME, modal/NAME
+MODAL_SCHEMES: list[str] = []                          # the reduced model's time schemes
+_adapter: list = []                                    # the union's validator, built on first use
+
+
+def register(name: str, schema: type[SolverParameters], integrator: str | type, summary: str,
+             title: str | None = None, reduced: bool = False) -> None:
+    """Make ``name`` a ``solver.method``: ``schema`` validates its keys (a subclass of
+    ``SolverParameters`` whose ``method`` is ``Literal[name]``), ``integrator`` steps it
+    (``integrator.from_solver(operators, solver)``; ``start(U0, V0, t0)`` and ``step()`` return a
+    ``StepState``). With ``reduced``, ``method: modal, scheme: name`` steps the reduced model."""
+    if name == REDUCED:
+        raise ValueError(f"'{REDUCED}' is the reduced model, not an integrator's name")
+    _REGISTRY[name] = Method(name, schema, integrator, summary, title or name, reduced)
+    _refresh()
+
+
+def unregister(name: str) -> None:
+    """Remove a method registered by :func:`register` (a test's, a plugin's)."""
+    del _REGISTRY[name]
+    _refresh()
+
+
+def _refresh() -> None:
+    """The registry's views, in place."""
+    METHODS.clear()
+    METHODS.update({m.name: m.summary for m in _REGISTRY.values()})
+    METHODS[REDUCED] = "reduced model: kept modes plus the static correction"
+    MODAL_SCHEMES[:] = [m.name for m in _REGISTRY.values() if m.reduced]
+    SCHEMAS.clear()
+    SCHEMAS.update({m.name: m.schema for m in _REGISTRY.values()})
+    SCHEMAS.update({f"{REDUCED}/{m}": _reduced_schema(_REGISTRY[m]) for m in MODAL_SCHEMES})
+    _adapter.clear()
+
+
+def _reduced_schema(method: Method) -> type[SolverParameters]:
+    """``modal`` with ``scheme: NAME``: the reduction's keys and the method's."""
+    default = " (default)" if method.name == MODAL_SCHEMES[0] else ""
+    return create_model(
+        f"Modal{method.schema.__name__}", __base__=(_ReductionKeys, method.schema),
+        __doc__=f"``{REDUCED}`` with ``scheme: {method.name}``{default}: the reduced model stepped by {method.title}.",
+        method=(Literal[REDUCED], ...),
+        scheme=(Literal[method.name], method.name if default else ...),
+        mass=(Literal["consistent", "lumped"], Field("consistent", description="mass matrix of the modes")))
+
+
+def integrator_class(name: str) -> type:
+    """The integrator of a registered method (a time scheme: for the reduced model, its ``scheme``)."""
+    integrator = _REGISTRY[name].integrator
+    if isinstance(integrator, str):
+        import importlib
+
+        module, _, cls = integrator.partition(":")
+        integrator = getattr(importlib.import_module(module), cls)
+    return integrator
+
+
+def is_reduced(solver) -> bool:
+    """Whether a validated ``solver`` section asks for the reduced model."""
+    return solver.method == REDUCED
+
+
+def scheme_of(solver) -> str:
+    """The time scheme of a validated ``solver`` section (the reduced model's: its ``scheme``)."""
+    return solver.scheme if is_reduced(solver) else solver.method
 
 
 def steps_for(duration: float, dt: float) -> int:
@@ -181,19 +237,18 @@ def tag(data) -> str | None:
     if not isinstance(data, dict):
         return None
     method = data.get("method") if data.get("method") is not None else DEFAULT_METHOD
-    if method == "modal":
+    if method == REDUCED:
         scheme = data.get("scheme") if data.get("scheme") is not None else MODAL_SCHEMES[0]
-        return f"modal/{scheme}" if isinstance(scheme, str) else None
+        return f"{REDUCED}/{scheme}" if isinstance(scheme, str) else None
     return method if isinstance(method, str) else None
 
 
-SOLVER = TypeAdapter(Annotated[Union[tuple(Annotated[schema, Tag(name)] for name, schema in SCHEMAS.items())],
-                               Discriminator(tag)])
-
-
-def schema_of(data) -> type[SolverParameters] | None:
-    """The schema class that validates a ``solver`` mapping (None when method or scheme is unknown)."""
-    return SCHEMAS.get(tag(data))
+def solver_schema() -> TypeAdapter:
+    """The union of every registered method's schema, discriminated by :func:`tag`."""
+    if not _adapter:
+        union = Union[tuple(Annotated[schema, Tag(name)] for name, schema in SCHEMAS.items())]
+        _adapter.append(TypeAdapter(Annotated[union, Discriminator(tag)]))
+    return _adapter[0]
 
 
 def valid_keys(schema: type[BaseModel]) -> list[str]:
@@ -230,3 +285,11 @@ def help_text(width: int = 100) -> str:
                                        subsequent_indent="        ")
         parts.append("\n".join(lines))
     return "solver keys of each method (any other is refused):\n" + "\n".join(parts) + "\n"
+
+
+register("moreau_jean", MoreauJeanParameters, "fem_impact.integrators.moreau_jean:MoreauJean",
+         "Moreau-Jean (full model)", "Moreau-Jean", reduced=True)
+register("newmark", NewmarkParameters, "fem_impact.integrators.newmark:Newmark",
+         "Newmark, the paper's scheme (full model)", "the paper's Newmark scheme", reduced=True)
+register("central_difference", CentralDifferenceParameters, "fem_impact.integrators.central_difference:"
+         "CentralDifference", "explicit central difference (full model)", "central difference")

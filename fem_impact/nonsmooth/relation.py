@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 
 from ..config.case import Case
 from ..errors import ModelInputError
+from .laws import LAWS
 from ..fem.model import Model, NodeSet, pad_vector
 from ..parallel import allsum
 
@@ -75,8 +76,10 @@ def build_constraints(case: Case, model: Model) -> Constraints:
         contacts.append(ContactRows(contact.name, i, slice(start, start + len(gap))))
         columns.append(col)
         gaps.append(gap)
-        restitution.append(np.full(len(gap), contact.restitution))
-        compliance.append(np.full(len(gap), 1.0 / contact.stiffness if contact.stiffness else 0.0))
+        law = LAWS[contact.law](LAWS[contact.law].keys(**contact.law_keys))
+        e, c = law.rows(len(gap))
+        restitution.append(e)
+        compliance.append(c)
     if not columns:
         return Constraints(sparse.csr_matrix((n_local, 0)), np.zeros(0), np.zeros(0), [], np.zeros(0))
     # Supports act first: a held dof cannot move, so it does not enter a constraint.

@@ -207,7 +207,8 @@ def run_levels(case: Case, levels: list[Level], outdir, jobs: int = 1, allow_fai
             outcomes[lv.name] = kept
         else:
             todo.append(lv)
-    progress = _Progress(len(levels), {n: float(steps_for(c.solver.t_end, c.solver.dt)) for n, c in cases.items()}, stream, quiet, jobs)
+    steps = {n: float(steps_for(c.solver.t_end, c.solver.dt)) for n, c in cases.items()}
+    progress = _Progress(len(levels), steps, stream, quiet, jobs)
     for lv in levels:
         if lv.name in outcomes:
             progress(outcomes[lv.name])
@@ -267,10 +268,13 @@ def _warm_up(first: Case, cases, cache) -> None:
     from ...errors import CaseError, SimulationError
     from ..pipeline import run
 
-    if any(c.solver.method == "modal" for c in cases.values()):
+    from ...integrators import DEFAULT_METHOD, is_reduced
+
+    if any(is_reduced(c.solver) for c in cases.values()):
         from ...fem import modes  # noqa: F401  (SLEPc)
     try:
-        warm = first.with_changes({"solver.method": "newmark", "solver.t_end": first.solver.dt, "output.vtk": False})
+        warm = first.with_changes({"solver.method": DEFAULT_METHOD, "solver.t_end": first.solver.dt,
+                                   "output.vtk": False})
         run(warm, cache / "warm-up", comm=MPI.COMM_SELF, progress=False)
     except (CaseError, SimulationError):
         pass   # the level itself will say what is wrong

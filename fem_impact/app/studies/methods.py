@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 from ...config.case import Case, CaseError
+from ...integrators.parameters import DEFAULT_METHOD as DEFAULT_SOLVER_METHOD
+from ...integrators.parameters import REDUCED
 
 
 @dataclass(frozen=True)
@@ -58,7 +60,7 @@ class Method:
 _DAMPED = {"solver.gamma": 0.6, "solver.beta": 0.3025}
 # The modal methods keep 20 modes unless a ladder sets solver.modes (`modes: auto` would follow the
 # time step through the output rate, which the stability sweep varies).
-_MODAL = {"solver.method": "modal", "solver.modes": 20}
+_MODAL = {"solver.method": REDUCED, "solver.modes": 20}
 _NEWMARK = {"solver.method": "newmark"}
 
 METHODS: dict[str, Method] = {m.name: m for m in (
@@ -97,7 +99,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "unconditionally stable; the contact compliance is wrong whatever dt", knob="modes"),
 )}
 
-DEFAULT_METHOD = "moreau-jean"   # the default of a case; the references of studies without an exact solution
+# The default of a case (the references of studies without an exact solution): the preset that selects it.
+DEFAULT_METHOD = next(m.name for m in METHODS.values() if m.changes == {"solver.method": DEFAULT_SOLVER_METHOD})
 
 
 class UnknownMethod(ValueError):

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from ...config.case import MODAL_SCHEMES
+from ...integrators.parameters import MODAL_SCHEMES, REDUCED
 from ..outdir import case_inputs, writing
 from ..pipeline import run, staged_directory
 from ..plots import history_columns, plot_reduction
@@ -93,7 +93,7 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, probe=None, comm: M
         for n1 in modes:
             for static in (True, False):
                 name = f"modal-{n1}-{'static' if static else 'plain'}"
-                reduced = full_case.with_changes({"solver.method": "modal", **scheme, "solver.modes": n1,
+                reduced = full_case.with_changes({"solver.method": REDUCED, **scheme, "solver.modes": n1,
                                                   "solver.static_correction": static})
                 summary = run(reduced, stage / name, comm=comm).summary
                 h = history_columns(stage / name)
@@ -107,7 +107,7 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, probe=None, comm: M
                     errors[f"{what}_error_max"] = float(np.abs(h[col] - full[col]).max() / np.abs(full[col]).max())
                     errors[f"{what}_error_peak"] = peak_error(reduced_band, full_band)
                 errors["impulse_error"] = abs(sum(h[c].sum() for c in impulse_cols) - impulse_full) / abs(impulse_full)
-                rows.append(_row("modal", n1, static, errors, summary))
+                rows.append(_row(REDUCED, n1, static, errors, summary))
                 log.info("%s: %s", name, rows[-1])
         if comm.rank == 0:
             with writing(stage / "reduction.png"):
