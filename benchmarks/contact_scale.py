@@ -47,6 +47,7 @@ def measure(cells: int, coupling: str, steps: int, method: str) -> dict:
     from fem_impact.integrators import Operators
     from fem_impact.fem.mesh import build_mesh
     from fem_impact.fem.model import build_model
+    from fem_impact.config.build import model_spec
     from fem_impact.app.pipeline import make_integrator
 
     dt = 0.5 / cells
@@ -54,8 +55,8 @@ def measure(cells: int, coupling: str, steps: int, method: str) -> dict:
                  f"contacts.0.coupling={coupling}", *METHODS[method]]
     t0 = time.perf_counter()
     case = load_case(CASE, overrides)
-    model = build_model(case, build_mesh(case, MPI.COMM_WORLD))
-    cons = build_constraints(case, model)
+    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+    cons = build_constraints(case.contacts, model)
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
     integrator = make_integrator(case, ops)
     integrator.start(model.U0, model.V0)

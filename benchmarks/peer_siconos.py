@@ -66,13 +66,14 @@ def main(argv):
     from fem_impact.integrators import Operators, integrate
     from fem_impact.fem.mesh import build_mesh
     from fem_impact.fem.model import build_model
+    from fem_impact.config.build import model_spec
     from fem_impact.app.pipeline import make_integrator
 
     case = load_case(case_path, sets)
     if case.damping.alpha or case.damping.beta or any(c.stiffness for c in case.contacts):
         sys.exit("peer_siconos: the comparison covers undamped cases with rigid stops")
-    model = build_model(case, build_mesh(case, MPI.COMM_SELF))
-    cons = build_constraints(case, model)
+    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_SELF))
+    cons = build_constraints(case.contacts, model)
     if model.load.varying:
         sys.exit("peer_siconos: the comparison covers constant loads")
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,

@@ -25,6 +25,7 @@ from fem_impact.nonsmooth.relation import build_constraints  # noqa: E402
 from fem_impact.integrators import Newmark, integrate  # noqa: E402
 from fem_impact.fem.mesh import build_mesh  # noqa: E402
 from fem_impact.fem.model import build_model  # noqa: E402
+from fem_impact.config.build import model_spec
 from fem_impact.fem.modes import compute_modes  # noqa: E402
 from fem_impact.fem.reduced import build_reduced  # noqa: E402
 from fem_impact.app.pipeline import full_model  # noqa: E402
@@ -48,8 +49,8 @@ def main() -> None:
     args = parser.parse_args()
     t0 = time.perf_counter()
     case = load_case(CASE, [f"mesh.cells={args.cells}"])
-    model = build_model(case, build_mesh(case, MPI.COMM_WORLD))
-    cons = build_constraints(case, model)
+    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+    cons = build_constraints(case.contacts, model)
     t_model = time.perf_counter() - t0
     dt, t_end = case.solver.dt, args.steps * case.solver.dt
 

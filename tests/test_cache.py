@@ -1,4 +1,4 @@
-"""The on-disk cache (fem_impact.app.cache): its key holds the code (version and fingerprint of the
+"""The on-disk cache (fem_impact.cache): its key holds the code (version and fingerprint of the
 sources) and the solvers' settings, so a fix or a changed tolerance never reuses an old entry."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 from mpi4py import MPI
 
 from conftest import CASES, run_case_file
-from fem_impact.app import cache
+from fem_impact import cache
 from fem_impact.fem import modes
 from fem_impact.fem.modes import solver_settings
 from fem_impact.fem.reduced import static_settings

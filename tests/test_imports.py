@@ -144,3 +144,42 @@ def test_every_module_imports_on_its_own():
     failed = [f"{module}:\n{proc.stderr.strip()}" for module, proc in results if proc.returncode != 0]
     assert not failed, "\n\n".join(failed)
     print(f"{len(results)} modules imported in {time.perf_counter() - t0:.1f} s")
+
+
+PHYSICS = ("fem_impact.fem", "fem_impact.nonsmooth", "fem_impact.integrators")
+ABOVE = ("fem_impact.config", "fem_impact.app")
+
+
+def _in(module: str, packages) -> bool:
+    return any(module == p or module.startswith(p + ".") for p in packages)
+
+
+def test_the_physics_layers_import_neither_the_case_format_nor_the_application():
+    """Arrows point down: nothing in fem/, nonsmooth/ or integrators/ imports config/ (the case file)
+    or app/, directly or through another module."""
+    graph = import_graph(package_modules())
+    for module in sorted(m for m in graph if _in(m, PHYSICS)):
+        seen, todo, via = {module}, [module], {module: None}
+        while todo:
+            current = todo.pop()
+            for target in graph[current]:
+                if target not in seen:
+                    seen.add(target)
+                    via[target] = current
+                    todo.append(target)
+        reached = sorted(m for m in seen if _in(m, ABOVE))
+        if reached:
+            chain, step = [reached[0]], reached[0]
+            while via[step] is not None:
+                step = via[step]
+                chain.append(step)
+            pytest.fail(f"{module} reaches {reached[0]}: {' -> '.join(reversed(chain))}")
+
+
+def test_the_layer_check_sees_a_violation(tmp_path):
+    (tmp_path / "fem").mkdir()
+    (tmp_path / "config").mkdir()
+    (tmp_path / "fem" / "m.py").write_text("def f():\n    from ..config import case\n")
+    (tmp_path / "config" / "case.py").write_text("")
+    modules = {"fem_impact.fem.m": tmp_path / "fem" / "m.py", "fem_impact.config.case": tmp_path / "config" / "case.py"}
+    assert import_graph(modules)["fem_impact.fem.m"] == {"fem_impact.config.case": 2}

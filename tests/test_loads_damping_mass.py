@@ -14,6 +14,7 @@ from fem_impact.nonsmooth.relation import build_constraints
 from fem_impact.integrators import Newmark, Operators, integrate
 from fem_impact.fem.mesh import build_mesh
 from fem_impact.fem.model import build_model
+from fem_impact.config.build import model_spec
 
 BAR = CASES / "impacting_bar.yaml"
 NO_CONTACT = ["contacts=[]", "output.vtk=false"]
@@ -39,8 +40,8 @@ class Momentum:
 
 def run_with_momentum(*overrides):
     case = load_case(BAR, list(overrides))
-    model = build_model(case, build_mesh(case, MPI.COMM_WORLD))
-    cons = build_constraints(case, model)
+    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+    cons = build_constraints(case.contacts, model)
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
     obs = Momentum(model)
     final = integrate(Newmark(ops, case.solver.dt), model.U0, model.V0, case.solver.t_end, [obs])

@@ -17,6 +17,7 @@ from fem_impact.integrators import Operators
 from fem_impact.integrators.central_difference import critical_time_step
 from fem_impact.fem.mesh import build_mesh
 from fem_impact.fem.model import build_model
+from fem_impact.config.build import model_spec
 from test_bar_benchmarks import assert_b2
 
 BAR = CASES / "impacting_bar.yaml"
@@ -24,8 +25,8 @@ BAR = CASES / "impacting_bar.yaml"
 
 def model_of(case_file, *overrides):
     case = load_case(case_file, list(overrides))
-    model = build_model(case, build_mesh(case, MPI.COMM_WORLD))
-    return case, model, build_constraints(case, model)
+    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+    return case, model, build_constraints(case.contacts, model)
 
 
 def test_central_difference_meets_b2a_and_conserves_its_energy(tmp_path):

@@ -100,7 +100,7 @@ def find_probes(case, model: Model) -> Probes:
     names, dofs, distances = [], [], []
     for name, point in case.output.probes.items():
         key = ("output", "probes", name)
-        point = np.asarray(pad_vector(point, dim, case, key, "probe"), dtype=float)
+        point = np.asarray(pad_vector(point, dim, key, "probe"), dtype=float)
         if coords.size:
             d = np.linalg.norm(coords - point, axis=1)
             k = int(np.argmin(d))

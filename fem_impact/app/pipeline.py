@@ -45,7 +45,9 @@ def reduced_model(case: Case, model, cons) -> System:
     """Kept modes plus the static correction of the truncated ones (method ``modal``)."""
     from ..fem.reduced import prepare_reduced
 
-    red, summary = prepare_reduced(case, model, cons)
+    from ..config.build import reduction_spec
+
+    red, summary = prepare_reduced(reduction_spec(case), model, cons)
     return System(red.operators, red.fields, red.Z0, red.Zdot0, summary)
 
 
@@ -167,17 +169,21 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     outdir = out.path if out is not None else None
     check_limits(case, outdir, comm, force)
     # dolfinx and PETSc load in about a second: only once the case file is known to be sound.
-    from ..nonsmooth.relation import build_constraints, check_initial_state
-    from ..integrators import EnergyWatch, integrate, steps_for
+    from ..config.build import model_spec
     from ..fem.mesh import build_mesh
     from ..fem.model import build_model
+    from ..integrators import EnergyWatch, integrate, steps_for
+    from ..nonsmooth.relation import build_constraints, check_initial_state
+    from .outdir import install_signal_handlers
     from .output import BodyMomenta, HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
 
+    install_signal_handlers()   # again: PETSc, imported just now, installs its own (SIGHUP, SIGQUIT)
+
     solver = case.solver
-    meshdata = build_mesh(case, comm)
-    model = build_model(case, meshdata)
-    cons = build_constraints(case, model)
-    check_initial_state(case, cons, model)
+    meshdata = build_mesh(case.mesh, comm)
+    model = build_model(model_spec(case), meshdata)
+    cons = build_constraints(case.contacts, model)
+    check_initial_state(cons, model)
     probes = find_probes(case, model)
     system = model_of(case)(case, model, cons)
     integrator = make_integrator(case, system.operators)

@@ -96,7 +96,7 @@ def check(case, key: str, texts: list[str], target: Target | None, comm: MPI.Com
         from ..fem.mesh import build_mesh
 
         with first.errors_at_keys():   # (a mesh file that does not fit: the builder's error, at its key)
-            bodies = sorted(build_mesh(first, comm).bodies)
+            bodies = sorted(build_mesh(first.mesh, comm).bodies)
         if target.name not in bodies:
             raise SweepError(f"--body {target.name}: no such body in the mesh (bodies: {', '.join(bodies)})")
     return target, cases

@@ -22,6 +22,8 @@ from pydantic import ValidationError
 
 from ..errors import CaseError, ModelInputError
 from ..expressions import RESERVED, Expression, ExpressionError, parse_expression
+from ..fem.specs import BodyValue, Damping, Initial, Load, Material, MeshSpec, Support  # noqa: F401  (re-exported)
+from ..nonsmooth.specs import Contact
 from ..integrators.parameters import (DEFAULT_METHOD, METHODS, MODAL_SCHEMES, REDUCED, SCHEMAS, KeyProblem,
                                      SolverParameters, solver_schema, valid_keys)
 from ..integrators.parameters import tag as _schema_tag
@@ -36,90 +38,6 @@ SPACE = ("x", "y", "z")  # variables of initial fields
 TIME = ("t",)  # variables of loads
 _CSV_NAME = re.compile(r"[A-Za-z0-9_-]+")
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class MeshSpec:
-    shape: str | None = None
-    file: Path | None = None
-    dim: int | None = None
-    length: float = 1.0
-    cells: int = 100
-    height: float | None = None
-    width: float | None = None
-    elements: str = "simplex"
-
-    # The built-in bar's documented defaults, defined here only: the mesh, the size estimate
-    # (limits) and the exact solutions (references) read them from the case.
-    @property
-    def bar_dim(self) -> int:
-        """The built-in bar's dimension: ``dim``, by default 1 (a rod)."""
-        return self.dim or 1
-
-    def bar_dimensions(self) -> tuple[float, float]:
-        """Cross-section (height, width) of the built-in bar: by default height length/20, width = height."""
-        height = self.height if self.height is not None else self.length / 20.0
-        return height, self.width if self.width is not None else height
-
-
-@dataclass
-class Material:
-    E: float
-    rho: float
-    nu: float = 0.0
-    area: float = 1.0
-
-
-@dataclass
-class Damping:
-    alpha: float = 0.0
-    beta: float = 0.0
-
-
-@dataclass
-class BodyValue:
-    body: str | None
-    value: list[Expression]
-
-
-@dataclass
-class Initial:
-    displacement: list[BodyValue] = field(default_factory=list)
-    velocity: list[BodyValue] = field(default_factory=list)
-
-
-@dataclass
-class Support:
-    nodes: str
-    fix: list[int]
-    all_components: bool = False   # fix: all (every component the mesh's dimension has)
-
-
-@dataclass
-class Load:
-    nodes: str | None = None
-    body: str | None = None
-    force: list[Expression] | None = None
-    acceleration: list[Expression] | None = None
-
-
-@dataclass
-class Contact:
-    name: str
-    type: str
-    nodes: list[str]
-    normal: list[float]
-    gap: float | None = None
-    restitution: float = 0.0
-    coupling: str = "each"      # "each": a row per node (pair); "mean": one row on the group's mean
-    stiffness: float | None = None   # N/m per row: an elastic stop (None: rigid)
-    law: str = "newton"         # the contact law (fem_impact.nonsmooth.laws): newton, elastic_stop, or registered
-    law_keys: dict = field(default_factory=dict)   # the law's own keys, as its schema validated them
-
-    @property
-    def law_is_inferred(self) -> bool:
-        """Whether the law follows from the keys (newton, or elastic_stop when a stiffness is given)."""
-        return self.law == ("elastic_stop" if self.stiffness is not None else "newton")
 
 
 @dataclass

@@ -15,11 +15,6 @@ from dolfinx.io import gmshio
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..app.outdir import install_signal_handlers
-
-# PETSc, initialized by the imports above, installs its own handlers for SIGHUP and SIGQUIT (a page
-# of text and MPI_Abort): a run ends on them as on Ctrl-C instead (fem_impact.app.outdir).
-install_signal_handlers()
 
 # FFCx logs every JIT compilation at INFO level on the root logger: keep it quiet.
 for _name in ("ffcx", "UFL", "FFC", "dijitso"):

@@ -10,7 +10,7 @@ from mpi4py import MPI
 from scipy.spatial import cKDTree
 
 from . import dolfinx_api as dx
-from ..config.case import Case, MeshSpec
+from .specs import MeshSpec
 from ..errors import ModelInputError
 
 log = logging.getLogger(__name__)
@@ -42,10 +42,9 @@ def bar_dimensions(spec: MeshSpec) -> tuple[float, float]:
     return spec.bar_dimensions()
 
 
-def build_mesh(case: Case, comm: MPI.Comm = MPI.COMM_WORLD) -> MeshData:
-    spec = case.mesh
+def build_mesh(spec: MeshSpec, comm: MPI.Comm = MPI.COMM_WORLD) -> MeshData:
     if spec.file is not None:
-        return _read_gmsh(case, comm)
+        return _read_gmsh(spec, comm)
     return _builtin_bar(spec, comm)
 
 
@@ -78,10 +77,10 @@ def _builtin_bar(spec: MeshSpec, comm: MPI.Comm) -> MeshData:
     return MeshData(msh, dim, None, {"bar": 0}, groups, f"built-in bar, {dim}D, {cells} cells along")
 
 
-def _read_gmsh(case: Case, comm: MPI.Comm) -> MeshData:
+def _read_gmsh(spec: MeshSpec, comm: MPI.Comm) -> MeshData:
     import gmsh
 
-    path = case.mesh.file
+    path = spec.file
     info = None
     if comm.rank == 0:
         gmsh.initialize()
@@ -102,10 +101,10 @@ def _read_gmsh(case: Case, comm: MPI.Comm) -> MeshData:
             gmsh.finalize()
         raise ModelInputError(("mesh", "file"), f"{path.name} has only point (0-dimensional) physical groups: name "
                                                 "the bodies (physical groups of the mesh's dimension) and node groups")
-    if case.mesh.dim is not None and case.mesh.dim != dim:
+    if spec.dim is not None and spec.dim != dim:
         if comm.rank == 0:
             gmsh.finalize()
-        raise ModelInputError(("mesh", "dim"), f"is {case.mesh.dim} but {path.name} holds a {dim}D mesh")
+        raise ModelInputError(("mesh", "dim"), f"is {spec.dim} but {path.name} holds a {dim}D mesh")
     if not info["bodies"]:
         if comm.rank == 0:
             gmsh.finalize()

@@ -12,7 +12,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from . import dolfinx_api as dx
-from ..config.case import BodyValue, Case, Material
+from .specs import BodyValue, Material, ModelSpec
 from ..errors import ModelInputError, SimulationError
 from ..expressions import Expression, parse_expression
 from .mesh import MeshData
@@ -110,11 +110,11 @@ class Model:
         K.zeroRowsColumns(self.held_rows(), diag=1.0)
         return K
 
-    def node_set(self, case: Case, name: str, key: tuple) -> NodeSet:
-        return node_set(self.meshdata, self.V, case, name, key)
+    def node_set(self, name: str, key: tuple) -> NodeSet:
+        return node_set(self.meshdata, self.V, name, key)
 
 
-def node_set(meshdata: MeshData, V, case: Case, name: str, key: tuple) -> NodeSet:
+def node_set(meshdata: MeshData, V, name: str, key: tuple) -> NodeSet:
     """Gather a node group into its global, coordinate-sorted order."""
     if name not in meshdata.node_groups:
         known = ", ".join(sorted(meshdata.node_groups)) or "none"
@@ -134,7 +134,7 @@ def node_set(meshdata: MeshData, V, case: Case, name: str, key: tuple) -> NodeSe
     return NodeSet(name, all_coords, all_global, local)
 
 
-def pad_vector(values, dim: int, case: Case, key: tuple, what: str) -> list:
+def pad_vector(values, dim: int, key: tuple, what: str) -> list:
     """A vector given with 1 component means its x component in any dimension."""
     values = list(values)
     if len(values) == dim:
@@ -146,13 +146,13 @@ def pad_vector(values, dim: int, case: Case, key: tuple, what: str) -> list:
     raise ModelInputError(key, f"{what} has {len(values)} components; the mesh is {dim}D (give {wanted})")
 
 
-def build_model(case: Case, meshdata: MeshData) -> Model:
+def build_model(spec: ModelSpec, meshdata: MeshData) -> Model:
     msh, dim = meshdata.mesh, meshdata.dim
     V = dx.vector_space(msh)
     bs = V.dofmap.index_map_bs
     n_owned, first = dx.owned_nodes(V)
     coords = dx.node_coordinates(V)
-    materials = _materials(case, meshdata)
+    materials = _materials(spec, meshdata)
 
     u, w = ufl.TrialFunction(V), ufl.TestFunction(V)
     dxm = dx.body_measure(msh, meshdata.cell_tags)
@@ -167,34 +167,34 @@ def build_model(case: Case, meshdata: MeshData) -> Model:
         stiff_form = k_b if stiff_form is None else stiff_form + k_b
     M = dx.assemble_matrix(mass_form)
     K = dx.assemble_matrix(stiff_form)
-    if case.solver.mass == "lumped":
+    if spec.mass == "lumped":
         M = _lumped(M)
 
-    fixed = _fixed_dofs(case, meshdata, V, bs)
+    fixed = _fixed_dofs(spec, meshdata, V, bs)
     massless = np.zeros(0, dtype=np.int64)
-    if case.solver.mass == "redistributed":
-        massless = np.setdiff1d(_contact_dofs(case, meshdata, V, bs), fixed)
-        M = _redistributed(M, massless, first * bs, case)
+    if spec.mass == "redistributed":
+        massless = np.setdiff1d(_contact_dofs(spec, meshdata, V, bs), fixed)
+        M = _redistributed(M, massless, first * bs, spec)
     rows = (fixed + first * bs).astype(np.int32)
     # Supports: zero rows and columns; unit mass and zero stiffness on the diagonal keep S
     # regular for any Newmark parameters while the held dofs see a zero right-hand side.
     M.zeroRowsColumns(rows, diag=1.0)
     K.zeroRowsColumns(rows, diag=0.0)
     C = None
-    if case.damping.alpha or case.damping.beta:
+    if spec.damping.alpha or spec.damping.beta:
         C = K.copy()
-        C.scale(case.damping.beta)
-        C.axpy(case.damping.alpha, M, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        C.scale(spec.damping.beta)
+        C.axpy(spec.damping.alpha, M, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
 
-    load = _loads(case, meshdata, V, bs, materials, dim, dxm, fixed)
+    load = _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed)
     U0, V0 = M.createVecs()
-    _initial_field(case, "displacement", meshdata, V, bs, coords[:n_owned], U0)
-    _initial_field(case, "velocity", meshdata, V, bs, coords[:n_owned], V0)
+    _initial_field(spec, "displacement", meshdata, V, bs, coords[:n_owned], U0)
+    _initial_field(spec, "velocity", meshdata, V, bs, coords[:n_owned], V0)
     for vec in (U0, V0):
         vec.array[fixed] = 0.0
     momentum = _momentum_rows(meshdata, V, materials, dim, dxm)
-    log.info("model: %d dofs, %s mass", K.getSize()[0], case.solver.mass)
-    if case.solver.mass == "redistributed":
+    log.info("model: %d dofs, %s mass", K.getSize()[0], spec.mass)
+    if spec.mass == "redistributed":
         momentum = _redistributed_momentum_rows(momentum, M, fixed)
     return Model(meshdata, V, bs, M, K, C, fixed, load, U0, V0, coords, n_owned, first, momentum, massless)
 
@@ -240,17 +240,17 @@ def _redistributed_momentum_rows(rows: dict[str, np.ndarray], M: PETSc.Mat,
     return out
 
 
-def _materials(case: Case, meshdata: MeshData) -> dict[str, Material]:
-    if case.material is not None:
-        return {body: case.material for body in meshdata.bodies}
-    missing = sorted(set(meshdata.bodies) - set(case.materials))
-    unknown = sorted(set(case.materials) - set(meshdata.bodies))
+def _materials(spec: ModelSpec, meshdata: MeshData) -> dict[str, Material]:
+    if spec.material is not None:
+        return {body: spec.material for body in meshdata.bodies}
+    missing = sorted(set(meshdata.bodies) - set(spec.materials))
+    unknown = sorted(set(spec.materials) - set(meshdata.bodies))
     known = ", ".join(sorted(meshdata.bodies))
     if unknown:
         raise ModelInputError(("materials", unknown[0]), f"no body '{unknown[0]}' in the mesh (bodies: {known})")
     if missing:
         raise ModelInputError(("materials",), f"no material for body '{missing[0]}' (bodies: {known})")
-    return dict(case.materials)
+    return dict(spec.materials)
 
 
 def _stress(u, mat: Material, dim: int):
@@ -276,18 +276,17 @@ def _lumped(M: PETSc.Mat) -> PETSc.Mat:
     return L
 
 
-def _contact_dofs(case: Case, meshdata: MeshData, V, bs: int) -> np.ndarray:
+def _contact_dofs(spec: ModelSpec, meshdata: MeshData, V, bs: int) -> np.ndarray:
     """Owned dofs (all components) of the nodes that any contact acts on."""
     dofs = []
-    for i, contact in enumerate(case.contacts):
-        for group in contact.nodes:
-            nodes = node_set(meshdata, V, case, group, ("contacts", i, "nodes"))
-            owned = nodes.local_node[nodes.local_node >= 0]
-            dofs.append((owned[:, None] * bs + np.arange(meshdata.dim)).ravel())
+    for key, group in spec.contact_groups:
+        nodes = node_set(meshdata, V, group, key)
+        owned = nodes.local_node[nodes.local_node >= 0]
+        dofs.append((owned[:, None] * bs + np.arange(meshdata.dim)).ravel())
     return np.unique(np.concatenate(dofs)).astype(np.int64) if dofs else np.zeros(0, dtype=np.int64)
 
 
-def _redistributed(M: PETSc.Mat, massless: np.ndarray, first_dof: int, case: Case) -> PETSc.Mat:
+def _redistributed(M: PETSc.Mat, massless: np.ndarray, first_dof: int, spec: ModelSpec) -> PETSc.Mat:
     """Mass redistribution (Khenous, Laborde & Renard 2008): no mass on the contact dofs.
 
     The rows and columns of the contact dofs are removed from the consistent M, and the mass
@@ -329,10 +328,10 @@ def _redistributed(M: PETSc.Mat, massless: np.ndarray, first_dof: int, case: Cas
     return R
 
 
-def _fixed_dofs(case: Case, meshdata: MeshData, V, bs: int) -> np.ndarray:
+def _fixed_dofs(spec: ModelSpec, meshdata: MeshData, V, bs: int) -> np.ndarray:
     fixed = []
-    for i, support in enumerate(case.supports):
-        nodes = node_set(meshdata, V, case, support.nodes, ("supports", i, "nodes"))
+    for i, support in enumerate(spec.supports):
+        nodes = node_set(meshdata, V, support.nodes, ("supports", i, "nodes"))
         owned = nodes.local_node[nodes.local_node >= 0]
         for comp in support.fix:
             if comp >= meshdata.dim:
@@ -344,7 +343,7 @@ def _fixed_dofs(case: Case, meshdata: MeshData, V, bs: int) -> np.ndarray:
     return np.unique(np.concatenate(fixed)).astype(np.int64) if fixed else np.zeros(0, dtype=np.int64)
 
 
-def _loads(case, meshdata, V, bs, materials, dim, dxm, fixed) -> LoadVector:
+def _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed) -> LoadVector:
     constant = dx.function(V, "R").vector.copy()
     constant.set(0.0)
     varying = []
@@ -360,13 +359,13 @@ def _loads(case, meshdata, V, bs, materials, dim, dxm, fixed) -> LoadVector:
             varying.append((expr, vec))
 
     w = ufl.TestFunction(V)
-    for i, load in enumerate(case.loads):
+    for i, load in enumerate(spec.loads):
         if load.nodes is not None:
             key = ("loads", i, "force")
-            nodes = node_set(meshdata, V, case, load.nodes, ("loads", i, "nodes"))
+            nodes = node_set(meshdata, V, load.nodes, ("loads", i, "nodes"))
             owned = nodes.local_node[nodes.local_node >= 0]
             # A total force is shared equally by the nodes of the group.
-            for comp, expr in enumerate(pad_vector(load.force, dim, case, key, "force")):
+            for comp, expr in enumerate(pad_vector(load.force, dim, key, "force")):
                 if _is_zero(expr):
                     continue
                 vec = constant.duplicate()
@@ -381,7 +380,7 @@ def _loads(case, meshdata, V, bs, materials, dim, dxm, fixed) -> LoadVector:
                     known = ", ".join(sorted(meshdata.bodies))
                     raise ModelInputError(("loads", i, "body"), f"no body '{load.body}' in the mesh (bodies: {known})")
                 bodies = {load.body: meshdata.bodies[load.body]}
-            for comp, expr in enumerate(pad_vector(load.acceleration, dim, case, key, "acceleration")):
+            for comp, expr in enumerate(pad_vector(load.acceleration, dim, key, "acceleration")):
                 if _is_zero(expr):
                     continue
                 unit = ufl.as_vector([1.0 if j == comp else 0.0 for j in range(dim)])
@@ -400,9 +399,9 @@ def _is_zero(expr: Expression) -> bool:
     return expr.is_constant and float(expr.evaluate()) == 0.0
 
 
-def _initial_field(case, which, meshdata, V, bs, coords, out: PETSc.Vec) -> None:
+def _initial_field(spec, which, meshdata, V, bs, coords, out: PETSc.Vec) -> None:
     out.set(0.0)
-    entries: list[BodyValue] = getattr(case.initial, which)
+    entries: list[BodyValue] = getattr(spec.initial, which)
     values = out.array.reshape(-1, bs)
     n_owned = values.shape[0]
     for i, entry in enumerate(entries):
@@ -414,7 +413,7 @@ def _initial_field(case, which, meshdata, V, bs, coords, out: PETSc.Vec) -> None
                 known = ", ".join(sorted(meshdata.bodies))
                 raise ModelInputError(key, f"no body '{entry.body}' in the mesh (bodies: {known})")
             nodes = _body_nodes(meshdata, V, entry.body, n_owned)
-        comps = pad_vector(entry.value, meshdata.dim, case, key, which)
+        comps = pad_vector(entry.value, meshdata.dim, key, which)
         x = coords[nodes]
         for comp, expr in enumerate(comps):
             values[nodes, comp] = expr.evaluate(x=x[:, 0], y=x[:, 1], z=x[:, 2], shape=len(nodes))

@@ -17,12 +17,12 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..app import cache
-from ..config.case import Case
+from .. import cache
 from ..nonsmooth.relation import Constraints
 from ..errors import ModelInputError
 from ..integrators import Operators, StepState
 from ..integrators.base import direct_solver_settings, factorize
+from .specs import ReductionSpec
 from .model import Model, load_factor
 from .modes import ModeCountError, Modes, compute_modes, free_dof_count, solver_settings
 from ..parallel import allsum
@@ -301,16 +301,16 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
     return ReducedModel(ops, fields, Z0, Zdot0, n1, cutoff, neglected, full)
 
 
-def prepare_reduced(case: Case, model: Model, cons: Constraints) -> tuple[ReducedModel, dict]:
-    """Modes (given or chosen), static solves (both cached) and the reduced model of a case."""
-    solver, comm = case.solver, model.comm
+def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tuple[ReducedModel, dict]:
+    """Modes (given or chosen), static solves (both cached) and the reduced model."""
+    solver, comm = spec, model.comm
     scene = cache.key(comm, model.K, model.M, model.fixed)
     reused = set()
     if solver.modes == "auto":
         available = free_dof_count(model)
         cap = max(1, min(available - 1, AUTO_LIMIT))
         n_try = min(cap, 32)
-        f_scene, scene_why = scene_frequency(case, model)
+        f_scene, scene_why = scene_frequency(spec, model)
         while True:
             modes = _modes(model, n_try, scene, reused)
             columns = _flexibility(model, cons, modes, scene, reused)
@@ -336,8 +336,7 @@ def prepare_reduced(case: Case, model: Model, cons: Constraints) -> tuple[Reduce
                                                        f"{int(modes.rigid.sum())} rigid-body modes: keep them all "
                                                        f"(modes >= {int(modes.rigid.sum())}), or add supports")
         columns = _flexibility(model, cons, modes, scene, reused)
-    red = build_reduced(model, cons, modes, n1, solver.static_correction, case.damping.alpha, case.damping.beta,
-                        solver.dt, columns)
+    red = build_reduced(model, cons, modes, n1, spec.static_correction, spec.alpha, spec.beta, spec.dt, columns)
     if reused:
         log.info("reused from the cache (%s): %s", cache.cache_dir(), " and ".join(sorted(reused)))
     summary = {
@@ -392,7 +391,7 @@ LOAD_BAND_FACTOR = 2.0
 LOAD_BAND_ENERGY = 0.99
 
 
-def scene_frequency(case: Case, model: Model) -> tuple[float, str]:
+def scene_frequency(spec: ReductionSpec, model: Model) -> tuple[float, str]:
     """The highest frequency the scene needs the kept modes to reach, and why.
 
     Half the output sampling rate (what the output resolves), and ``LOAD_BAND_FACTOR`` times
@@ -400,8 +399,8 @@ def scene_frequency(case: Case, model: Model) -> tuple[float, str]:
     (at most 2^18 samples), the frequency below which ``LOAD_BAND_ENERGY`` of their spectral
     energy (mean removed, Hann window) lies.
     """
-    solver = case.solver
-    f_output = 1.0 / (2.0 * case.output.every * solver.dt)
+    solver = spec
+    f_output = 1.0 / (2.0 * spec.output_every * spec.dt)
     f_load, source = 0.0, None
     n = int(min(2**18, max(16, np.ceil(solver.t_end / solver.dt) + 1)))
     t = np.arange(n) * solver.dt

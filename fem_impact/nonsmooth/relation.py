@@ -9,11 +9,11 @@ from mpi4py import MPI
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-from ..config.case import Case
 from ..errors import ModelInputError
-from .laws import LAWS
 from ..fem.model import Model, NodeSet, pad_vector
 from ..parallel import allsum
+from .laws import LAWS
+from .specs import Contact
 
 
 @dataclass
@@ -47,22 +47,23 @@ class Constraints:
         return allsum(comm, self.P_local.T @ local_values)
 
 
-def build_constraints(case: Case, model: Model) -> Constraints:
+def build_constraints(specs: list[Contact], model: Model) -> Constraints:
+    """``P``, ``d0`` and the rows' law data of the contacts ``specs`` on ``model``."""
     dim, bs = model.meshdata.dim, model.bs
     n_local = model.U0.getLocalSize()
     columns, gaps, restitution, compliance, contacts = [], [], [], [], []
-    for i, contact in enumerate(case.contacts):
+    for i, contact in enumerate(specs):
         key = ("contacts", i)
-        normal = np.asarray(pad_vector(contact.normal, dim, case, key + ("normal",), "normal"), dtype=float)
+        normal = np.asarray(pad_vector(contact.normal, dim, key + ("normal",), "normal"), dtype=float)
         normal /= np.linalg.norm(normal)
         if contact.type == "obstacle":
-            nodes = model.node_set(case, contact.nodes[0], key + ("nodes",))
+            nodes = model.node_set(contact.nodes[0], key + ("nodes",))
             col = _rows(n_local, bs, normal, nodes)
             gap = np.full(len(nodes), contact.gap if contact.gap is not None else 0.0)
         else:
-            a = model.node_set(case, contact.nodes[0], key + ("nodes",))
-            b = model.node_set(case, contact.nodes[1], key + ("nodes",))
-            order = match_pairs(case, key, a, b, normal)
+            a = model.node_set(contact.nodes[0], key + ("nodes",))
+            b = model.node_set(contact.nodes[1], key + ("nodes",))
+            order = match_pairs(key, a, b, normal)
             b = NodeSet(b.name, b.coords[order], b.global_node[order], b.local_node[order])
             col = _rows(n_local, bs, normal, a) - _rows(n_local, bs, normal, b)
             mesh_gap = (b.coords - a.coords)[:, :dim] @ normal
@@ -110,7 +111,7 @@ def _nodes(n: int) -> str:
     return f"{n} node" if n == 1 else f"{n} nodes"
 
 
-def match_pairs(case: Case, key: tuple, a: NodeSet, b: NodeSet, normal: np.ndarray) -> np.ndarray:
+def match_pairs(key: tuple, a: NodeSet, b: NodeSet, normal: np.ndarray) -> np.ndarray:
     """For each node of ``a``, the index of the node of ``b`` facing it along ``normal``."""
     dim = normal.size
     if len(a) != len(b):
@@ -136,7 +137,7 @@ def match_pairs(case: Case, key: tuple, a: NodeSet, b: NodeSet, normal: np.ndarr
     return order
 
 
-def check_initial_state(case: Case, cons: Constraints, model: Model) -> None:
+def check_initial_state(cons: Constraints, model: Model) -> None:
     """The initial displacement must satisfy P U0 <= d0."""
     if cons.p == 0:
         return

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cache import code_fingerprint
+from ...cache import code_fingerprint
 from ...config.case import Case
 from ...integrators.parameters import steps_for
 from ..outdir import replacing

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._version import __version__
+from ._version import __version__
 
 log = logging.getLogger(__name__)
 

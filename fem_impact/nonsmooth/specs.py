@@ -1,0 +1,24 @@
+"""A contact as the nonsmooth layer takes it, as plain data (validated by fem_impact/config/case.py)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class Contact:
+    name: str
+    type: str
+    nodes: list[str]
+    normal: list[float]
+    gap: float | None = None
+    restitution: float = 0.0
+    coupling: str = "each"      # "each": a row per node (pair); "mean": one row on the group's mean
+    stiffness: float | None = None   # N/m per row: an elastic stop (None: rigid)
+    law: str = "newton"         # the contact law (fem_impact.nonsmooth.laws): newton, elastic_stop, or registered
+    law_keys: dict = field(default_factory=dict)   # the law's own keys, as its schema validated them
+
+    @property
+    def law_is_inferred(self) -> bool:
+        """Whether the law follows from the keys (newton, or elastic_stop when a stiffness is given)."""
+        return self.law == ("elastic_stop" if self.stiffness is not None else "newton")
