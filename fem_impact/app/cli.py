@@ -339,7 +339,8 @@ def _left(err: BaseException) -> str:
 def _modes(args) -> int:
     if args.count is not None and args.count < 1:
         return _fail(_comm(), f"error: -n {args.count}: ask for at least 1 mode", 2)
-    from ..fem.modes import ModeCountError, format_table, run_modes
+    from ..fem.modes import ModeCountError
+    from .modes import format_table, run_modes
 
     def modes():
         try:

@@ -30,7 +30,6 @@ from ..integrators.parameters import tag as _schema_tag
 
 SHAPES = ("bar",)
 BAR_ELEMENTS = ("simplex", "hex")   # triangles/tetrahedra, or quadrilaterals/hexahedra (2D/3D bar)
-MASS_MATRICES = ("consistent", "lumped", "redistributed")
 CONTACT_TYPES = ("obstacle", "pair")
 CONTACT_COUPLINGS = ("each", "mean")
 COMPONENTS = ("x", "y", "z")
@@ -762,15 +761,6 @@ def _contacts(value, path):
         if name in names[:index]:
             raise _Invalid(path + (index, "name"), f"duplicate contact name '{name}'")
     return contacts
-
-
-def _modes(value, path):
-    if value == "auto":
-        return value
-    try:
-        return _integer(1)(value, path)
-    except _Invalid:
-        raise _Invalid(path, f"expected 'auto' or an integer >= 1, got {_show(value)}") from None
 
 
 def _solver(value, path):

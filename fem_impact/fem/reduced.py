@@ -263,12 +263,7 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
 
     # Residual flexibility of the truncated modes, from static solves on the elastic subspace.
     elastic = ~modes.rigid
-    if flexibility_columns is None:
-        rigid_local = modes.Y_local[:, modes.rigid]
-        first_w2 = float(modes.omega2[elastic][0]) if elastic.any() else 1.0
-        flex = Flexibility(model.regular_stiffness(), model.M, rigid_local, first_w2)
-        flexibility_columns = np.column_stack([flex.apply(columns[:, j]) for j in range(columns.shape[1])])
-    full = flexibility_columns
+    full = static_solves(model, modes, columns) if flexibility_columns is None else flexibility_columns
     kept_elastic = elastic[:n1]
     Y1e, w1e = Y1[:, kept_elastic], w2[kept_elastic]
     P_dense = columns[:, : cons.p]
@@ -376,12 +371,17 @@ def _flexibility(model: Model, cons: Constraints, modes: Modes, scene: str, reus
     if stored is not None:
         reused.add("static solves")
         return stored["columns"]
+    result = static_solves(model, modes, columns)
+    cache.save(name, comm, columns=result)
+    return result
+
+
+def static_solves(model: Model, modes: Modes, columns: np.ndarray) -> np.ndarray:
+    """K^+ applied to each column, on the elastic subspace of ``modes`` (class Flexibility)."""
     elastic = ~modes.rigid
     first_w2 = float(modes.omega2[elastic][0]) if elastic.any() else 1.0
     flex = Flexibility(model.regular_stiffness(), model.M, modes.Y_local[:, modes.rigid], first_w2)
-    result = np.column_stack([flex.apply(columns[:, j]) for j in range(columns.shape[1])])
-    cache.save(name, comm, columns=result)
-    return result
+    return np.column_stack([flex.apply(columns[:, j]) for j in range(columns.shape[1])])
 
 
 #: Kept modes must reach this many times the highest frequency of the loads (resonance and the

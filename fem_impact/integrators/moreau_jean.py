@@ -199,7 +199,7 @@ class MoreauJean(ContactScheme):
             energy.impact_loss += restitution_loss
             if ops.static:
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
-        self._energies(energy, t1)
+        self._step_energies(energy, t1, 1.0 - theta, theta, self.MV, KU=self.KU)
         if corrected and ops.C is not None:   # the next step starts from the corrected velocity
             alg.mult(ops.C, V, self.CV)
         self._book_stored(energy, st, force, t1, theta)
@@ -291,24 +291,3 @@ class MoreauJean(ContactScheme):
         f0 = st.force
         loss = 0.5 * float((f0 + force).dot(static.offset(t1) - static.offset(st.t)))
         return loss - 0.5 * float(force.dot(static.compliance.dot(force)) - f0.dot(static.compliance.dot(f0)))
-
-    def _energies(self, energy: EnergyBudget, t1: float) -> None:
-        """Kinetic and strain energy at t1; external work and damping loss over the step, with the
-        weights (1 - theta, theta) of the scheme's own rule; the load's energy scale at t1."""
-        theta = self.theta
-        sums = np.zeros(5)
-        sums[4] = self._load_energy()
-        sums[0] = self.V @ self.MV
-        sums[1] = self.U @ self.KU
-        if self.track_du:
-            du = np.subtract(self.U, self.U_prev, out=self.work)
-            if self.loaded:
-                sums[2] = (du @ self.R) if self.R_prev is self.R else \
-                    (1.0 - theta) * (du @ self.R_prev) + theta * (du @ self.R)
-            if self.ops.C is not None:
-                sums[3] = (1.0 - theta) * (du @ self.CV_prev) + theta * (du @ self.CV)
-        self.alg.allsum(sums)
-        energy.kinetic, energy.strain = 0.5 * sums[0], 0.5 * sums[1]
-        energy.external_work += sums[2]
-        energy.damping_loss += sums[3]
-        energy.load_scale = sums[4] + self._static_load_energy(t1)

@@ -193,13 +193,13 @@ class ContactScheme:
 
     def _step_energies(self, energy: EnergyBudget, t1: float, w_prev: float, w_new: float, MV: np.ndarray,
                        KU_rest: np.ndarray | None = None, force_work: float = 0.0,
-                       scheme_weight: float = 0.0) -> None:
+                       scheme_weight: float = 0.0, KU: np.ndarray | None = None) -> None:
         """Kinetic and strain energy at the new step (t1); external work and damping loss over the step.
 
-        ``MV = M V`` comes from the scheme. ``U^T K U``: with ``KU_rest``, from the equation of
-        motion that the step solved, ``K U = R - CV - KU_rest - P^T F`` (``CV`` = ``self.CV``, its
-        damping force; the replicated ``force_work = (P U) . F``), without a product with K; else
-        by one.
+        ``MV = M V`` comes from the scheme. ``U^T K U``: with ``KU`` (K U, kept by the scheme),
+        directly; with ``KU_rest``, from the equation of motion that the step solved, ``K U = R - CV
+        - KU_rest - P^T F`` (``CV`` = ``self.CV``, its damping force; the replicated ``force_work =
+        (P U) . F``), without a product with K; else by one.
 
         Work terms use the weights (w_prev, w_new) of the scheme's own rule for the forces over a
         step (the trapezoidal rule: 1/2, 1/2), with ``Delta U``: for the trapezoidal rule the
@@ -211,7 +211,10 @@ class ContactScheme:
         sums = np.zeros(6)
         sums[5] = self._load_energy()
         sums[0] = self.V @ MV
-        if KU_rest is None:
+        if KU is not None:
+            sums[1] = U @ KU
+            force_work = 0.0
+        elif KU_rest is None:
             self.alg.mult(self.ops.K, U, self.work)
             sums[1] = U @ self.work
             force_work = 0.0

@@ -27,29 +27,35 @@ def regularized(A: np.ndarray, relative: float = 1e-10) -> np.ndarray:
     ``SMALL`` rows; above, from a Cholesky factor (LAPACK's 1-norm estimate, O(p^2) after the
     O(p^3 / 3) factorization), and a failed Cholesky (not positive definite) shifts too.
     """
+    return _regularized(A, relative)[0]
+
+
+def _regularized(A: np.ndarray, relative: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """(``regularized(A)``, the Cholesky factor that showed a large ``A`` regular, or None)."""
     if A.size == 0:
-        return A
+        return A, None
     if A.shape[0] <= SMALL:
-        regular = np.linalg.cond(A) < 1.0 / (relative * 100)
+        if np.linalg.cond(A) < 1.0 / (relative * 100):
+            return A, None
     else:
-        regular = _cholesky_rcond(A) > relative * 100
-    if regular:
-        return A
-    return A + relative * np.abs(np.diag(A)).max() * np.eye(A.shape[0])
+        factor, rcond = _cholesky_rcond(A)
+        if rcond > relative * 100:
+            return A, factor
+    return A + relative * np.abs(np.diag(A)).max() * np.eye(A.shape[0]), None
 
 
-def _cholesky_rcond(A: np.ndarray) -> float:
-    """Reciprocal condition number estimate of a symmetric ``A`` by its Cholesky factor; 0 if not
-    positive definite (or not symmetric)."""
+def _cholesky_rcond(A: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """The lower Cholesky factor of a symmetric ``A`` and its reciprocal condition number estimate;
+    (None, 0) if ``A`` is not positive definite (or not symmetric)."""
     from scipy.linalg import lapack
 
     if not _is_symmetric(A):
-        return 0.0
+        return None, 0.0
     factor, info = lapack.dpotrf(A, lower=1, clean=0)
     if info != 0:
-        return 0.0
+        return None, 0.0
     rcond, info = lapack.dpocon(factor, np.linalg.norm(A, 1), uplo=b"L")
-    return float(rcond) if info == 0 else 0.0
+    return (factor, float(rcond)) if info == 0 else (None, 0.0)
 
 
 def _is_symmetric(A: np.ndarray) -> bool:
@@ -87,18 +93,11 @@ class Delassus:
     def regularized(cls, A: np.ndarray, relative: float = 1e-10) -> Delassus:
         """The solver of ``regularized(A)``; on a large matrix the Cholesky factor that shows it
         regular is kept as the factor of the all-active block (a contact of every row)."""
-        if A.shape[0] <= SMALL or not _is_symmetric(A):
-            return cls(regularized(A, relative))
-        from scipy.linalg import lapack
-
-        factor, info = lapack.dpotrf(A, lower=1, clean=0)
-        if info == 0:
-            rcond, info = lapack.dpocon(factor, np.linalg.norm(A, 1), uplo=b"L")
-            if info == 0 and rcond > relative * 100:
-                solver = cls(A)
-                solver._factors[np.arange(A.shape[0]).tobytes()] = ("cholesky", (factor, True))
-                return solver
-        return cls(A + relative * np.abs(np.diag(A)).max() * np.eye(A.shape[0]))
+        matrix, factor = _regularized(A, relative)
+        solver = cls(matrix)
+        if factor is not None:
+            solver._factors[np.arange(A.shape[0]).tobytes()] = ("cholesky", (factor, True))
+        return solver
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -207,14 +206,7 @@ def solve_lcp(
     (x > 0) to start from, usually the previous step's, so a persisting contact state costs one
     small solve. Returns ``(x, w, active)``.
     """
-    if isinstance(A, Delassus):
-        return A.solve(q, guess)
-    n = q.size
-    if n == 1:  # the common case of one contact row, in closed form
-        q0 = float(q[0])
-        x = -q0 / float(A[0, 0]) if q0 < 0.0 else 0.0
-        return np.array([x]), np.array([0.0 if x > 0.0 else q0]), np.array([x > 0.0])
-    return Delassus(A).solve(q, guess)
+    return (A if isinstance(A, Delassus) else Delassus(A)).solve(q, guess)
 
 
 def _lcp_as_nnls(A: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
