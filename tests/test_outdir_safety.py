@@ -546,10 +546,10 @@ def test_a_really_full_disk(tmp_path):
     out = tmp_path / "disk" / "out"
     run = f"{sys.executable} -m fem_impact run {CASES / 'impacting_bar.yaml'} -q --force -o {out}"
     result = in_small_filesystem(
-        f"{run} {' '.join(SMALL)} && cd {out} && sha1sum * > ../../before && cd / && "
+        f"{run} {' '.join(SMALL)} && cd {out} && sha1sum * > {tmp_path / 'before.sha1'} && cd / && "
         f"{run} --set solver.t_end=20; echo status $?; "
         f"{run} --set solver.t_end=20 --set output.every=100000; echo status $?; "
-        f"cd {out} && sha1sum -c --quiet ../../before && echo same && ls -A {out.parent}", tmp_path)
+        f"cd {out} && sha1sum -c --quiet {tmp_path / 'before.sha1'} && echo same && ls -A {out.parent}", tmp_path)
     lines = result.stdout.split("\n") + result.stderr.split("\n")
     assert "status 3" in lines and lines.count("status 3") == 2, result
     assert f"fem-impact: the run failed: cannot write {out}/results_p0_" in result.stderr, result.stderr
