@@ -145,13 +145,13 @@ def touching(request, tmp_path_factory):
     folder = tmp_path_factory.mktemp(f"touching_{request.param}")
     case = write_case(folder, 2, CELLS, ACROSS, DT, T_END, request.param)
     result = run_cli("run", str(case), "-o", str(folder / "out"), "-q")
+    assert result.returncode == 0, result.stderr
     return result, read_history(folder / "out")
 
 
 def test_zero_gap_pair_starts_quietly(touching):
     """Touching at t = 0 is a valid state: no error, no warning, no penetration, no energy created."""
     result, h = touching
-    assert result.returncode == 0, result.stderr
     assert result.stderr == ""
     assert h["joint_gap"][0] == 0.0                     # coincident nodes: gap 0, not round-off
     assert h["joint_gap"].min() >= -1e-12 * L
