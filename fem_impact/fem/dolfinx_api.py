@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import ufl
+from dolfinx import cpp as _cpp
 from dolfinx import fem, io, mesh
 from dolfinx.fem import petsc as fem_petsc
 from dolfinx.io import gmshio
@@ -51,10 +52,43 @@ def box(comm: MPI.Comm, n: tuple[int, int, int], size: tuple[float, float, float
     return mesh.create_box(comm, [np.zeros(3), np.array(size, dtype=float)], list(n), cell_type=cell)
 
 
-def gmsh_model_to_mesh(model, comm: MPI.Comm, gdim: int):
-    """Mesh and cell tags from a gmsh model held on rank 0 (``read_from_msh`` is broken in 0.5.2)."""
-    msh, cell_tags, _facet_tags = gmshio.model_to_mesh(model, comm, 0, gdim=gdim)
+def gmsh_cells_to_mesh(comm: MPI.Comm, gmsh_type: int, cells: np.ndarray, x: np.ndarray, cell_values: np.ndarray,
+                       gdim: int):
+    """Mesh and cell tags from Gmsh elements of one type, given on rank 0 (empty arrays elsewhere).
+
+    ``cells`` holds node numbers (rows of ``x``) in Gmsh's local order; a node's number is its input
+    index (``input_nodes_to_vertices``). As ``gmshio.model_to_mesh``, without a gmsh model in this process.
+    """
+    try:
+        domain = gmshio.ufl_mesh(gmsh_type, gdim)
+    except KeyError:
+        raise ValueError(f"dolfinx has no cell for Gmsh element type {gmsh_type}") from None
+    cells = np.asarray(cells, dtype=np.int64)
+    cells = cells[:, gmshio.cell_perm_array(_cpp.mesh.to_type(str(domain.ufl_cell())), cells.shape[1])]
+    msh = mesh.create_mesh(comm, cells, np.asarray(x, dtype=float)[:, :gdim], domain)
+    tdim = msh.topology.dim
+    entities, values = _cpp.io.distribute_entity_data(msh._mesh, tdim, cells, np.asarray(cell_values, dtype=np.int32))
+    msh.topology.create_connectivity(tdim, 0)
+    cell_tags = mesh.meshtags_from_entities(msh, tdim, _cpp.graph.AdjacencyList_int32(entities),
+                                            values.astype(np.int32))
     return msh, cell_tags
+
+
+def vertex_input_indices(msh: Mesh) -> np.ndarray:
+    """The input index (row of the coordinates given to ``create_mesh``) of each local vertex, owned and ghost."""
+    tdim = msh.topology.dim
+    msh.topology.create_connectivity(0, tdim)
+    msh.topology.create_connectivity(tdim, 0)
+    index_map = msh.topology.index_map(0)
+    vertices = np.arange(index_map.size_local + index_map.num_ghosts, dtype=np.int32)
+    geometry_nodes = _cpp.mesh.entities_to_geometry(msh._mesh, 0, vertices, False)[:, 0]
+    return np.asarray(msh.geometry.input_global_indices)[geometry_nodes]
+
+
+def input_nodes_to_vertices(msh: Mesh, nodes: np.ndarray) -> np.ndarray:
+    """Local indices (owned and ghost) of the vertices whose input index is in ``nodes``: identity, not
+    position, so coincident nodes stay apart."""
+    return np.flatnonzero(np.isin(vertex_input_indices(msh), nodes)).astype(np.int32)
 
 
 def locate_vertices(msh: Mesh, marker) -> np.ndarray:

@@ -7,7 +7,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from mpi4py import MPI
-from scipy.spatial import cKDTree
 
 from . import dolfinx_api as dx
 from .specs import MeshSpec
@@ -35,6 +34,12 @@ class MeshData:
     @property
     def comm(self) -> MPI.Comm:
         return self.mesh.comm
+
+    @property
+    def extent(self) -> float:
+        """The largest range of the node coordinates along an axis (the model's size), on every rank."""
+        x = self.mesh.geometry.x[:, : self.dim]
+        return self.comm.allreduce(float(np.ptp(x, axis=0).max()) if x.size else 0.0, op=MPI.MAX)
 
 
 def bar_dimensions(spec: MeshSpec) -> tuple[float, float]:
@@ -78,63 +83,37 @@ def _builtin_bar(spec: MeshSpec, comm: MPI.Comm) -> MeshData:
 
 
 def _read_gmsh(spec: MeshSpec, comm: MPI.Comm) -> MeshData:
-    import gmsh
+    from .gmsh_utils import MshError, read_msh
 
     path = spec.file
-    info = None
+    data, info = None, None
     if comm.rank == 0:
-        gmsh.initialize()
-        gmsh.option.setNumber("General.Terminal", 0)
         try:
-            gmsh.merge(str(path))
-            info = _gmsh_groups(gmsh.model)
-        except Exception as exc:  # gmsh raises plain Exceptions with its own message
-            info = {"error": str(exc)}
+            data = read_msh(path)
+        except MshError as exc:
+            data = {"error": str(exc)}
+        # The small part to every rank; nodes and cells stay on rank 0, dolfinx distributes them.
+        info = {k: v for k, v in data.items() if k not in ("x", "cells", "cell_body")}
+        info["nodes_per_cell"] = data["cells"].shape[1] if "cells" in data else 0
     info = comm.bcast(info, root=0)
     if "error" in info:
-        if comm.rank == 0:
-            gmsh.finalize()
         raise ModelInputError(("mesh", "file"), f"cannot read Gmsh file {path}: {info['error']}")
     dim = info["dim"]
     if dim < 1:
-        if comm.rank == 0:
-            gmsh.finalize()
         raise ModelInputError(("mesh", "file"), f"{path.name} has only point (0-dimensional) physical groups: name "
                                                 "the bodies (physical groups of the mesh's dimension) and node groups")
     if spec.dim is not None and spec.dim != dim:
-        if comm.rank == 0:
-            gmsh.finalize()
         raise ModelInputError(("mesh", "dim"), f"is {spec.dim} but {path.name} holds a {dim}D mesh")
-    if not info["bodies"]:
-        if comm.rank == 0:
-            gmsh.finalize()
-        raise ModelInputError(("mesh", "file"), f"{path.name} has no physical group of dimension {dim} (bodies)")
-    msh, cell_tags = dx.gmsh_model_to_mesh(gmsh.model if comm.rank == 0 else None, comm, dim)
     if comm.rank == 0:
-        gmsh.finalize()
-    coords = msh.geometry.x
-    extent = float(np.ptp(coords[:, :dim], axis=0).max()) if coords.size else 1.0
-    extent = comm.allreduce(extent, op=MPI.MAX)
-    tol = 1e-8 * extent
-    groups = {}
-    for name, points in info["node_groups"].items():
-        tree = cKDTree(points)
-        groups[name] = dx.locate_vertices(msh, lambda x, t=tree: t.query(x.T, distance_upper_bound=tol)[0] < tol)
+        x, cells, cell_body = data["x"], data["cells"], data["cell_body"]
+    else:
+        x, cells = np.zeros((0, 3)), np.zeros((0, info["nodes_per_cell"]), dtype=np.int64)
+        cell_body = np.zeros(0, dtype=np.int32)
+    try:
+        msh, cell_tags = dx.gmsh_cells_to_mesh(comm, info["element_type"], cells, x, cell_body, dim)
+    except ValueError as exc:
+        raise ModelInputError(("mesh", "file"), f"cannot use Gmsh file {path}: {exc}") from None
+    # A node group is the nodes of its own physical group's elements, by node identity: a node of
+    # another body at the same place (two bodies meshed apart that touch) is not in it.
+    groups = {name: dx.input_nodes_to_vertices(msh, nodes) for name, nodes in info["node_groups"].items()}
     return MeshData(msh, dim, cell_tags, info["bodies"], groups, f"Gmsh file {path.name}, {dim}D")
-
-
-def _gmsh_groups(model) -> dict:
-    """Bodies (top-dimension physical groups) and node coordinates of the lower-dimension ones."""
-    groups = model.getPhysicalGroups()
-    if not groups:
-        return {"error": "no physical groups (name the bodies and node groups in the .geo/.py script)"}
-    dim = max(d for d, _ in groups)
-    bodies, node_groups = {}, {}
-    for d, tag in groups:
-        name = model.getPhysicalName(d, tag) or f"group_{d}_{tag}"
-        if d == dim:
-            bodies[name] = tag
-        else:
-            _, xyz = model.mesh.getNodesForPhysicalGroup(d, tag)
-            node_groups[name] = np.asarray(xyz, dtype=float).reshape(-1, 3)
-    return {"dim": dim, "bodies": bodies, "node_groups": node_groups}

@@ -67,6 +67,8 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
             b = NodeSet(b.name, b.coords[order], b.global_node[order], b.local_node[order])
             col = _rows(n_local, bs, normal, a) - _rows(n_local, bs, normal, b)
             mesh_gap = (b.coords - a.coords)[:, :dim] @ normal
+            # Coincident nodes (bodies meshed apart that touch) differ by their coordinates' round-off.
+            mesh_gap[np.abs(mesh_gap) <= 1e-12 * model.meshdata.extent] = 0.0
             gap = np.full(len(a), contact.gap) if contact.gap is not None else mesh_gap
         if contact.coupling == "mean":
             # One row on the group's mean normal displacement (a distributing coupling): its
@@ -134,6 +136,14 @@ def match_pairs(key: tuple, a: NodeSet, b: NodeSet, normal: np.ndarray) -> np.nd
             f"pair groups '{a.name}' and '{b.name}' do not match up along the normal: node at "
             f"{np.round(a.coords[worst, :dim], 6).tolist()} has no partner (off by {dist[worst]:.3g})",
         )
+    shared = np.flatnonzero(a.global_node == b.global_node[order])
+    if shared.size:
+        where = np.round(a.coords[shared[0], :dim], 6).tolist()
+        raise ModelInputError(
+            key + ("nodes",),
+            f"pair groups '{a.name}' and '{b.name}' share the node at {where}: a pair joins nodes of two "
+            "bodies (mesh the bodies apart, with a node of each where they touch)",
+        )
     return order
 
 
@@ -142,7 +152,8 @@ def check_initial_state(cons: Constraints, model: Model) -> None:
     if cons.p == 0:
         return
     violation = cons.project(model.U0.array_r, model.comm) - cons.d0
-    scale = max(np.abs(cons.d0).max(), np.abs(model.U0.norm(3)), 1e-300)
+    # Lengths: the gaps, the initial displacement, and the model's size (gaps may all be zero).
+    scale = max(np.abs(cons.d0).max(), np.abs(model.U0.norm(3)), model.meshdata.extent, 1e-300)
     for c in cons.contacts:
         worst = violation[c.rows].max()
         if worst > 1e-9 * scale:
