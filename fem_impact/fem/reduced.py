@@ -298,10 +298,10 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
 
 def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tuple[ReducedModel, dict]:
     """Modes (given or chosen), static solves (both cached) and the reduced model."""
-    solver, comm = spec, model.comm
+    comm = model.comm
     scene = cache.key(comm, model.K, model.M, model.fixed)
     reused = set()
-    if solver.modes == "auto":
+    if spec.modes == "auto":
         available = free_dof_count(model)
         cap = max(1, min(available - 1, AUTO_LIMIT))
         n_try = min(cap, 32)
@@ -309,16 +309,16 @@ def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tup
         while True:
             modes = _modes(model, n_try, scene, reused)
             columns = _flexibility(model, cons, modes, scene, reused)
-            n1, reason = choose_mode_count(modes, cons, columns, solver.tolerance, f_scene, scene_why)
+            n1, reason = choose_mode_count(modes, cons, columns, spec.tolerance, f_scene, scene_why)
             if n1 is not None:
                 break
             if n_try >= cap:
                 raise ModelInputError(("solver", "tolerance"), f"no count of modes up to {n_try} meets it: {reason}; "
-                                                               "loosen solver.tolerance, or use the full model "
+                                                               "loosen spec.tolerance, or use the full model "
                                                                "(method: moreau_jean)")
             n_try = min(cap, 2 * n_try)
     else:
-        n1, reason = solver.modes, "as given (solver.modes)"
+        n1, reason = spec.modes, "as given (spec.modes)"
         # One mode more than kept tells whether a rigid-body mode would be left out.
         try:
             modes = _modes(model, n1 + 1, scene, reused)
@@ -336,7 +336,7 @@ def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tup
         log.info("reused from the cache (%s): %s", cache.cache_dir(), " and ".join(sorted(reused)))
     summary = {
         "modes": red.modes, "modes_reason": reason, "rigid_modes": int(modes.rigid[:n1].sum()),
-        "cutoff_hz": red.cutoff_hz, "static_correction": solver.static_correction,
+        "cutoff_hz": red.cutoff_hz, "static_correction": spec.static_correction,
         "neglected_flexibility": {c.name: float(red.neglected_flexibility[c.rows].max()) for c in cons.contacts},
         "reused_from_cache": sorted(reused),
     }
@@ -399,11 +399,10 @@ def scene_frequency(spec: ReductionSpec, model: Model) -> tuple[float, str]:
     (at most 2^18 samples), the frequency below which ``LOAD_BAND_ENERGY`` of their spectral
     energy (mean removed, Hann window) lies.
     """
-    solver = spec
     f_output = 1.0 / (2.0 * spec.output_every * spec.dt)
     f_load, source = 0.0, None
-    n = int(min(2**18, max(16, np.ceil(solver.t_end / solver.dt) + 1)))
-    t = np.arange(n) * solver.dt
+    n = int(min(2**18, max(16, np.ceil(spec.t_end / spec.dt) + 1)))
+    t = np.arange(n) * spec.dt
     for f, _ in model.load.varying:
         with np.errstate(all="ignore"):
             values = np.broadcast_to(np.asarray(f.evaluate(t=t), dtype=float), t.shape)
@@ -412,7 +411,7 @@ def scene_frequency(spec: ReductionSpec, model: Model) -> tuple[float, str]:
         spectrum = np.abs(np.fft.rfft((values - values.mean()) * np.hanning(n))) ** 2
         if spectrum.sum() <= 0.0:
             continue
-        band = np.fft.rfftfreq(n, solver.dt)[np.searchsorted(np.cumsum(spectrum) / spectrum.sum(), LOAD_BAND_ENERGY)]
+        band = np.fft.rfftfreq(n, spec.dt)[np.searchsorted(np.cumsum(spectrum) / spectrum.sum(), LOAD_BAND_ENERGY)]
         if band > f_load:
             f_load, source = band, f.source
     if LOAD_BAND_FACTOR * f_load > f_output:
