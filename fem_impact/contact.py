@@ -27,8 +27,8 @@ def regularized(A: np.ndarray, relative: float = 1e-10) -> np.ndarray:
     ``SMALL`` rows; above, from a Cholesky factor (LAPACK's 1-norm estimate, O(p^2) after the
     O(p^3 / 3) factorization), and a failed Cholesky (not positive definite) shifts too.
 
-    A matrix with an infinite or NaN entry (the mass or stiffness overflowed a float) has no
-    condition number: ContactSolverError.
+    A matrix with an infinite or NaN entry (the step matrix overflowed, or is singular to
+    working precision) has no condition number: ContactSolverError.
     """
     if A.size == 0:
         return A
@@ -45,8 +45,9 @@ def regularized(A: np.ndarray, relative: float = 1e-10) -> np.ndarray:
 def _check_finite(A: np.ndarray) -> None:
     if not np.isfinite(A).all():
         raise ContactSolverError(f"the contact problem's matrix (P S^-1 P^T, {A.shape[0]} rows) is not finite: the "
-                                 "model's mass or stiffness matrices overflowed a float (see the material, the "
-                                 "mesh sizes and the time step)")
+                                 "step matrix S overflowed a float or is singular to working precision (a free "
+                                 "body's mass lost beside its stiffness at this time step); see the material, the "
+                                 "mesh sizes and the time step")
 
 
 def _cholesky_rcond(A: np.ndarray) -> float:
@@ -98,11 +99,12 @@ class Delassus:
     def regularized(cls, A: np.ndarray, relative: float = 1e-10) -> Delassus:
         """The solver of ``regularized(A)``; on a large matrix the Cholesky factor that shows it
         regular is kept as the factor of the all-active block (a contact of every row)."""
-        if A.shape[0] <= SMALL or not _is_symmetric(A):   # (regularized checks that A is finite)
+        if A.size:
+            _check_finite(A)
+        if A.shape[0] <= SMALL or not _is_symmetric(A):
             return cls(regularized(A, relative))
         from scipy.linalg import lapack
 
-        _check_finite(A)
         factor, info = lapack.dpotrf(A, lower=1, clean=0)
         if info == 0:
             rcond, info = lapack.dpocon(factor, np.linalg.norm(A, 1), uplo=b"L")

@@ -13,6 +13,7 @@ import dataclasses
 import math
 import os
 import shutil
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -51,12 +52,13 @@ class Estimate:
 #
 # The model squares and multiplies the case's numbers: energies (rho v^2, E u^2), the element matrices
 # (rho V, E V / h^2), the step matrix M + dt C + dt^2 K, the contact problem's dt^2 / m. A number within
-# [SMALLEST, LARGEST] has a square, and any product of two such numbers, that is a normal float with a
-# margin of 1e8 for the sums of assembly; the scales the model forms on the built-in bar are held to the
-# same range, so the products the solvers take of them stay finite too. Far beyond any physical case in
-# any units: a value outside is a typo or a probe, refused on its key before anything is built.
+# [SMALLEST, LARGEST] has a square, and any product of two such numbers, within 1e-200 and 1e+200: a
+# margin of 1e108 to the limits of the floats for the sums of assembly and the solvers' own products
+# (norms, pivots, scalings; at 1e+150 MUMPS already returned NaN). The scales the model forms on the
+# built-in bar are held to the same range. Far beyond any physical case in any units: a value outside
+# is a typo or a probe, refused on its key before anything is built.
 
-SMALLEST, LARGEST = 1e-150, 1e150
+SMALLEST, LARGEST = 1e-100, 1e100
 _WHY = "the model squares these values and multiplies them together: beyond, floats overflow or lose all precision"
 
 
@@ -159,6 +161,14 @@ def check_numbers(case: Case) -> None:
                                   f"use other units)")
     if case.mesh.file is not None:   # (element sizes are the mesh file's: the solvers report what overflows)
         return
+    # dolfinx's generator of the built-in bar takes a side shorter than the machine epsilon for zero
+    height, width = case.mesh.bar_dimensions()
+    for name, size in list(zip(("length", "height", "width"), (case.mesh.length, height, width)))[:case.mesh.bar_dim]:
+        if size < sys.float_info.epsilon:
+            given = getattr(case.mesh, name) is not None
+            raise case.error(("mesh", name if given else "length"), f"the built-in bar's {name} would be {size!r}, below "
+                                                                    f"{sys.float_info.epsilon:.3g} (the mesh generator "
+                                                                    "takes it for zero): use other units")
     materials = ({("material",): case.material} if case.material is not None
                  else {("materials", body): material for body, material in case.materials.items()})
     for prefix, material in materials.items():

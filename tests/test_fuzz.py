@@ -1,14 +1,17 @@
 """Fuzzing the loader (issue 11) and the API and command line (issue 16): bad input ends in a clean error.
 
-Hypothesis mutates the project's own case files: a value anywhere replaced by another type or an
+Issue 11: Hypothesis mutates the project's own case files: a value anywhere replaced by another type or an
 extreme number, a key dropped or added, the structure nested, the text's bytes and encoding
 changed, random ``--set`` options. For each: ``load_case`` and the size guard either accept the case
 or raise CaseError (the command line's status 2: one line naming file and key, no traceback), and
-nothing is written. The default tier runs a few hundred examples; ``-m slow`` a few thousand.
+nothing is written. Issue 16 (below): the API with numeric extremes and wrong types, valid cases at the
+edges of the numeric range, damaged mesh files, --set values through the command. The default tier
+runs a few hundred examples; ``-m slow`` a few thousand.
 """
 
 from __future__ import annotations
 
+import gc
 import math
 import os
 import tempfile
@@ -254,7 +257,10 @@ def _run_if_tiny(case) -> None:
 
     est = estimate(case)
     if est.dofs <= 200 and est.steps <= 20 and not case.output.vtk:
-        fem_impact.run(case)
+        try:
+            fem_impact.run(case)
+        finally:
+            gc.collect()   # (a failed run's PETSc objects, collected later at an unlucky moment, can crash: DRIVER)
     else:
         check_limits(case, None, MPI.COMM_SELF)
 
@@ -356,39 +362,61 @@ def test_api_entry_points_with_wrong_types_raise_clear_errors_long(entry, argume
     check_api_calls(entry, arguments)
 
 
-# Damaged mesh files: one interpreter runs a batch of them through the command's code (cli.main) and reports
-# each outcome on a line; a crash of the interpreter (the mesh reader's) shows as its last file.
-MESH_DRIVER = """
-import json, os, sys, traceback
+# Batches of commands: one interpreter runs each through the command's code (cli.main) and reports its
+# outcome on a line; a crash of the interpreter shows as the command it was running. (A collection of
+# the previous runs' garbage after each: in a long-lived interpreter, failed runs' PETSc objects collected
+# at an unlucky moment can crash a later factorization; reported apart, not the subject here.)
+DRIVER = """
+import gc, json, os, sys, traceback
 from fem_impact.cli import main
-for path in sys.argv[2:]:
-    print("try", path, flush=True)
+for index, argv in enumerate(json.loads(sys.argv[1])):
+    print("try", index, flush=True)
     try:
-        status = main(["run", sys.argv[1], "-q", "-o", path + ".out", "--set", "mesh.file=" + path,
-                       "--set", "solver.t_end=0.02", "--set", "output.vtk=false"])
+        status = main(argv)
     except BaseException:
-        print("traceback", path, json.dumps(traceback.format_exc()), flush=True)
+        print("traceback", index, json.dumps(traceback.format_exc()), flush=True)
         continue
-    print("status", status, path, flush=True)
-os._exit(0)   # (the command runs once per interpreter: no teardown of twenty runs' PETSc and Gmsh objects)
+    print("status", status, index, flush=True)
+    gc.collect()
+os._exit(0)   # (the command runs once per interpreter: no teardown of many runs' PETSc and Gmsh objects)
 """
 
-damages = st.tuples(st.sampled_from(["delete", "duplicate", "replace", "truncate", "bytes"]),
-                    st.floats(min_value=0.0, max_value=1.0, exclude_max=True),
-                    st.sampled_from([b"-1", b"1e308", b"nan", b"x", b"99999999999", b"0", b"", b"$EndNodes",
-                                     b"\x00\xff\xfe", b"1 2 3 4 5 6 7 8 9"]))
 
-
-def check_damaged_meshes(batch) -> None:
+def run_batch(commands: list, folder) -> None:
+    """Run ``fem-impact ARGS`` for each list of arguments in one interpreter: status 0, 2 or 3, no traceback."""
+    import json
     import subprocess
     import sys
 
+    proc = subprocess.run([sys.executable, "-c", DRIVER, json.dumps(commands)], capture_output=True, text=True,
+                          cwd=folder, timeout=900)
+    tried = [int(line.split()[1]) for line in proc.stdout.splitlines() if line.startswith("try ")]
+    assert proc.returncode == 0, (f"the interpreter died ({proc.returncode}) on {commands[tried[-1]] if tried else None}: "
+                                  f"{proc.stderr[-500:]}")
+    tracebacks = [line for line in proc.stdout.splitlines() if line.startswith("traceback ")]
+    assert not tracebacks, (commands[int(tracebacks[0].split()[1])], tracebacks[0][:2000])
+    statuses = [int(line.split()[1]) for line in proc.stdout.splitlines() if line.startswith("status ")]
+    assert len(statuses) == len(commands) and set(statuses) <= {0, 2, 3}, proc.stdout[-2000:]
+    assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
+
+
+# (A batch is drawn from a seed: Hypothesis's first example of a list of draws is its simplest, all alike.)
+BATCH, SHORT_BATCH = 15, 6   # commands per interpreter: the slow tier's, the default tier's
+
+
+def check_damaged_meshes(seed: int, size: int = BATCH) -> None:
+    import random
+
+    rng = random.Random(seed)
     lines = (ROOT / "meshes" / "two_bars.msh").read_bytes().split(b"\n")
     with tempfile.TemporaryDirectory() as folder:
-        paths = []
-        for index, (how, where, text) in enumerate(batch):
+        commands = []
+        for index in range(size):
+            how = rng.choice(["delete", "duplicate", "replace", "truncate", "bytes"])
+            text = rng.choice([b"-1", b"1e308", b"nan", b"x", b"99999999999", b"0", b"", b"$EndNodes",
+                               b"\x00\xff\xfe", b"1 2 3 4 5 6 7 8 9"])
             damaged = list(lines)
-            at = int(where * len(damaged))
+            at = rng.randrange(len(damaged))
             if how == "delete":
                 del damaged[at]
             elif how == "duplicate":
@@ -401,31 +429,70 @@ def check_damaged_meshes(batch) -> None:
                 damaged[at] = damaged[at][:3] + text + damaged[at][3:]
             path = Path(folder) / f"damaged{index}.msh"
             path.write_bytes(b"\n".join(damaged))
-            paths.append(str(path))
-        proc = subprocess.run([sys.executable, "-c", MESH_DRIVER, str(CASES / "two_bars.yaml"), *paths],
-                              capture_output=True, text=True, cwd=folder, timeout=600)
-        tried = [line.split()[1] for line in proc.stdout.splitlines() if line.startswith("try ")]
-        assert proc.returncode == 0, f"the interpreter died ({proc.returncode}) on {tried[-1:]}: {proc.stderr[-500:]}"
-        tracebacks = [line for line in proc.stdout.splitlines() if line.startswith("traceback ")]
-        assert not tracebacks, tracebacks[0][:2000]
-        statuses = [int(line.split()[1]) for line in proc.stdout.splitlines() if line.startswith("status ")]
-        assert len(statuses) == len(batch) and set(statuses) <= {0, 2, 3}, proc.stdout[-2000:]
-        assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
+            commands.append(["run", str(CASES / "two_bars.yaml"), "-q", "-o", f"out{index}", "--set",
+                             f"mesh.file={path}", "--set", "solver.t_end=0.02", "--set", "output.vtk=false"])
+        run_batch(commands, folder)
 
 
 @pytest.mark.xfail(strict=False, reason="gmsh-groups branch: the mesh reader's errors on damaged .msh files")
 @settings(max_examples=1, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
-@given(st.lists(damages, min_size=20, max_size=20))
-def test_damaged_mesh_files_are_refused_cleanly(batch):
-    check_damaged_meshes(batch)
+@given(st.integers(0, 2**32 - 1))
+def test_damaged_mesh_files_are_refused_cleanly(seed):
+    check_damaged_meshes(seed, SHORT_BATCH)
 
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=False, reason="gmsh-groups branch: the mesh reader's errors on damaged .msh files")
-@settings(max_examples=15, deadline=None, suppress_health_check=list(HealthCheck))
-@given(st.lists(damages, min_size=20, max_size=20))
-def test_damaged_mesh_files_are_refused_cleanly_long(batch):
-    check_damaged_meshes(batch)
+@settings(max_examples=20, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.integers(0, 2**32 - 1))
+def test_damaged_mesh_files_are_refused_cleanly_long(seed):
+    check_damaged_meshes(seed)
+
+
+# Valid cases at the edges of the numeric range (every method and dimension, values from 1e-100 to 1e+100):
+# they run, or stop with one line (status 2 before anything runs, 3 during the run); in batches, as above.
+EDGE_KEYS = ["material.E", "material.rho", "material.area", "mesh.length", "damping.alpha", "damping.beta",
+             "contacts.0.gap", "contacts.0.stiffness", "initial.velocity", "solver.dt"]
+EDGE_VALUES = [1e100, 1e-100, 1e80, 1e-80, 1e50, 1e-50, 1e20, 1e-20]
+
+
+def check_edge_runs(seed: int, size: int = BATCH) -> None:
+    import random
+
+    rng = random.Random(seed)
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "tiny.yaml"
+        path.write_text(yaml.safe_dump(TINY))
+        commands = []
+        for index in range(size):
+            method = rng.choice(["moreau_jean", "newmark", "central_difference", "modal"])
+            options = [f"solver.method={method}", f"mesh.dim={rng.choice([1, 1, 2, 3])}", "mesh.cells=4"]
+            for key in rng.sample(EDGE_KEYS, rng.randint(1, 3)):
+                value = rng.choice(EDGE_VALUES)
+                options += ([f"solver.dt={value!r}", f"solver.t_end={3 * value!r}"] if key == "solver.dt"
+                            else [f"initial.velocity=[{value!r}]"] if key == "initial.velocity" else [f"{key}={value!r}"])
+            commands.append(["run", str(path), "-q", "-o", f"out{index}", *(a for o in options for a in ("--set", o))])
+        run_batch(commands, folder)
+
+
+EDGE_XFAIL = pytest.mark.xfail(strict=False, reason="the lead's integrators: factorizations of step matrices far from "
+                                                  "1 (PETSc's absolute zero pivot, NaN) occasionally crash the "
+                                                  "interpreter in MatLUFactorNumeric (MPI_ABORT)")
+
+
+@EDGE_XFAIL
+@settings(max_examples=1, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@given(st.integers(0, 2**32 - 1))
+def test_cases_at_the_edges_of_the_numeric_range_run_or_stop_with_one_line(seed):
+    check_edge_runs(seed, SHORT_BATCH)
+
+
+@pytest.mark.slow
+@EDGE_XFAIL
+@settings(max_examples=20, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.integers(0, 2**32 - 1))
+def test_cases_at_the_edges_of_the_numeric_range_run_or_stop_with_one_line_long(seed):
+    check_edge_runs(seed)
 
 
 # The command line itself: fuzzed --set values in a fresh interpreter each (about 1.5 s), a few by default.
