@@ -54,7 +54,7 @@ class Estimate:
 # (rho V, E V / h^2), the step matrix M + dt C + dt^2 K, the contact problem's dt^2 / m. A number within
 # [SMALLEST, LARGEST] has a square, and any product of two such numbers, within 1e-200 and 1e+200: a
 # margin of 1e108 to the limits of the floats for the sums of assembly and the solvers' own products
-# (norms, pivots, scalings; at 1e+150 MUMPS already returned NaN). The scales the model forms on the
+# (norms, pivots, scalings: at 1e+150 the step matrix's factorization already gave NaN). The scales the model forms on the
 # built-in bar are held to the same range. Far beyond any physical case in any units: a value outside
 # is a typo or a probe, refused on its key before anything is built.
 

@@ -278,3 +278,14 @@ def test_a_free_bar_whose_mass_is_lost_beside_its_stiffness_stops_with_a_simulat
     with pytest.raises(SimulationError, match="is not finite: the step matrix S overflowed a float or is singular"):
         fem_impact.run(case)
     assert files_under(tmp_path) == set()
+
+
+def test_modes_that_are_not_finite_are_a_simulation_error_naming_them(tmp_path, monkeypatch):
+    """The reduced model of a bar whose stiffness over mass is 5e-99 (rho = 1e100: within the range): SLEPc's
+    vectors come back NaN; the run stops with a SimulationError that says so (scipy's ValueError before)."""
+    monkeypatch.chdir(tmp_path)
+    case = Case.from_dict({**SMALL, "mesh": {"shape": "bar", "cells": 4}, "solver": {**SMALL["solver"], "method": "modal"},
+                           "material": {"E": 1.0, "rho": 1e100}})
+    with pytest.raises(SimulationError, match="the eigensolver's vectors are not finite"):
+        fem_impact.run(case)
+    assert files_under(tmp_path) == set()
