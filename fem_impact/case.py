@@ -302,8 +302,8 @@ class Case:
         try:
             path.write_text(text, encoding="utf-8")
         except (OSError, ValueError) as err:   # (ValueError: a NUL character in the path)
-            raise OutputFolderError(str(path), f"cannot write the resolved case: {getattr(err, 'strerror', None) or err}"
-                                    ) from None
+            reason = getattr(err, "strerror", None) or err
+            raise OutputFolderError(str(path), f"cannot write the resolved case: {reason}") from None
         return path
 
 

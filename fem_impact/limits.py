@@ -54,9 +54,9 @@ class Estimate:
 # (rho V, E V / h^2), the step matrix M + dt C + dt^2 K, the contact problem's dt^2 / m. A number within
 # [SMALLEST, LARGEST] has a square, and any product of two such numbers, within 1e-200 and 1e+200: a
 # margin of 1e108 to the limits of the floats for the sums of assembly and the solvers' own products
-# (norms, pivots, scalings: at 1e+150 the step matrix's factorization already gave NaN). The scales the model forms on the
-# built-in bar are held to the same range. Far beyond any physical case in any units: a value outside
-# is a typo or a probe, refused on its key before anything is built.
+# (norms, pivots, scalings: at 1e+150 the step matrix's factorization already gave NaN). The scales the
+# model forms on the built-in bar are held to the same range. Far beyond any physical case in any units:
+# a value outside is a typo or a probe, refused on its key before anything is built.
 
 SMALLEST, LARGEST = 1e-100, 1e100
 _WHY = "the model squares these values and multiplies them together: beyond, floats overflow or lose all precision"
@@ -165,10 +165,9 @@ def check_numbers(case: Case) -> None:
     height, width = case.mesh.bar_dimensions()
     for name, size in list(zip(("length", "height", "width"), (case.mesh.length, height, width)))[:case.mesh.bar_dim]:
         if size < sys.float_info.epsilon:
-            given = getattr(case.mesh, name) is not None
-            raise case.error(("mesh", name if given else "length"), f"the built-in bar's {name} would be {size!r}, below "
-                                                                    f"{sys.float_info.epsilon:.3g} (the mesh generator "
-                                                                    "takes it for zero): use other units")
+            key = ("mesh", name if getattr(case.mesh, name) is not None else "length")
+            raise case.error(key, f"the built-in bar's {name} would be {size!r}, below {sys.float_info.epsilon:.3g} "
+                                  "(the mesh generator takes it for zero): use other units")
     materials = ({("material",): case.material} if case.material is not None
                  else {("materials", body): material for body, material in case.materials.items()})
     for prefix, material in materials.items():

@@ -166,7 +166,8 @@ def wrong_types():
         (lambda: fem_impact.run(None), RUN_TAKES + "None"),
         (lambda: fem_impact.run(dict(SMALL)), RUN_TAKES + "dict"),
         (lambda: fem_impact.run("case.yaml"), RUN_TAKES + "str"),
-        (lambda: fem_impact.run(case, outdir=5), "run() takes outdir as a folder (str or os.PathLike) or None, got int"),
+        (lambda: fem_impact.run(case, outdir=5),
+         "run() takes outdir as a folder (str or os.PathLike) or None, got int"),
         (lambda: fem_impact.run(case, comm="world"),
          "run() takes comm as an mpi4py communicator (e.g. MPI.COMM_WORLD) or None, got str"),
         (lambda: fem_impact.run(case, progress="yes"), "run() takes progress as true, false or a callable "
@@ -284,8 +285,8 @@ def test_modes_that_are_not_finite_are_a_simulation_error_naming_them(tmp_path, 
     """The reduced model of a bar whose stiffness over mass is 5e-99 (rho = 1e100: within the range): SLEPc's
     vectors come back NaN; the run stops with a SimulationError that says so (scipy's ValueError before)."""
     monkeypatch.chdir(tmp_path)
-    case = Case.from_dict({**SMALL, "mesh": {"shape": "bar", "cells": 4}, "solver": {**SMALL["solver"], "method": "modal"},
-                           "material": {"E": 1.0, "rho": 1e100}})
+    case = Case.from_dict({**SMALL, "mesh": {"shape": "bar", "cells": 4}, "material": {"E": 1.0, "rho": 1e100},
+                           "solver": {**SMALL["solver"], "method": "modal"}})
     with pytest.raises(SimulationError, match="the eigensolver's vectors are not finite"):
         fem_impact.run(case)
     assert files_under(tmp_path) == set()

@@ -391,8 +391,8 @@ def run_batch(commands: list, folder) -> None:
     proc = subprocess.run([sys.executable, "-c", DRIVER, json.dumps(commands)], capture_output=True, text=True,
                           cwd=folder, timeout=900)
     tried = [int(line.split()[1]) for line in proc.stdout.splitlines() if line.startswith("try ")]
-    assert proc.returncode == 0, (f"the interpreter died ({proc.returncode}) on {commands[tried[-1]] if tried else None}: "
-                                  f"{proc.stderr[-500:]}")
+    last = commands[tried[-1]] if tried else None
+    assert proc.returncode == 0, f"the interpreter died ({proc.returncode}) on {last}: {proc.stderr[-500:]}"
     tracebacks = [line for line in proc.stdout.splitlines() if line.startswith("traceback ")]
     assert not tracebacks, (commands[int(tracebacks[0].split()[1])], tracebacks[0][:2000])
     statuses = [int(line.split()[1]) for line in proc.stdout.splitlines() if line.startswith("status ")]
@@ -469,8 +469,10 @@ def check_edge_runs(seed: int, size: int = BATCH) -> None:
             options = [f"solver.method={method}", f"mesh.dim={rng.choice([1, 1, 2, 3])}", "mesh.cells=4"]
             for key in rng.sample(EDGE_KEYS, rng.randint(1, 3)):
                 value = rng.choice(EDGE_VALUES)
-                options += ([f"solver.dt={value!r}", f"solver.t_end={3 * value!r}"] if key == "solver.dt"
-                            else [f"initial.velocity=[{value!r}]"] if key == "initial.velocity" else [f"{key}={value!r}"])
+                if key == "solver.dt":
+                    options += [f"solver.dt={value!r}", f"solver.t_end={3 * value!r}"]
+                else:
+                    options.append(f"initial.velocity=[{value!r}]" if key == "initial.velocity" else f"{key}={value!r}")
             commands.append(["run", str(path), "-q", "-o", f"out{index}", *(a for o in options for a in ("--set", o))])
         run_batch(commands, folder)
 
