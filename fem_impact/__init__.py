@@ -11,7 +11,8 @@ The Python API (the command ``fem-impact`` is a thin layer over it)::
 - :func:`load_case`, :meth:`Case.from_dict`, :meth:`Case.with_changes`: validated cases;
 - :func:`run` -> :class:`Result` (``summary``, ``history``, ``outdir``);
 - :class:`FemImpactError`, the base of :class:`CaseError` (bad input, names the key) and
-  :class:`SimulationError` (a run that cannot go on).
+  :class:`SimulationError` (a run that cannot go on); an argument of a wrong Python type is a
+  TypeError that says what the function takes. Nothing else escapes.
 """
 
 from ._version import __version__

@@ -1,6 +1,7 @@
 """The errors fem-impact raises on purpose (importable without dolfinx or PETSc).
 
-Every one derives from :class:`FemImpactError`, so a script can catch them all at once:
+Every one derives from :class:`FemImpactError`, so a script can catch them all at once (an argument
+of a wrong Python type is a TypeError that says what the function takes: :func:`wrong_type`):
 
 - :class:`CaseError`: bad input, found before anything runs (names the key, and the file and
   line when the case came from a file);
@@ -37,7 +38,23 @@ class CaseError(FemImpactError):
     def __str__(self):
         where = (f"{self.file}:{self.line}" if self.line else self.file) if self.file else None
         text = f"{self.key}: {self.message}" if self.key else self.message
-        return f"{where}: {text}" if where else text
+        return one_line(f"{where}: {text}" if where else text)
+
+
+def one_line(text: str) -> str:
+    """``text`` with its line breaks and other unprintable characters escaped (``\\n``): a key or a file name
+    may hold them, and a message must stay one line."""
+    return text if text.isprintable() else "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def type_name(value) -> str:
+    """How a TypeError names what it got: ``None``, or the type's name."""
+    return "None" if value is None else type(value).__name__
+
+
+def wrong_type(call: str, takes: str, value) -> TypeError:
+    """The TypeError of the API for an argument of a wrong Python type: what `call` takes and what it got."""
+    return TypeError(f"{call} takes {takes}, got {type_name(value)}")
 
 
 class ModelInputError(FemImpactError):

@@ -245,7 +245,7 @@ def test_out_of_range(tmp_path, old, new, key, message):
 
 def test_missing_required_keys(tmp_path):
     assert error_of(tmp_path, BASE.replace("  t_end: 1.0\n", "")).key == "solver.t_end"
-    assert "either 'material'" in str(error_of(tmp_path, BASE.replace("material:\n  E: 1.0\n  rho: 1.0\n", "")))
+    assert "give 'material'" in str(error_of(tmp_path, BASE.replace("material:\n  E: 1.0\n  rho: 1.0\n", "")))
     both = BASE + "materials: {a: {E: 1, rho: 1}}\n"
     assert "not both" in str(error_of(tmp_path, both))
     assert "give 'shape'" in str(error_of(tmp_path, BASE.replace("  shape: bar\n", "  dim: 1\n")))
@@ -408,3 +408,92 @@ def test_a_parameter_set_on_the_command_line_must_be_used(tmp_path):
     # defined in the file and unused is allowed (documentation), and so is a new one that is used
     load_case(write(tmp_path, PARAMETERS.replace("{f: 2000.0,", "{f: 2000.0, spare: 1,")))
     load_case(path, ["parameters.g=9.81", "loads.0.force=[\"F0\", \"-g\"]"])
+
+
+# --- numeric limits (issue 16): values and the scales the model forms from them ----------------
+
+
+@pytest.mark.parametrize("key, value", [
+    ("material.E", "1e308"), ("material.area", "1e308"), ("material.area", "1e-320"), ("material.rho", "1e-320"),
+    ("damping.beta", "1e308"), ("mesh.length", "1e-320"), ("mesh.length", "1e200"), ("solver.t_end", "1e300"),
+    ("material.E", "1e101"), ("contacts.0.gap", "-1e-101"),
+])
+def test_a_value_whose_square_leaves_the_floats_is_refused_on_its_key(tmp_path, key, value):
+    err = error_of(tmp_path, CONTACT, [f"{key}={value}"])
+    assert err.key == key.replace(".0.", "[0]."), str(err)
+    assert err.message.startswith(f"must be within 1e-100 and 1e+100 in magnitude, got {float(value)!r} ("), str(err)
+    assert "explicit" not in err.message and "\n" not in str(err)
+
+
+def test_values_at_the_ends_of_the_range_load(tmp_path):
+    """1e-100 and 1e+100 themselves are accepted, and so are the scales they form within the range."""
+    case = load_case(write(tmp_path, BASE), ["material.E=1e100", "material.rho=1e100", "material.area=1e-5",
+                                             "damping.alpha=1e-100"])
+    assert (case.material.E, case.material.rho, case.damping.alpha) == (1e100, 1e100, 1e-100)
+
+
+@pytest.mark.parametrize("changes, key, scale, direction", [
+    # every value in range, but the element stiffness E A / h = 1e99 * 1e10 * 100 leaves it
+    (["material.E=1e99", "material.area=1e10", "mesh.cells=100"], "material.E", "element stiffness", "above"),
+    # the element mass rho A h = 1e-90 * 1e-10 / 100: below the range; the smallest factor is rho
+    (["material.rho=1e-90", "material.area=1e-10", "mesh.cells=100"], "material.rho", "element mass", "below"),
+    # the stiffness term of the step matrix dt^2 E A / h = 1e10 * 1e90 * 100: its largest factor is E
+    (["material.E=1e90", "solver.t_end=1e5", "solver.dt=1e5"], "material.E", "dt^2 k", "above"),
+    # the contact problem's scale dt^2 / (rho A h) = 1e80 / 1e-62 with a large step on a light bar: dt is named
+    (["solver.t_end=1e40", "solver.dt=1e40", "material.rho=1e-60"], "solver.dt", "dt^2 / m", "above"),
+    # a light 3D bar of a thin section (h x 1e-15 x 1e-15): rho pushes the element mass furthest
+    (["mesh.dim=3", "mesh.height=1e-15", "mesh.width=1e-15", "mesh.cells=10", "material.rho=1e-70"], "material.rho",
+     "element mass", "below"),
+])
+def test_a_scale_the_model_forms_beyond_the_range_names_its_largest_factor(tmp_path, changes, key, scale, direction):
+    err = error_of(tmp_path, BASE, changes)
+    assert err.key == key, str(err)
+    assert scale in err.message and f"{direction} 1e" in err.message and "use other units" in err.message, str(err)
+    assert "\n" not in str(err)
+
+
+def test_a_side_of_the_built_in_bar_below_the_machine_epsilon_is_refused(tmp_path):
+    """dolfinx's generator takes a side shorter than 2.2e-16 for zero ('Length of interval is zero')."""
+    err = error_of(tmp_path, BASE, ["mesh.length=1e-20"])
+    assert err.key == "mesh.length" and "below 2.22e-16 (the mesh generator takes it for zero)" in err.message
+    err = error_of(tmp_path, BASE, ["mesh.dim=2", "mesh.length=1e-15"])   # its default height, length / 20
+    assert err.key == "mesh.length" and "height would be 5.0000000000000005e-17" in err.message
+    err = error_of(tmp_path, BASE, ["mesh.dim=3", "mesh.width=1e-17"])
+    assert err.key == "mesh.width"
+
+
+def test_huge_integers_in_a_file_and_in_messages_are_one_clear_line(tmp_path):
+    """Python refuses to print an integer of more than 4300 digits: the loader and the messages must not try."""
+    err = error_of(tmp_path, BASE.replace("shape: bar", f"shape: bar\n  cells: {'9' * 5000}"))
+    assert (err.key, err.line) == (None, 3) and "5000 digits" in err.message, str(err)
+    from fem_impact import Case
+
+    case = load_case(write(tmp_path, BASE))
+    for changes, key in [({"mesh.cells": 10**5000}, "mesh.cells"), ({"material.E": 10**400}, "material.E"),
+                         ({"name": -10**5000}, "name"), ({"parameters": {"p": 10**5000}}, "parameters.p")]:
+        with pytest.raises(CaseError) as info:
+            case.with_changes(changes)
+        assert info.value.key == key and "\n" not in str(info.value) and len(str(info.value)) < 300, str(info.value)
+    with pytest.raises(CaseError) as info:
+        Case.from_dict({**case.source, "material": {"E": 10**400, "rho": 1.0}})
+    assert info.value.key == "material.E" and "1e+400" in info.value.message, str(info.value)
+
+
+def test_a_case_with_neither_material_nor_materials_is_told_what_is_missing(tmp_path):
+    err = error_of(tmp_path, BASE.replace("material:\n  E: 1.0\n  rho: 1.0\n", ""))
+    assert err.key == "material" and err.message == ("missing required key: give 'material' (for every body) or "
+                                                     "'materials' (per body)")
+    both = error_of(tmp_path, BASE + "materials: {a: {E: 1, rho: 1}}\n")
+    assert both.key == "material" and "not both" in both.message
+
+
+@pytest.mark.parametrize("text", [
+    BASE.replace("shape: bar", 'shape: bar\n  "ce\\nlls": 4'),          # an unknown key holding a newline
+    BASE.replace("material:\n  E: 1.0\n  rho: 1.0\n", 'materials: {"ba\\nr": {E: 1, rho: 1, nu: 2}}\n'),  # a body
+    BASE + '"a\\u2028b": 1\n',                                            # a unicode line separator
+])
+def test_a_key_holding_a_newline_keeps_the_message_on_one_line(tmp_path, text):
+    message = str(error_of(tmp_path, text))
+    assert message.splitlines() == [message], message
+    assert "\\n" in message or "\\u2028" in message, message
+

@@ -113,7 +113,8 @@ def test_gmsh_file_with_only_a_point_group(tmp_path, run):
         gmsh.write(str(tmp_path / "point.msh"))
     finally:
         gmsh.finalize()
-    text = CASE.read_text().replace("  shape: bar\n  dim: 1\n", "  file: point.msh\n")
+    text = CASE.read_text().replace("  shape: bar\n  dim: 1\n", "  file: point.msh\n").replace(
+        "reference: b2", "reference: null")   # (B2 is the built-in bar's: a file naming it on a mesh file is refused)
     with pytest.raises(CaseError, match="only point"):
         run(write(tmp_path, text), *SMALL[1:])
 
@@ -123,7 +124,8 @@ def test_overflow_warnings_do_not_leak(tmp_path, override):
     result = subprocess.run([sys.executable, "-m", "fem_impact", "run", str(CASE), "-o", str(tmp_path / "o"), "-q",
                              *sum((["--set", o] for o in [*SMALL, override]), [])],
                             capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
-    assert result.returncode == 3
+    # (an area of 1e-300 is refused before the run since issue 16: its square leaves the floats)
+    assert result.returncode == (2 if override.startswith("material.area") else 3)
     assert len(result.stderr.strip().splitlines()) == 1 and "Warning" not in result.stderr, result.stderr
 
 

@@ -183,3 +183,13 @@ def test_run_help_lists_each_methods_keys():
                   "method: modal, scheme: moreau_jean", "method: modal, scheme: newmark"):
         assert title in result.stdout
     assert "tolerance (-, default 0.01)" in result.stdout and "dt (s, required): time step" in result.stdout
+
+
+def test_a_misspelt_key_is_named_before_the_key_it_leaves_missing():
+    """``dtt`` for ``dt``: the typo is the cause, the missing dt its consequence."""
+    data = yaml.safe_load(BAR.replace("{method}", "newmark"))
+    data["solver"] = {"method": "newmark", "dtt": 0.01, "t_end": 1.0}
+    with pytest.raises(CaseError) as info:
+        Case.from_dict(data)
+    assert info.value.key == "solver.dtt"
+    assert info.value.message.startswith("unknown key 'dtt'; did you mean 'dt'? (keys of method newmark: ")

@@ -1,5 +1,6 @@
-"""The size guard: a run's steps, memory and output estimated from the case before anything is built,
-and refused as bad input beyond sane limits (unless ``--force``).
+"""The limits of a case: the numbers the floats can hold once the model multiplies them (checked when a case
+is validated), and the size guard: a run's steps, memory and output estimated from the case before anything
+is built, and refused as bad input beyond sane limits (unless ``--force``).
 
 The figures per unknown were measured on the built-in bar (README, "Running cases"); they are
 meant to catch a mistyped exponent (``solver.dt=1e-12``, ``mesh.cells=1e9``), not to predict a
@@ -16,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..config.case import Case
+from ..config.numbers import divisions
 from ..integrators.parameters import steps_for
 
 MAX_STEPS = 10**8
@@ -53,11 +55,7 @@ def _nodes(case: Case) -> tuple[int, int]:
         except OSError:
             size = 0
         return max(1, size // 60), dim   # an ASCII .msh holds about 60 bytes per node and its cells
-    dim = spec.bar_dim
-    height, width = spec.bar_dimensions()
-    cells = spec.cells
-    across = [max(1, round(min(cells * size / spec.length, 1e15))) for size in (height, width)[: dim - 1]]
-    return math.prod([cells + 1, *(a + 1 for a in across)]), dim
+    return math.prod([n + 1 for n in divisions(case)]), spec.bar_dim
 
 
 def estimate(case: Case, ranks: int = 1) -> Estimate:

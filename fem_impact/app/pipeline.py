@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,6 +15,7 @@ from mpi4py import MPI
 
 from .._version import __version__
 from ..config.case import Case, load_case
+from ..errors import wrong_type
 from .limits import check_limits
 from .outdir import case_inputs, claim, writing
 
@@ -141,8 +143,11 @@ def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
     SimulationError
         The run could not go on, or its files could not be written (a full disk:
         :class:`~fem_impact.app.outdir.OutputWriteError`); an output folder is then left as it was.
+    TypeError
+        An argument of a wrong Python type (the message says what it takes).
     """
     t_start = time.perf_counter()
+    _check_arguments(case, outdir, progress, comm, stop_on_energy_gain, force)
     comm = MPI.COMM_WORLD if comm is None else comm
     if outdir is None:
         with case.errors_at_keys():
@@ -150,6 +155,21 @@ def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
     with claim(Path(outdir), comm, "run", protect=case_inputs(case), source=case.path) as out, \
             case.errors_at_keys():
         return _run(case, out, comm, progress, force, t_start, stop_on_energy_gain)
+
+
+def _check_arguments(case, outdir, progress, comm, stop_on_energy_gain, force) -> None:
+    """TypeError, saying what run() takes, for an argument of a wrong Python type."""
+    if not isinstance(case, Case):
+        raise wrong_type("run()", "a Case: fem_impact.load_case(path) or Case.from_dict(data)", case)
+    if outdir is not None and not isinstance(outdir, (str, os.PathLike)):
+        raise wrong_type("run()", "outdir as a folder (str or os.PathLike) or None", outdir)
+    if comm is not None and not isinstance(comm, MPI.Comm):
+        raise wrong_type("run()", "comm as an mpi4py communicator (e.g. MPI.COMM_WORLD) or None", comm)
+    if not (isinstance(progress, bool) or callable(progress)):
+        raise wrong_type("run()", "progress as true, false or a callable (step, total)", progress)
+    for name, value in (("stop_on_energy_gain", stop_on_energy_gain), ("force", force)):
+        if not isinstance(value, bool):
+            raise wrong_type("run()", f"{name} as true or false", value)
 
 
 def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, progress=True,
@@ -310,9 +330,15 @@ def describe(summary: dict) -> str:
         + "; energy-balance residual "
         f"{summary['max_energy_error']:.3g} ({summary['max_energy_error_relative']:.2g} of the energy scale); "
         f"impact loss {summary['impact_loss']:.4g}, contact loss {summary['contact_loss']:.4g}. "
-        f"Results in {summary['outdir']} (results.pvd, history.csv, summary.json, case.resolved.yaml)."
+        f"Results in {summary['outdir']} ({', '.join(_files_written(summary))})."
         + _reduction_note(summary)
     )
+
+
+def _files_written(summary: dict) -> list[str]:
+    """The main files of a run's folder (the VTK series only when it wrote frames: output.vtk)."""
+    return (["results.pvd"] if summary.get("vtk_frames") else []) + ["history.csv", "summary.json",
+                                                                     "case.resolved.yaml"]
 
 
 def _reduction_note(summary: dict) -> str:

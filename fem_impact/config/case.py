@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import contextlib
-import copy
 import dataclasses
 import difflib
 import keyword
 import logging
 import math
+import numbers
 import operator
 import os
 import re
+import sys
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -20,7 +21,7 @@ from pathlib import Path
 import yaml
 from pydantic import ValidationError
 
-from ..errors import CaseError, ModelInputError
+from ..errors import CaseError, ModelInputError, type_name, wrong_type
 from ..expressions import RESERVED, Expression, ExpressionError, parse_expression
 from ..fem.specs import BodyValue, Damping, Initial, Load, Material, MeshSpec, Support  # noqa: F401  (re-exported)
 from ..nonsmooth.specs import Contact
@@ -90,11 +91,22 @@ class Case:
         ------
         CaseError
             On bad input; its ``key`` is the dotted key path (``material.E``), its ``file`` None.
+        TypeError
+            When `data` is not a mapping, or `base_dir` not a path.
+
+        numpy numbers and arrays, tuples, paths and other mappings are taken as the numbers, lists,
+        strings and mappings a case file would give.
         """
-        folder = Path(os.path.abspath(base_dir if base_dir is not None else Path.cwd()))
         if not isinstance(data, Mapping):
-            raise CaseError(None, None, None, f"expected a mapping of keys, got {type(data).__name__}")
-        return _validated(copy.deepcopy(dict(data)), None, folder, None, {}, {})
+            raise wrong_type("Case.from_dict()", "a mapping of the case's keys", data)
+        if base_dir is not None:
+            base_dir = _path_argument("Case.from_dict()", "base_dir as a folder (str or os.PathLike) or None", base_dir)
+        folder = Path(os.path.abspath(base_dir if base_dir is not None else Path.cwd()))
+        try:
+            data = _plain(data, ())
+        except _Invalid as exc:
+            raise _error(None, {}, {}, exc.path, exc.message) from None
+        return _validated(data, None, folder, None, {}, {})
 
     def with_changes(self, changes) -> Case:
         """A copy of the case with keys changed, validated again (this case is not modified).
@@ -111,12 +123,27 @@ class Case:
         ------
         CaseError
             When a change does not fit the case; the message names the change.
+        TypeError
+            When `changes` is neither a mapping with string keys nor a list of strings.
         """
-        data = copy.deepcopy(self.source)
+        takes = "a mapping {'key.path': value} or a list of 'KEY.PATH=VALUE' strings"
+        if isinstance(changes, Mapping):
+            key = next((key for key in changes if not isinstance(key, str)), None)
+            if key is not None:
+                raise TypeError(f"Case.with_changes() takes {takes}, got a mapping with a {type_name(key)} key")
+        else:
+            changes = _strings("Case.with_changes()", takes, changes)
+        data = _plain(self.source, ())
         before = _solver_tag(data)
         if isinstance(changes, Mapping):
-            origins = {_set_key(data, str(key), value, f"the change {key}={value!r}"): f"the change {key}={value!r}"
-                       for key, value in changes.items()}
+            origins = {}
+            for key, value in changes.items():
+                origin = f"the change {key}={_brief(value)}"
+                try:
+                    value = _plain(value, ())
+                except _Invalid as exc:
+                    raise CaseError(origin, _dotted(exc.path) or None, None, exc.message) from None
+                origins[_set_key(data, key, value, origin)] = origin
         else:
             origins = {_apply_override(data, option): f"--set {option}" for option in changes}
         _follow_kind_changes(data, before, origins)
@@ -140,6 +167,10 @@ class Case:
 
     def error(self, key_path, message) -> CaseError:
         """Build a CaseError for `key_path` (e.g. ``("contacts", 0, "nodes")``) with its line."""
+        if isinstance(key_path, (str, bytes)) or not isinstance(key_path, (tuple, list)) \
+                or not all(isinstance(part, (str, int)) for part in key_path) or not isinstance(message, str):
+            raise TypeError(f"Case.error() takes a key path (a tuple of str and int) and a message (str), got "
+                            f"{type_name(key_path)} and {type_name(message)}")
         return _error(self.file, self.lines, self.overrides, tuple(key_path), message)
 
     def resolved(self) -> dict:
@@ -183,11 +214,17 @@ class Case:
 
     def write_resolved(self, path) -> Path:
         """Write the resolved case as YAML to `path` (a folder gets ``case.resolved.yaml``)."""
-        path = Path(path)
+        from .outdir import OutputFolderError
+
+        path = Path(_path_argument("Case.write_resolved()", "a path (str or os.PathLike)", path))
         if path.is_dir():
             path = path / "case.resolved.yaml"
         text = yaml.safe_dump(self.resolved(), sort_keys=False)
-        path.write_text(text, encoding="utf-8")
+        try:
+            path.write_text(text, encoding="utf-8")
+        except (OSError, ValueError) as err:   # (ValueError: a NUL character in the path)
+            reason = getattr(err, "strerror", None) or err
+            raise OutputFolderError(str(path), f"cannot write the resolved case: {reason}") from None
         return path
 
 
@@ -236,7 +273,19 @@ _Loader.add_implicit_resolver(
     re.compile(r"""^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?
                    |[-+]?\.?(?:inf|Inf|INF)|\.?(?:nan|NaN|NAN))$""", re.X),
     list("-+0123456789.iInN"))
-_Loader.add_constructor(_TAG + "int", lambda loader, node: int(loader.construct_scalar(node)))
+
+
+def _construct_int(loader, node):
+    text = loader.construct_scalar(node)
+    try:
+        return int(text)
+    except ValueError:   # (Python reads integers of at most sys.get_int_max_str_digits() digits)
+        raise yaml.constructor.ConstructorError(
+            None, None, f"an integer of {len(text.lstrip('+-'))} digits, more than Python reads "
+                        f"({sys.get_int_max_str_digits()})", node.start_mark) from None
+
+
+_Loader.add_constructor(_TAG + "int", _construct_int)
 
 
 def yaml_value(text: str):
@@ -351,6 +400,7 @@ def _error(file, lines, overrides, path, message):
     for prefix, origin in overrides.items():
         if path[:len(prefix)] == prefix:
             shown = origin if origin.isprintable() else repr(origin)   # (one line: no raw newline)
+            shown = shown if len(shown) <= 100 else f"{shown[:80]}... ({len(shown)} characters)"
             return CaseError(file, _dotted(path) or None, None, f"{message} (from {shown})")
     line = next((lines[path[:n]] for n in range(len(path), 0, -1) if path[:n] in lines), None)
     return CaseError(file, _dotted(path) or None, line, message)
@@ -368,7 +418,7 @@ def _apply_override(data, option):
     try:
         value = yaml_value(text)
     except yaml.YAMLError as exc:
-        raise CaseError("--set", key, None, f"cannot read the value {text!r}: "
+        raise CaseError("--set", key, None, f"cannot read the value {_brief(text)}: "
                         f"{' '.join(str(getattr(exc, 'problem', exc)).split())}") from None
     return _set_key(data, key.strip(), value, "--set")
 
@@ -393,7 +443,7 @@ def _set_key(data, key: str, value, origin: str):
             raise CaseError(origin, _dotted(path), None, f"is not a mapping or a list; cannot set {key}")
         path += (segment,)
         if depth == len(segments):
-            target[segment] = copy.deepcopy(value)
+            target[segment] = _plain(value, path)
         else:
             if isinstance(target, dict) and target.get(segment) is None:
                 target[segment] = {}
@@ -412,7 +462,64 @@ def _show(value):
         return "a mapping"
     if isinstance(value, list):
         return "a list"
-    return "null" if value is None else repr(value)
+    return "null" if value is None else _brief(value)
+
+
+def _brief(value) -> str:
+    """A value's repr for a message, shortened; an integer too long to print (or to read) by its magnitude."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 10**30:
+        return f"an integer of about {'-' if value < 0 else ''}1e+{round(math.log10(abs(value)))}"
+    try:
+        text = repr(value)
+    except Exception:   # (an object of a script whose repr fails)
+        text = f"<{type_name(value)}>"
+    return text if len(text) <= 80 else f"{text[:60]}...{text[-10:]} ({len(text)} characters)"
+
+
+def _plain(value, path):
+    """A script's value as the YAML of a case file gives it (a copy): numpy numbers and arrays, tuples, paths
+    and other mappings become Python numbers, lists, strings and dicts; anything else is left for the
+    validation to refuse. Nested deeper than a case file may be: _Invalid."""
+    if len(path) > MAX_DEPTH:
+        raise _Invalid(path[:3] + ("(...)",), f"nested more than {MAX_DEPTH} levels deep")
+    if value is None or type(value) in (str, bool, int, float):
+        return value
+    if isinstance(value, Mapping):
+        return {str(key) if isinstance(key, str) else key: _plain(item, path + (key,)) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(item, path + (index,)) for index, item in enumerate(value)]
+    if isinstance(value, (str, os.PathLike)):
+        return os.fspath(str(value) if isinstance(value, str) else value)
+    if hasattr(value, "dtype") and hasattr(value, "tolist"):   # numpy scalars and arrays
+        return _plain(value.tolist(), path)
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    if isinstance(value, numbers.Real):
+        return float(value)
+    return value
+
+
+def _path_argument(call: str, takes: str, value) -> str:
+    """A path argument of the API as text; TypeError naming what `call` takes otherwise."""
+    try:
+        text = os.fspath(value)
+    except TypeError:
+        text = None
+    if not isinstance(text, str):
+        raise wrong_type(call, takes, value)
+    return text
+
+
+def _strings(call: str, takes: str, values) -> list[str]:
+    """An iterable of strings (not a string itself) as a list; TypeError naming what `call` takes otherwise."""
+    if isinstance(values, (str, bytes, Mapping)) or not isinstance(values, typing.Iterable):
+        raise wrong_type(call, takes, values)
+    values = list(values)
+    wrong = next((value for value in values if not isinstance(value, str)), None)
+    if wrong is not None:
+        raise TypeError(f"{call} takes {takes}, got a {type_name(values if isinstance(values, list) else values)} "
+                        f"holding {type_name(wrong)}")
+    return values
 
 
 def _mapping(value, path):
@@ -423,7 +530,7 @@ def _mapping(value, path):
         raise _Invalid(path, f"expected a mapping, got {_show(value)}")
     for key in value:
         if not isinstance(key, str):
-            raise _Invalid(path, f"keys must be names (strings), got {key!r}")
+            raise _Invalid(path, f"keys must be names (strings), got {_brief(key)}")
     return value
 
 
@@ -470,9 +577,14 @@ def _fields(value, path, spec, section=None):
 def _number(value, path):
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise _Invalid(path, f"expected a number, got {_show(value)}")
-    if not math.isfinite(value):
+    try:
+        number = float(value)
+    except OverflowError:
+        raise _Invalid(path, f"expected a finite number, got {_brief(value)}, beyond the largest float "
+                             f"({sys.float_info.max:.3g})") from None
+    if not math.isfinite(number):
         raise _Invalid(path, f"expected a finite number, got {value}")
-    return float(value)
+    return number
 
 
 _BOUNDS = {"gt": (operator.gt, ">", "("), "ge": (operator.ge, ">=", "["),
@@ -494,7 +606,7 @@ def _real(**bounds):
     def convert(value, path):
         number = _number(value, path)
         if not all(_BOUNDS[name][0](number, bound) for name, bound in bounds.items()):
-            raise _Invalid(path, f"must be {text}, got {value!r}")
+            raise _Invalid(path, f"must be {text}, got {_brief(value)}")
         return number
     return convert
 
@@ -508,7 +620,7 @@ def _integer(low, high=None):
             raise _Invalid(path, f"expected an integer, got {_show(value)}")
         if value < low or (high is not None and value > high):
             wanted = f">= {low}" if high is None else f"in [{low}, {high}]"
-            raise _Invalid(path, f"must be {wanted}, got {value}")
+            raise _Invalid(path, f"must be {wanted}, got {_brief(value)}")
         return value
     return convert
 
@@ -571,6 +683,10 @@ def _mapping_of(item, key=_string):
 def _expression(allowed, parameters):
     """Converter for an expression in the variables `allowed` and the case's `parameters`."""
     def convert(value, path):
+        if not isinstance(value, str):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise _Invalid(path, f"expected a number or an arithmetic expression, got {_show(value)}")
+            _number(value, path)   # (an integer beyond the floats: refused here, with its key)
         try:
             return parse_expression(value, allowed, parameters)
         except ExpressionError as exc:
@@ -584,7 +700,7 @@ def _expression(allowed, parameters):
 def _case_name(value, path):
     name = _string(value, path)
     if name in (".", "..") or any(c in name for c in "/\\\0"):
-        raise _Invalid(path, f"must be usable as a folder name, got {name!r}")
+        raise _Invalid(path, f"must be usable as a folder name, got {_brief(name)}")
     return name
 
 
@@ -776,7 +892,10 @@ def _solver(value, path):
     try:
         return solver_schema().validate_python(data)
     except ValidationError as exc:
-        raise _from_pydantic(exc.errors()[0], path, schema) from None
+        # A misspelt key first: the required key it leaves missing is its consequence, not the cause.
+        errors = exc.errors()
+        raise _from_pydantic(next((e for e in errors if e["type"] == "extra_forbidden"), errors[0]), path,
+                             schema) from None
 
 
 def _method_name(schema) -> str:
@@ -824,11 +943,11 @@ def _from_pydantic(error: dict, path: tuple, schema) -> _Invalid:
     if kind == "bool_type":
         return _Invalid(path + loc, f"expected true or false, got {_show(given)}")
     if kind == "finite_number":
-        return _Invalid(path + loc, f"expected a finite number, got {given}")
+        return _Invalid(path + loc, f"expected a finite number, got {_brief(given)}")
     if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal") and field_info:
         bounds = {name: getattr(item, name) for item in field_info.metadata for name in _BOUNDS
                   if getattr(item, name, None) is not None}
-        return _Invalid(path + loc, f"must be {_range_text(bounds)}, got {given!r}")
+        return _Invalid(path + loc, f"must be {_range_text(bounds)}, got {_brief(given)}")
     if kind == "literal_error" and field_info:
         options = typing.get_args(field_info.annotation)
         owners = _owners(lambda other: key in other.model_fields
@@ -882,7 +1001,7 @@ def _parameters(value, path):
     for name, number in _mapping(value, path).items():
         if not name.isidentifier() or keyword.iskeyword(name):
             raise _Invalid(path + (name,), f"a parameter name must be an identifier (letters, digits and '_', "
-                                           f"not starting with a digit), got {name!r}")
+                                           f"not starting with a digit), got {_brief(name)}")
         if name in RESERVED:
             raise _Invalid(path + (name,), f"'{name}' is reserved (the names {', '.join(RESERVED)} have a meaning "
                                            "in expressions); choose another name")
@@ -914,9 +1033,11 @@ def _case(data, folder: Path, default_name: str):
         "loads": (_list(lambda value, path: _load(value, path, parameters)), []),
         "contacts": (_contacts, []), "solver": (_solver, _REQUIRED), "output": (_output, Output()),
         "parameters": (lambda value, path: parameters, {}), "reference": (_reference, None)})
-    if (f["material"] is None) == (f["materials"] is None):
-        raise _Invalid(("material",) if "material" in data else (),
-                       "give either 'material' (for every body) or 'materials' (per body), not both")
+    if f["material"] is None and f["materials"] is None:
+        raise _Invalid(("material",), "missing required key: give 'material' (for every body) or 'materials' "
+                                      "(per body)")
+    if f["material"] is not None and f["materials"] is not None:
+        raise _Invalid(("material",), "give either 'material' (for every body) or 'materials' (per body), not both")
     if f["materials"] == {}:
         raise _Invalid(("materials",), "must give at least one body")
     return Case(path=None, **f)
@@ -940,19 +1061,30 @@ def load_case(path, overrides=()) -> Case:
     ------
     CaseError
         On any bad input, naming the file, key and line.
+    TypeError
+        When `path` is not a path or `overrides` not a list of strings.
     """
+    path = _path_argument("load_case()", "a path (str or os.PathLike)", path)
+    overrides = _strings("load_case()", "overrides as a list of 'KEY.PATH=VALUE' strings", overrides)
     case_path = Path(os.path.abspath(path))
     file = _display(case_path)
     try:
         text = case_path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise CaseError(file, None, None, "case file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, ValueError) as exc:   # (ValueError: a NUL character in the path)
         raise CaseError(file, None, None, f"cannot read the case file: {exc}") from None
     data, lines = _parse_yaml(text, file)
     if not isinstance(data, dict):
         raise CaseError(file, None, None, "the file is empty" if data is None
                         else "expected a mapping of keys at the top level")
+    if overrides and isinstance(data.get("reference"), str):
+        # The file's reference must fit the file's case: the overrides may take the case out of it, not excuse it.
+        try:
+            _validated(_plain(data, ()), case_path, case_path.parent, lines, {}, {})
+        except CaseError as err:
+            if err.key == "reference":
+                raise
     before = _solver_tag(data)
     options = {_apply_override(data, option): f"--set {option}" for option in overrides}
     _follow_kind_changes(data, before, options)
@@ -963,15 +1095,41 @@ def _validated(data: dict, case_path: Path | None, folder: Path, lines, override
     """Validate `data` into a Case; `overrides` maps changed key paths to their origin (for messages),
     `changed` those of this very call (a parameter they set must be used)."""
     file = None if case_path is None else _display(case_path)
-    source = copy.deepcopy(data)
     try:
+        source = _plain(data, ())
         case = _case(data, folder, case_path.stem if case_path is not None else "case")
     except _Invalid as exc:
         raise _error(file, lines or {}, overrides, exc.path, exc.message) from None
     case.path, case.base_dir, case.source = case_path, folder, source
     case.lines, case.overrides = dict(lines or {}), dict(overrides)
+    from .numbers import check_numbers   # (it reads the case's sections: imported once they exist)
+
+    check_numbers(case)
     _check_set_parameters(case, changed)
+    _check_reference(case, changed)
     return case
+
+
+def _check_reference(case: Case, changed) -> None:
+    """A declared exact solution must fit the case (fem_impact.references: what the studies measure against).
+
+    Where the case is written (a file, a dict, or a change of ``reference`` itself) a reference that does not
+    fit is bad input. Changes of other keys may take the case out of its reference (a benchmark used as a
+    template: ``--set loads=...``): the reference is then left behind, as a change of method leaves the
+    previous method's keys: the run and its resolved dump have none, and ``references.from_case`` still says
+    why the case does not fit it (the studies refuse to measure against it).
+    """
+    if case.reference is None:
+        return
+    from .references import from_case
+
+    try:
+        from_case(case)
+    except CaseError as misfit:
+        if not changed or ("reference",) in changed:
+            raise
+        log.info("%s: the changes took the case out of its reference, which is left behind", misfit)
+        case.reference = None
 
 
 def _check_set_parameters(case: Case, changed) -> None:

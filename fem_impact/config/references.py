@@ -21,7 +21,8 @@ strip or 3D box with ``nu = 0``, which behave as the rod), one material, no damp
   both ends ``sin(k pi x/L)``, ``w = k pi c/L``. Energy ``rho A w^2 a^2 L / 4``.
 
 Each reads its parameters from the case (length, E, rho, section, initial fields, gap) and refuses
-a case it does not fit with a CaseError on the key ``reference``. Units are those of the case.
+a case it does not fit with a CaseError on the key ``reference``: the one definition of what fits,
+for the case files (fem_impact.case) and the studies. Units are those of the case.
 
 Error measures (``errors``), all relative and dimensionless:
 
@@ -42,6 +43,7 @@ Error measures (``errors``), all relative and dimensionless:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -345,10 +347,19 @@ REFERENCES = {"b1": B1, "b2": B2, "bar_mode": BarMode}
 
 
 def from_case(case: Case) -> Reference | None:
-    """The case's declared reference (None without one); CaseError if the case does not fit it."""
-    if case.reference is None:
+    """The case's declared reference (None without one); CaseError if the case does not fit it.
+
+    Also a reference that changes of the case left behind (``reference:`` in its data, ``case.reference``
+    None: fem_impact.case): the CaseError says why the changed case does not fit it.
+    """
+    name = case.reference
+    if name is None:
+        declared = case.source.get("reference") if isinstance(case.source, dict) else None
+        if not isinstance(declared, str) or declared not in REFERENCES:
+            return None
+        REFERENCES[declared](dataclasses.replace(case, reference=declared))   # (raises: it was left behind)
         return None
-    return REFERENCES[case.reference](case)
+    return REFERENCES[name](case)
 
 
 # --- another run as the reference ------------------------------------------------------------

@@ -194,6 +194,9 @@ def _finish(model, comm, K, M, X, free, n_local, scale, shift, check_count) -> M
     Kr = comm.allreduce(X.T @ KX, op=MPI.SUM)
     Mr = comm.allreduce(X.T @ MX, op=MPI.SUM)
     Kr, Mr = 0.5 * (Kr + Kr.T), 0.5 * (Mr + Mr.T)
+    if not (np.isfinite(Kr).all() and np.isfinite(Mr).all()):   # (vectors of NaN: scales far from 1)
+        raise ModesError(f"the eigensolver's vectors are not finite (largest stiffness over mass {scale:.3g}): "
+                         "the model's scales are beyond what it resolves; use other units")
     omega2, C = scipy.linalg.eigh(Kr, Mr)
     rigid = omega2 < RIGID * scale
     # Rigid-body modes are any basis of their subspace: order them as translations x, y, z

@@ -26,6 +26,9 @@ def regularized(A: np.ndarray, relative: float = 1e-10) -> np.ndarray:
     "Regular" is a condition number below ``1 / (100 relative)``: computed exactly for up to
     ``SMALL`` rows; above, from a Cholesky factor (LAPACK's 1-norm estimate, O(p^2) after the
     O(p^3 / 3) factorization), and a failed Cholesky (not positive definite) shifts too.
+
+    A matrix with an infinite or NaN entry (the step matrix overflowed, or is singular to
+    working precision) has no condition number: ContactSolverError.
     """
     return _regularized(A, relative)[0]
 
@@ -34,6 +37,7 @@ def _regularized(A: np.ndarray, relative: float) -> tuple[np.ndarray, np.ndarray
     """(``regularized(A)``, the Cholesky factor that showed a large ``A`` regular, or None)."""
     if A.size == 0:
         return A, None
+    _check_finite(A)
     if A.shape[0] <= SMALL:
         if np.linalg.cond(A) < 1.0 / (relative * 100):
             return A, None
@@ -42,6 +46,14 @@ def _regularized(A: np.ndarray, relative: float) -> tuple[np.ndarray, np.ndarray
         if rcond > relative * 100:
             return A, factor
     return A + relative * np.abs(np.diag(A)).max() * np.eye(A.shape[0]), None
+
+
+def _check_finite(A: np.ndarray) -> None:
+    if not np.isfinite(A).all():
+        raise ContactSolverError(f"the contact problem's matrix (P S^-1 P^T, {A.shape[0]} rows) is not finite: the "
+                                 "step matrix S overflowed a float or is singular to working precision (a free "
+                                 "body's mass lost beside its stiffness at this time step); see the material, the "
+                                 "mesh sizes and the time step")
 
 
 def _cholesky_rcond(A: np.ndarray) -> tuple[np.ndarray | None, float]:
