@@ -57,6 +57,13 @@ def wrong_type(call: str, takes: str, value) -> TypeError:
     return TypeError(f"{call} takes {takes}, got {type_name(value)}")
 
 
+class OutputFolderError(CaseError):
+    """An output folder or file that cannot or must not be written (bad input: status 2)."""
+
+    def __init__(self, where, message):
+        super().__init__(where, None, None, message)
+
+
 class ModelInputError(FemImpactError):
     """Input that does not fit the model, found while building it (a node group the mesh lacks, a
     vector with a component the mesh has not): raised by the model builders with the key path of

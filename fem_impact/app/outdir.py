@@ -37,18 +37,11 @@ import time
 from pathlib import Path
 
 from .._version import __version__
-from ..errors import CaseError, SimulationError
+from ..errors import CaseError, OutputFolderError, SimulationError  # noqa: F401  (OutputFolderError: re-exported)
 
 MARKER = ".fem-impact.json"
 # Leave room for ".partial-PID" and ".lock" around the folder's name (NAME_MAX is 255 bytes).
 MAX_NAME_BYTES = 255 - len("..partial-4194304")
-
-
-class OutputFolderError(CaseError):
-    """An output folder or file that cannot or must not be written (bad input: status 2)."""
-
-    def __init__(self, where, message):
-        super().__init__(where, None, None, message)
 
 
 class OutputFolderChanged(OutputFolderError):

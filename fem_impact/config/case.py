@@ -21,7 +21,7 @@ from pathlib import Path
 import yaml
 from pydantic import ValidationError
 
-from ..errors import CaseError, ModelInputError, type_name, wrong_type
+from ..errors import CaseError, ModelInputError, OutputFolderError, type_name, wrong_type
 from ..expressions import RESERVED, Expression, ExpressionError, parse_expression
 from ..fem.specs import BodyValue, Damping, Initial, Load, Material, MeshSpec, Support  # noqa: F401  (re-exported)
 from ..nonsmooth.specs import Contact
@@ -214,8 +214,6 @@ class Case:
 
     def write_resolved(self, path) -> Path:
         """Write the resolved case as YAML to `path` (a folder gets ``case.resolved.yaml``)."""
-        from .outdir import OutputFolderError
-
         path = Path(_path_argument("Case.write_resolved()", "a path (str or os.PathLike)", path))
         if path.is_dir():
             path = path / "case.resolved.yaml"
