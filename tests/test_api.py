@@ -221,10 +221,10 @@ def test_numpy_and_python_containers_are_taken_as_a_case_file_would_give_them():
 
 def test_a_reference_the_case_does_not_fit_is_refused_where_it_is_declared_and_left_behind_by_changes(tmp_path):
     """B1 (a clamped bar released against an obstacle) declared on B2's free bar is bad input, refused with the
-    message the studies give (one definition of what fits: fem_impact.references). A benchmark used as a
+    message the studies give (one definition of what fits: fem_impact.config.references). A benchmark used as a
     template (changes of other keys that take it out of its reference) runs without it, and the studies still
     refuse to measure against it."""
-    from fem_impact.references import from_case
+    from fem_impact.config.references import from_case
 
     with pytest.raises(CaseError) as declared:
         Case.from_dict({**SMALL, "reference": "b1"})
@@ -248,7 +248,7 @@ def test_a_reference_the_case_does_not_fit_is_refused_where_it_is_declared_and_l
 
 
 def test_the_final_paragraph_lists_only_the_files_written(tmp_path):
-    from fem_impact.pipeline import describe
+    from fem_impact.app.pipeline import describe
 
     for vtk in (False, True):
         out = tmp_path / f"vtk-{vtk}"
@@ -262,7 +262,7 @@ def test_a_contact_matrix_that_is_not_finite_is_a_simulation_error_naming_it():
     """What the validation cannot see (a mesh file's element sizes, a free body's mass lost beside its stiffness
     at a huge step) can still make the contact problem's matrix infinite or NaN: a SimulationError that says so,
     not numpy's 'SVD did not converge' (small matrices) or a factorization of NaN (large ones)."""
-    from fem_impact.contact import SMALL, Delassus, regularized
+    from fem_impact.nonsmooth.lcp import SMALL, Delassus, regularized
 
     for A in (np.array([[np.inf]]), np.full((3, 3), np.nan), np.diag(np.r_[np.inf, np.ones(SMALL + 5)])):
         for build in (regularized, Delassus.regularized):
