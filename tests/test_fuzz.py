@@ -475,12 +475,6 @@ def check_edge_runs(seed: int, size: int = BATCH) -> None:
         run_batch(commands, folder)
 
 
-EDGE_XFAIL = pytest.mark.xfail(strict=False, reason="the lead's integrators: factorizations of step matrices far from "
-                                                  "1 (PETSc's absolute zero pivot, NaN) occasionally crash the "
-                                                  "interpreter in MatLUFactorNumeric (MPI_ABORT)")
-
-
-@EDGE_XFAIL
 @settings(max_examples=1, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
 @given(st.integers(0, 2**32 - 1))
 def test_cases_at_the_edges_of_the_numeric_range_run_or_stop_with_one_line(seed):
@@ -488,7 +482,6 @@ def test_cases_at_the_edges_of_the_numeric_range_run_or_stop_with_one_line(seed)
 
 
 @pytest.mark.slow
-@EDGE_XFAIL
 @settings(max_examples=20, deadline=None, suppress_health_check=list(HealthCheck))
 @given(st.integers(0, 2**32 - 1))
 def test_cases_at_the_edges_of_the_numeric_range_run_or_stop_with_one_line_long(seed):

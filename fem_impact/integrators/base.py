@@ -182,6 +182,11 @@ def _direct_solver(A: PETSc.Mat, spd: bool) -> PETSc.KSP:
         pc.setType(PETSc.PC.Type.LU)
     if mumps:
         pc.setFactorSolverType("mumps")
+    else:
+        # PETSc's own LU takes a pivot below 1e-12 *absolute* for zero: a model in units far from 1 (a
+        # step matrix of 1e-40) would stop there. Only an exact zero is one; a singular matrix then
+        # shows as non-finite solves, which the contact problem and the energy watch report.
+        pc.setFactorPivot(zeropivot=0.0)
     ksp.setOptionsPrefix(OPTIONS_PREFIX)
     ksp.setFromOptions()
     ksp.setUp()
