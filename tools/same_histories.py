@@ -4,6 +4,7 @@ makes, on both, compared column by column.
     python tools/same_histories.py OLD NEW                 # e.g. main~5 HEAD; both are git revisions
     python tools/same_histories.py OLD NEW --cases-only    # the case files only (a few minutes)
     python tools/same_histories.py OLD NEW --tests-only -k test_methods   # pytest options pass on
+    python tools/same_histories.py OLD NEW --keep DIR [--compare-only]    # keep the runs, compare again
 
 Each revision is checked out into a temporary worktree and run with this interpreter (the
 project's virtual environment) and that worktree first on the path. Every run records its
@@ -58,6 +59,8 @@ def runs(folder: Path) -> dict[str, list[tuple[str, list[str], np.ndarray]]]:
 
 def difference(a: np.ndarray, b: np.ndarray) -> float:
     """The largest difference of a column pair relative to the old column's scale (0: identical)."""
+    if a.size == 0:
+        return 0.0
     scale = np.nanmax(np.abs(a), axis=0)
     scale[~(scale > 0)] = 1.0
     with np.errstate(invalid="ignore"):
@@ -106,22 +109,23 @@ def main(argv=None) -> int:
     parser.add_argument("--cases-only", action="store_true")
     parser.add_argument("--tests-only", action="store_true")
     parser.add_argument("--tolerance", type=float, default=1e-12)
+    parser.add_argument("--keep", type=Path, help="keep the recorded runs in this folder (and compare again "
+                                                  "from it with --compare-only)")
+    parser.add_argument("--compare-only", action="store_true", help="compare the runs recorded in --keep")
     args, pytest_args = parser.parse_known_args(argv)
-    with tempfile.TemporaryDirectory(prefix="same-histories-") as tmp:
-        tmp = Path(tmp)
-        recorded = {}
-        try:
-            for side, revision in (("old", args.old), ("new", args.new)):
-                print(f"{side}: {revision}", flush=True)
-                tree = checkout(revision, tmp / side / "tree")
-                record(tree, tmp / side / "recorded", args.cases_only, args.tests_only, pytest_args)
-                recorded[side] = runs(tmp / side / "recorded")
-        finally:
-            for side in ("old", "new"):
-                if (tmp / side / "tree").exists():
-                    subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force",
-                                    str(tmp / side / "tree")], check=False)
-        return compare(recorded["old"], recorded["new"], args.tolerance)
+    tmp = args.keep or Path(tempfile.mkdtemp(prefix="same-histories-"))
+    if not args.compare_only:
+        for side, revision in (("old", args.old), ("new", args.new)):
+            print(f"{side}: {revision}", flush=True)
+            tree = tmp / side / "tree"
+            try:
+                record(checkout(revision, tree), tmp / side / "recorded", args.cases_only, args.tests_only,
+                       pytest_args)
+            finally:
+                if tree.exists():
+                    subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=False)
+    print(f"runs recorded in {tmp}")
+    return compare(runs(tmp / "old" / "recorded"), runs(tmp / "new" / "recorded"), args.tolerance)
 
 
 if __name__ == "__main__":
