@@ -40,9 +40,12 @@ class NodalFields:
         return state.U[dofs], state.V[dofs]
 
     def frame(self, state: StepState) -> dict[str, np.ndarray]:
-        """Owned values of u, v, a and the contact force on the structure (-P^T F_N)."""
-        return {"u": state.U, "v": state.V, "a": state.A,
-                "contact_force": -(self.cons.P_local @ state.force)}
+        """Owned values of u, v, a and the contact force on the structure (-P^T F_N, and -P_T^T F_T
+        with friction: normal and tangential parts in one vector, as ParaView's arrows show it)."""
+        force = -(self.cons.P_local @ state.force)
+        if state.tangential is not None:
+            force -= self.cons.tangent_local @ state.tangential
+        return {"u": state.U, "v": state.V, "a": state.A, "contact_force": force}
 
     def velocity_functionals(self, rows: np.ndarray, comm: MPI.Comm):
         """A reader of ``rows^T v`` at each step, for a few fixed rows (owned entries, n_local x k):
@@ -134,6 +137,45 @@ def _check_inside(case, model: Model, key, point) -> None:
                                    f"{box}); a probe must lie on the structure")
 
 
+class FrictionColumns:
+    """history.csv's friction columns, after the others: per contact with friction
+    ``NAME.tangential_force`` (the magnitude of the summed friction force on the body, the first node
+    group of a pair), its components ``NAME.tx``, ``NAME.ty`` (``NAME.tz``) along the global axes,
+    ``NAME.slip`` (the largest sliding speed of its rows), ``NAME.sticking`` and ``NAME.slipping``
+    (rows carrying a normal force, strictly inside the friction cone or on it); then ``friction_loss``."""
+
+    STICK = 1e-9   # relative margin inside the cone that counts as sticking
+
+    def __init__(self, cons: Constraints):
+        self.cons, self.dim = cons, cons.tangent_dirs.shape[1]
+        self.contacts = [c for c in cons.contacts if np.any(np.isin(cons.tangent_of, np.arange(cons.p)[c.rows]))]
+
+    def columns(self) -> list[str]:
+        axes = "xyz"[:self.dim]
+        names = []
+        for c in self.contacts:
+            names += [f"{c.name}.tangential_force", *(f"{c.name}.t{a}" for a in axes), f"{c.name}.slip",
+                      f"{c.name}.sticking", f"{c.name}.slipping"]
+        return names + ["friction_loss"]
+
+    def values(self, state: StepState) -> list[float]:
+        cons, p = self.cons, self.cons.p
+        f = state.tangential
+        per_row_force = np.sqrt(np.bincount(cons.tangent_of, weights=f * f, minlength=p))
+        per_row_speed = np.sqrt(np.bincount(cons.tangent_of, weights=state.tangential_velocity ** 2, minlength=p))
+        on_body = -(f[:, None] * cons.tangent_dirs)   # the friction force on the body, per tangent row
+        loaded = state.force > 0.0
+        sticking = loaded & (per_row_force < (1.0 - self.STICK) * cons.friction * state.force)
+        values = []
+        for c in self.contacts:
+            mine = (cons.tangent_of >= c.rows.start) & (cons.tangent_of < c.rows.stop)
+            total = on_body[mine].sum(axis=0)
+            values += [float(np.linalg.norm(total)), *total.tolist(), float(per_row_speed[c.rows].max()),
+                       int(np.count_nonzero(sticking[c.rows])),
+                       int(np.count_nonzero(loaded[c.rows] & ~sticking[c.rows]))]
+        return values + [state.energy.friction_loss]
+
+
 class HistoryWriter:
     """``history.csv``: one row for t = 0 and one per step (README.md, "What a run writes").
 
@@ -159,6 +201,9 @@ class HistoryWriter:
         self.scheme_energy = scheme_energy   # a scheme that conserves more than kinetic + strain (central difference)
         if scheme_energy:
             self.columns.append("scheme_energy")
+        self.friction = FrictionColumns(cons) if cons.pt else None
+        if self.friction is not None:
+            self.columns += self.friction.columns()
         self._keep = comm.rank == 0
         self.path = path
         self._file = open(path, "w", newline="") if comm.rank == 0 and path is not None else None
@@ -179,6 +224,8 @@ class HistoryWriter:
             row += self.momenta.values(state).tolist()
         if self.scheme_energy:
             row.append(e.scheme)
+        if self.friction is not None:
+            row += self.friction.values(state)
         if self._keep:
             self.rows.append(row)
             if self._file and len(self.rows) >= self.flush_every:

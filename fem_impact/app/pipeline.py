@@ -39,7 +39,9 @@ def full_model(case: Case, model, cons) -> System:
     from .output import NodalFields
 
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
-                    massless=model.massless, stop_compliance=cons.compliance)
+                    massless=model.massless, stop_compliance=cons.compliance,
+                    friction=cons.friction if cons.pt else None, tangents=cons.tangent_local,
+                    tangent_of=cons.tangent_of)
     return System(ops, NodalFields(cons), model.U0, model.V0, {"modes": None})
 
 
@@ -277,6 +279,10 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "vtk_frames": vtk.frames if vtk else 0,
             "fem_impact_version": __version__,
         }
+        if getattr(integrator, "friction", None) is not None:   # (keys added only where friction is)
+            summary.update(friction_loss=final.energy.friction_loss,
+                           max_friction_residual=integrator.friction_residual,
+                           max_friction_sweeps=integrator.friction_sweeps, friction_retries=0)
         if comm.rank == 0 and stage is not None:
             with writing(stage / "summary.json"):
                 (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -235,6 +235,8 @@ def _contact_data(contact: Contact) -> dict:
     else:
         data = {key: value for key, value in dataclasses.asdict(contact).items()
                 if key not in ("law", "law_keys", "restitution", "stiffness")} | {"law": contact.law, **contact.law_keys}
+    if not contact.friction:   # (frictionless: the key left out, as files without friction write it)
+        data.pop("friction", None)
     return data | {"nodes": contact.nodes[0] if contact.type == "obstacle" else list(contact.nodes)}
 
 
@@ -794,7 +796,7 @@ def _contact(value, path):
         "nodes": (lambda nodes, _: nodes, _REQUIRED), "normal": (_vector(_number), _REQUIRED),
         "gap": _real(), "restitution": _real(ge=0, le=1),
         "coupling": _choice(*CONTACT_COUPLINGS), "stiffness": _real(gt=0),
-        "law": _choice(*BUILT_IN_LAWS)}, Contact)
+        "law": _choice(*BUILT_IN_LAWS), "friction": _real(ge=0)}, Contact)
     f = _contact_relation(f, value, path)
     inferred = "elastic_stop" if f["stiffness"] is not None else "newton"
     if value.get("law") is not None and f["law"] != inferred:
@@ -809,6 +811,8 @@ def _contact(value, path):
         raise _Invalid(path + ("restitution",), f"an elastic stop (stiffness given) does not use 'restitution': "
                                                 f"its spring gives back what it stores; keys of an elastic stop: "
                                                 f"{keys} (or remove stiffness for a rigid contact)")
+    if f["friction"] is None:
+        f["friction"] = 0.0
     return Contact(**f)
 
 
@@ -822,11 +826,12 @@ def _registered_law_contact(value, path):
     if not isinstance(name, str) or name not in LAWS:
         raise _Invalid(path + ("law",), f"must be one of {', '.join(LAWS)}; got {_show(name)}")
     law = LAWS[name]
-    relation = ("name", "type", "nodes", "normal", "gap", "coupling", "law")
+    relation = ("name", "type", "nodes", "normal", "gap", "coupling", "law", "friction")
     f = _fields({k: v for k, v in value.items() if k in relation}, path, {
         "name": (_csv_name, _REQUIRED), "type": (_choice(*CONTACT_TYPES), _REQUIRED),
         "nodes": (lambda nodes, _: nodes, _REQUIRED), "normal": (_vector(_number), _REQUIRED),
-        "gap": _real(), "coupling": _choice(*CONTACT_COUPLINGS), "law": _string}, Contact)
+        "gap": _real(), "coupling": _choice(*CONTACT_COUPLINGS), "law": _string,
+        "friction": _real(ge=0)}, Contact)
     f = _contact_relation(f, value, path)
     given = {k: v for k, v in value.items() if k not in relation}
     try:
@@ -840,7 +845,7 @@ def _registered_law_contact(value, path):
                                           f"law {name}: {keys}") from None
         raise _Invalid(path + ((key,) if key else ()), error["msg"]) from None
     return Contact(**{k: v for k, v in f.items() if k in ("name", "type", "nodes", "normal", "gap", "coupling",
-                                                          "law", "law_keys")})
+                                                          "law", "law_keys") or (k == "friction" and v is not None)})
 
 
 def _contact_relation(f: dict, value, path) -> dict:
@@ -864,7 +869,7 @@ def _contact_relation(f: dict, value, path) -> dict:
     return f
 
 
-CONTACT_KEYS = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness", "law")
+CONTACT_KEYS = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness", "law", "friction")
 BUILT_IN_LAWS = ("newton", "elastic_stop")   # (their keys are the contact's own, as before laws were named)
 
 
@@ -1103,6 +1108,7 @@ def _validated(data: dict, case_path: Path | None, folder: Path, lines, override
     from .numbers import check_numbers   # (it reads the case's sections: imported once they exist)
 
     check_numbers(case)
+    _check_friction(case)
     _check_set_parameters(case, changed)
     _check_reference(case, changed)
     return case
@@ -1128,6 +1134,22 @@ def _check_reference(case: Case, changed) -> None:
             raise
         log.info("%s: the changes took the case out of its reference, which is left behind", misfit)
         case.reference = None
+
+
+def _check_friction(case: Case) -> None:
+    """Friction needs a method that solves the cone problem (Moreau-Jean on the full model)."""
+    from ..integrators import integrator_class, is_reduced, scheme_of
+
+    for i, contact in enumerate(case.contacts):
+        if not contact.friction:
+            continue
+        if is_reduced(case.solver):
+            raise case.error(("contacts", i, "friction"), "friction is not available with the reduced model "
+                                                          "(solver.method: modal) yet: use solver.method: moreau_jean")
+        if not getattr(integrator_class(scheme_of(case.solver)), "takes_friction", False):
+            raise case.error(("contacts", i, "friction"),
+                             f"solver.method {case.solver.method} cannot take friction (its contact step is an "
+                             "LCP on normal forces only): use solver.method: moreau_jean")
 
 
 def _check_set_parameters(case: Case, changed) -> None:

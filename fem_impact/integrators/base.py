@@ -313,6 +313,11 @@ class Operators:
     static: StaticPart | None = None
     massless: np.ndarray | None = None
     stop_compliance: np.ndarray | None = None
+    # Coulomb friction: mu per row (None: frictionless), the owned rows of P_T^T (n_local x pt) and
+    # the normal row of each tangent row (fem_impact.nonsmooth.relation.Constraints).
+    friction: np.ndarray | None = None
+    tangents: sparse.spmatrix | np.ndarray | None = None
+    tangent_of: np.ndarray | None = None
 
     def __post_init__(self):
         self.algebra = PETScAlgebra(self.K) if isinstance(self.K, PETSc.Mat) else DenseAlgebra(self.K)
@@ -341,6 +346,19 @@ class Operators:
     @property
     def p(self) -> int:
         return self.d0.size
+
+    @property
+    def pt(self) -> int:
+        """Tangent rows (rows with friction, times 1 in 2D, 2 in 3D)."""
+        return 0 if self.tangent_of is None else self.tangent_of.size
+
+    def with_tangents(self) -> Operators:
+        """The same system with the rows ``[P; P_T]``: normal rows first, then the tangent rows (its
+        ``project_many``, ``subtract_transpose`` and ``delassus`` act on all of them)."""
+        p_all = self.p + self.pt
+        return Operators(self.M, self.K, self.C, self.load,
+                         sparse.hstack([sparse.csr_matrix(self.P_local), sparse.csr_matrix(self.tangents)]).tocsr(),
+                         np.zeros(p_all), np.zeros(p_all), massless=self.massless)
 
     def project(self, local: np.ndarray) -> np.ndarray:
         """``P x`` (or ``P X`` for a block of columns) from owned entries: one global sum."""
@@ -507,6 +525,7 @@ class EnergyBudget:
     # Not a term of the balance: the energy the load R(t) can give the structure at the step
     # (ContactScheme._load_energy), the watch's scale while E0 + W_ext is still zero or tiny.
     load_scale: float = 0.0
+    friction_loss: float = 0.0   # the work of the friction impulses, lost (docs/theory.md s. 10)
 
     @property
     def total(self) -> float:
@@ -517,12 +536,12 @@ class EnergyBudget:
         """Residual of the balance: E - E0 - W_ext + damping + impact + contact losses."""
         return (
             self.total - self.initial - self.external_work
-            + self.damping_loss + self.impact_loss + self.contact_loss
+            + self.damping_loss + self.impact_loss + self.contact_loss + self.friction_loss
         )
 
     def copy(self) -> EnergyBudget:
         return EnergyBudget(self.kinetic, self.strain, self.external_work, self.damping_loss, self.impact_loss,
-                            self.contact_loss, self.initial, self.scheme, self.load_scale)
+                            self.contact_loss, self.initial, self.scheme, self.load_scale, self.friction_loss)
 
 
 @dataclass
@@ -540,6 +559,8 @@ class StepState:
     energy: EnergyBudget
     normal_displacement: np.ndarray  # P U
     normal_velocity: np.ndarray      # P V (after the impact correction)
+    tangential: np.ndarray | None = None            # friction forces r_T / dt per tangent row (with friction)
+    tangential_velocity: np.ndarray | None = None   # P_T V per tangent row: the sliding velocity
 
 
 class Observer(Protocol):
@@ -590,7 +611,8 @@ class EnergyWatch:
             return
         # The contacts' losses together: Carnot's impulses and the position-level forces are one
         # contact model (on an impact the forces may give back a little of what the impulse took).
-        excess = max(e.total - e.initial - e.external_work, -(e.contact_loss + e.impact_loss), -e.damping_loss)
+        excess = max(e.total - e.initial - e.external_work, -(e.contact_loss + e.impact_loss), -e.damping_loss,
+                     -e.friction_loss)
         self.max_ratio = max(self.max_ratio, e.total / self.scale)
         if excess > self.created:
             self.created = excess

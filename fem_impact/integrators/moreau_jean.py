@@ -35,8 +35,12 @@ convex, so ``phi(x1) - phi(x0) <= phi'(x1) (x1 - x0)``: the stop stores at most 
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
+from ..errors import ContactSolverError
+from ..nonsmooth.friction import FrictionProblem
 from ..nonsmooth.lcp import TINY, Delassus, solve_lcp
 from .base import EnergyBudget, Operators, StepState, axpy
 from .scheme import ContactScheme
@@ -71,6 +75,7 @@ class MoreauJean(ContactScheme):
     """
 
     name = "moreau_jean"
+    takes_friction = True   # Coulomb friction: a cone problem on [P; P_T] (_build_friction)
 
     def __init__(self, ops: Operators, dt: float, theta: float = 0.5, level: str = "position"):
         if not 0.5 <= theta <= 1.0:
@@ -93,8 +98,35 @@ class MoreauJean(ContactScheme):
         self.position_rows = np.ones(ops.p, dtype=bool) if level == "position" else self.elastic
         self.carnot_rows = ~self.elastic & ~ops.massless_rows if level == "position" else np.zeros(ops.p, bool)
         self.lcp = Delassus.regularized(self.W + compliance / (theta * dt * dt))   # factors kept over the steps
+        self.friction = None
+        if ops.pt:
+            self._build_friction(compliance)
         new = self.alg.vector
         self.KU, self.KV, self.KV_prev = new(), new(), new()
+
+    def _build_friction(self, compliance: np.ndarray) -> None:
+        """The frictional one-step problem on ``[P; P_T]`` (docs/theory.md s. 10).
+
+        A rigid row with friction takes Newton's law and Coulomb's at the velocity level (De
+        Saxce's form, as Siconos' Moreau-Jean): the impulse of an impact then lies in the cone
+        with its normal part, which a position-level impulse followed by Carnot's correction
+        would split in two. An elastic stop with friction keeps its gap condition at the end of
+        the step (its normal unknown is the same impulse).
+        """
+        ops, dt, theta = self.ops, self.dt, self.theta
+        rigid = (ops.friction > 0.0) & ~self.elastic
+        self.position_rows = self.position_rows & ~rigid
+        self.carnot_rows = self.carnot_rows & ~rigid
+        self.rows = ops.with_tangents()
+        clock = time.perf_counter()
+        W_all, self.G_all = self.rows.delassus(self.solve_S)
+        self.timings["W with tangents"] = time.perf_counter() - clock
+        self.W_all = W_all
+        shifted = W_all.copy()
+        shifted[:ops.p, :ops.p] += compliance / (theta * dt * dt)
+        self.friction = FrictionProblem(shifted, ops.tangent_of, ops.friction)
+        self.r_prev = np.zeros(ops.p + ops.pt)
+        self.friction_residual, self.friction_sweeps = 0.0, 0
 
     @classmethod
     def from_solver(cls, ops: Operators, solver) -> MoreauJean:
@@ -123,6 +155,9 @@ class MoreauJean(ContactScheme):
             energy.strain += ops.static.energy(t0, force)
         energy.initial = energy.total
         self.state = StepState(0, t0, self.U, self.V, self.A, ops.d0 - pu, force, np.zeros(ops.p), energy, pu, pv)
+        if self.friction is not None:
+            self.state.tangential = np.zeros(ops.pt)
+            self.state.tangential_velocity = self.rows.project_many(self.V)[0][ops.p:]
         return self.state
 
     def step(self) -> StepState:
@@ -151,7 +186,10 @@ class MoreauJean(ContactScheme):
         impulse = np.zeros(p)
         pu, pv = st.normal_displacement, st.normal_velocity
         jump = 0.0   # the largest change of a normal velocity the impulse made
-        if p:
+        tangential = pt = None
+        if p and self.friction is not None:
+            impulse, tangential, pv, pt, jump = self._frictional_impulse(st, t1, rhs)
+        elif p:
             pv_free = ops.project_many(V)[0]
             impulse = self._impulse(st, pv_free, t1)
             pv = pv_free
@@ -197,6 +235,8 @@ class MoreauJean(ContactScheme):
                 pu = pu + ops.static.offset(t1) - ops.static.compliance.dot(force)
             energy.contact_loss += step_contact_loss
             energy.impact_loss += restitution_loss
+            if tangential is not None:   # the friction impulses' work with the step's mean sliding velocity
+                energy.friction_loss += float(tangential.dot(0.5 * (st.tangential_velocity + pt)))
             if ops.static:
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
         self._step_energies(energy, t1, 1.0 - theta, theta, self.MV, KU=self.KU)
@@ -204,10 +244,66 @@ class MoreauJean(ContactScheme):
             alg.mult(ops.C, V, self.CV)
         self._book_stored(energy, st, force, t1, theta)
         self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, percussion, energy, pu, pv)
+        if tangential is not None:
+            if corrected:   # Carnot's correction on frictionless rows moved the tangent rows' dofs too
+                pt = self.rows.project_many(V)[0][p:]
+            self.state.tangential, self.state.tangential_velocity = tangential / dt, pt
         return self.state
+
+    def _frictional_impulse(self, st: StepState, t1: float, rhs: np.ndarray):
+        """The step's impulses with friction: one cone problem on ``[P; P_T]``, applied to V.
+
+        Returns (normal impulses, tangential impulses, P V, P_T V, the largest normal velocity jump).
+        A solve that misses its tolerance stops the run (ContactSolverError, status 3).
+        """
+        ops, p, V = self.ops, self.ops.p, self.V
+        free = self.rows.project_many(V)[0]
+        pv_free, pt_free = free[:p], free[p:]
+        q, active = self._contact_problem(st, pv_free, t1)
+        # Tangent rows of a contact that persists (an impulse in the previous step): Coulomb's law on
+        # the slip over the step, (1 - theta) P_T V0 + theta P_T V1, scaled by 1/theta (W stays
+        # symmetric); the friction then never does positive work in a step. A row that closes in
+        # this step takes it on the velocity at its end, as an impact must.
+        q_t = -pt_free
+        persists = (st.impulse > 0.0)[ops.tangent_of]
+        if np.count_nonzero(persists):
+            q_t = q_t - np.where(persists, (1.0 - self.theta) / self.theta * st.tangential_velocity, 0.0)
+        sol = self.friction.solve(np.concatenate([q, q_t]), active, guess=self.r_prev)
+        self.friction_residual = max(self.friction_residual, sol.residual)
+        self.friction_sweeps = max(self.friction_sweeps, sol.sweeps)
+        if not sol.converged:
+            raise ContactSolverError(
+                f"the frictional contact problem was not solved at t = {t1:.6g} (step {st.step + 1}): residual "
+                f"{sol.residual:.3g} after {sol.sweeps} sweeps (tolerance {self.friction.TOLERANCE:.0e}), worst at "
+                f"contact row {sol.worst_row}{self._row_name(sol.worst_row)}")
+        r = sol.r
+        self.r_prev = r
+        if not np.count_nonzero(r):
+            return r[:p], r[p:], pv_free, pt_free, 0.0
+        self.G_all.subtract_from(V, r)
+        self.rows.subtract_transpose(rhs, r)   # the step's equation with the impulses, for K V1
+        Wr = self.W_all.dot(r)
+        return r[:p], r[p:], pv_free - Wr[:p], pt_free - Wr[p:], float(np.abs(Wr[:p]).max())
+
+    def _row_name(self, row: int) -> str:
+        names = getattr(self.ops, "row_names", None)
+        return f" ({names[row]})" if names is not None and 0 <= row < len(names) else ""
 
     def _impulse(self, st: StepState, pv_free: np.ndarray, t1: float) -> np.ndarray:
         """The step's impulses from one LCP over the active rows (see the class docstring)."""
+        q, active = self._contact_problem(st, pv_free, t1)
+        impulse = np.zeros(self.ops.p)
+        if not np.count_nonzero(active):
+            return impulse
+        if np.count_nonzero(active) == active.size:
+            impulse = self.lcp.solve(q, guess=st.impulse > 0.0)[0]
+        else:
+            a = np.flatnonzero(active)
+            impulse[a] = self.lcp.solve(q[a], guess=st.impulse[a] > 0.0, rows=a)[0]
+        return impulse
+
+    def _contact_problem(self, st: StepState, pv_free: np.ndarray, t1: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(q, active)`` of the step's normal problem ``w = W p + q`` (the class docstring)."""
         ops, dt, theta = self.ops, self.dt, self.theta
         pv0 = st.normal_velocity   # P V0 (the dynamic part: a static part has no velocity of its own)
         gap0 = st.gap
@@ -224,15 +320,7 @@ class MoreauJean(ContactScheme):
             offset = ops.static.offset(t1) if ops.static else 0.0
             g_free = (ops.d0 - offset - self._pu_dyn - dt * (1.0 - theta) * pv0) / (theta * dt) - pv_free
             q = np.where(el, g_free, q)
-        impulse = np.zeros(ops.p)
-        if not np.count_nonzero(active):
-            return impulse
-        if np.count_nonzero(active) == active.size:
-            impulse = self.lcp.solve(q, guess=st.impulse > 0.0)[0]
-        else:
-            a = np.flatnonzero(active)
-            impulse[a] = self.lcp.solve(q[a], guess=st.impulse[a] > 0.0, rows=a)[0]
-        return impulse
+        return q, active
 
     def _restitution(self, impulse: np.ndarray, pv0: np.ndarray, pv: np.ndarray, pu: np.ndarray,
                      contact_loss: float, jump: float) -> tuple[np.ndarray, float, np.ndarray | None]:

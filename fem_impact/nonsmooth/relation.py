@@ -37,6 +37,17 @@ class Constraints:
     restitution: np.ndarray
     contacts: list[ContactRows]
     compliance: np.ndarray      # 1/stiffness of an elastic stop per row (m/N); 0 on rigid rows
+    # Coulomb friction (docs/theory.md s. 10): mu per row; the tangent rows of the rows with mu > 0
+    # (owned rows of P_T^T, n_local x pt; 1 per row in 2D, 2 in 3D), the normal row of each, and
+    # its unit direction in global axes (pt x dim).
+    friction: np.ndarray | None = None
+    tangent_local: sparse.csr_matrix | None = None
+    tangent_of: np.ndarray | None = None
+    tangent_dirs: np.ndarray | None = None
+
+    @property
+    def pt(self) -> int:
+        return 0 if self.tangent_of is None else self.tangent_of.size
 
     @property
     def p(self) -> int:
@@ -52,13 +63,18 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
     dim, bs = model.meshdata.dim, model.bs
     n_local = model.U0.getLocalSize()
     columns, gaps, restitution, compliance, contacts = [], [], [], [], []
+    friction, tangent_columns, tangent_of, tangent_dirs = [], [], [], []
     for i, contact in enumerate(specs):
         key = ("contacts", i)
         normal = np.asarray(pad_vector(contact.normal, dim, key + ("normal",), "normal"), dtype=float)
         normal /= np.linalg.norm(normal)
+        tangents = tangent_basis(normal) if contact.friction > 0.0 else []
+        if contact.friction > 0.0 and not tangents:
+            raise ModelInputError(key + ("friction",), "friction needs a tangent direction: a 1D model has none")
         if contact.type == "obstacle":
             nodes = model.node_set(contact.nodes[0], key + ("nodes",))
             col = _rows(n_local, bs, normal, nodes)
+            t_cols = [_rows(n_local, bs, t, nodes) for t in tangents]
             gap = np.full(len(nodes), contact.gap if contact.gap is not None else 0.0)
         else:
             a = model.node_set(contact.nodes[0], key + ("nodes",))
@@ -66,6 +82,7 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
             order = match_pairs(key, a, b, normal)
             b = NodeSet(b.name, b.coords[order], b.global_node[order], b.local_node[order])
             col = _rows(n_local, bs, normal, a) - _rows(n_local, bs, normal, b)
+            t_cols = [_rows(n_local, bs, t, a) - _rows(n_local, bs, t, b) for t in tangents]
             mesh_gap = (b.coords - a.coords)[:, :dim] @ normal
             # Coincident nodes (bodies meshed apart that touch) differ by their coordinates' round-off.
             mesh_gap[np.abs(mesh_gap) <= 1e-12 * model.meshdata.extent] = 0.0
@@ -74,8 +91,14 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
             # One row on the group's mean normal displacement (a distributing coupling): its
             # force P^T lam is shared equally by the nodes, as a load on a node group is.
             col = sparse.csr_matrix(col.mean(axis=1))
+            t_cols = [sparse.csr_matrix(t.mean(axis=1)) for t in t_cols]
             gap = np.array([gap.mean()])
         start = sum(len(g) for g in gaps)
+        friction.append(np.full(len(gap), contact.friction))
+        for k, (t, t_col) in enumerate(zip(tangents, t_cols)):
+            tangent_columns.append(t_col)
+            tangent_of.append(np.arange(start, start + len(gap)))
+            tangent_dirs.append(np.tile(t, (len(gap), 1)))
         contacts.append(ContactRows(contact.name, i, slice(start, start + len(gap))))
         columns.append(col)
         gaps.append(gap)
@@ -91,13 +114,32 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
     P_local = (sparse.diags(free) @ sparse.hstack(columns)).tocsr()
     P_local.eliminate_zeros()
     cons = Constraints(P_local, np.concatenate(gaps), np.concatenate(restitution), contacts,
-                       np.concatenate(compliance))
+                       np.concatenate(compliance), np.concatenate(friction))
+    if tangent_columns:
+        # Rows of a tangent direction held by a support carry no friction there (zero columns).
+        cons.tangent_local = (sparse.diags(free) @ sparse.hstack(tangent_columns)).tocsr()
+        cons.tangent_local.eliminate_zeros()
+        cons.tangent_of = np.concatenate(tangent_of)
+        cons.tangent_dirs = np.concatenate(tangent_dirs)
     norms = np.sqrt(model.comm.allreduce(np.asarray(P_local.power(2).sum(axis=0)).ravel(), op=MPI.SUM))
     for c in contacts:
         if np.any(norms[c.rows] == 0.0):
             raise ModelInputError(("contacts", c.index, "nodes"),
                                   "acts on nodes whose normal direction is fixed by a support")
     return cons
+
+
+def tangent_basis(normal: np.ndarray) -> list[np.ndarray]:
+    """Unit tangent directions orthogonal to a unit ``normal``: none in 1D, one in 2D (the normal
+    turned by +90 degrees), two in 3D (right-handed with the normal: t1 x t2 = n)."""
+    if normal.size == 1:
+        return []
+    if normal.size == 2:
+        return [np.array([-normal[1], normal[0]])]
+    helper = np.eye(3)[int(np.argmin(np.abs(normal)))]
+    t1 = np.cross(helper, normal)
+    t1 /= np.linalg.norm(t1)
+    return [t1, np.cross(normal, t1)]
 
 
 def _rows(n_local: int, bs: int, normal: np.ndarray, nodes: NodeSet) -> sparse.csr_matrix:

@@ -17,6 +17,7 @@ class Contact:
     stiffness: float | None = None   # N/m per row: an elastic stop (None: rigid)
     law: str = "newton"         # the contact law (fem_impact.nonsmooth.laws): newton, elastic_stop, or registered
     law_keys: dict = field(default_factory=dict)   # the law's own keys, as its schema validated them
+    friction: float = 0.0       # Coulomb's coefficient mu on every row of the contact (0: frictionless)
 
     @property
     def law_is_inferred(self) -> bool:

@@ -1,0 +1,245 @@
+"""Coulomb friction: the one-step frictional contact problem and its certified solver.
+
+The problem (docs/theory.md s. 10). Every contact row i has a normal unknown ``r_N`` (the
+impulse of the step, as in the frictionless LCP) and, where its contact has a friction
+coefficient ``mu > 0``, one tangential unknown per tangent direction (one in 2D, two in 3D):
+the tangential impulse ``r_T`` that acts on the structure as ``-P_T^T r_T``. The local
+velocities are affine in the impulses through the step's Delassus matrix,
+
+    y = W r + q,     y_N = the row's separating velocity (or gap rate), y_T = -P_T V1,
+
+and Coulomb's law with Newton's on the normal part holds in De Saxce's form, row by row,
+
+    K_mu = {|r_T| <= mu r_N},   r in K_mu,   y + mu |y_T| e_N in K_mu*,   r . (y + mu |y_T| e_N) = 0:
+
+no impulse and ``y_N >= 0`` (open), or ``y_N = 0`` and either ``y_T = 0`` with ``|r_T| <= mu
+r_N`` (stick) or ``r_T = -mu r_N y_T / |y_T|`` (slip, the impulse opposing the tangential
+velocity at the end of the step). Rows without friction have only their normal part.
+
+Solver: nonsmooth Gauss-Seidel over the rows (each row's 2 x 2 or 3 x 3 problem solved
+exactly: open, stick, or slip in the direction that makes the tangential velocity parallel to
+the friction impulse), warm-started from the previous step. It stops when the residual below
+is under the tolerance; a solve that misses it is reported (``FrictionSolution.converged``),
+never accepted in silence.
+
+Residual (the natural map of the cone problem, as Siconos' fc3d_compute_error measures it):
+per row ``|r_i - proj_K(r_i - rho_i (y_i + mu |y_T,i| e_N))|`` with ``rho_i = 1 / W_NN,i`` (so
+that impulse and velocity compare in the row's own mass), the largest over the rows divided by
+the size of the data, ``max(|r|_inf, max_i rho_i |q_i|_inf)``: dimensionless, 0 at a solution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+TINY = np.finfo(float).tiny
+
+
+@dataclass
+class FrictionSolution:
+    r: np.ndarray          # impulses: normal rows first (p), then the tangent rows (pt)
+    y: np.ndarray          # W r + q
+    residual: float        # dimensionless natural-map residual (module docstring)
+    sweeps: int
+    converged: bool
+    worst_row: int         # the normal row with the largest residual
+
+
+def project_on_cone(z_n: float, z_t: np.ndarray, mu: float) -> tuple[float, np.ndarray]:
+    """The projection of ``(z_n, z_t)`` on the cone ``|r_T| <= mu r_N`` (Euclidean)."""
+    norm_t = float(np.sqrt(z_t.dot(z_t)))
+    if norm_t <= mu * z_n:
+        return z_n, z_t
+    if mu * norm_t <= -z_n or (mu == 0.0 and z_n <= 0.0):
+        return 0.0, np.zeros_like(z_t)
+    if mu == 0.0:
+        return z_n, np.zeros_like(z_t)
+    r_n = (z_n + mu * norm_t) / (1.0 + mu * mu)
+    return r_n, (mu * r_n / norm_t) * z_t
+
+
+def row_residual(r: np.ndarray, y: np.ndarray, mu: float, rho: float) -> float:
+    """``|r - proj_K(r - rho (y + mu |y_T| e_N))|`` for one row (r, y: normal first)."""
+    y_t = y[1:]
+    shifted = y[0] + mu * float(np.sqrt(y_t.dot(y_t)))
+    z_n, z_t = r[0] - rho * shifted, r[1:] - rho * y_t
+    p_n, p_t = project_on_cone(z_n, z_t, mu)
+    return float(np.sqrt((r[0] - p_n) ** 2 + np.sum((r[1:] - p_t) ** 2)))
+
+
+def solve_row(W: np.ndarray, q: np.ndarray, mu: float) -> np.ndarray:
+    """Exact solution of one row's problem ``y = W r + q`` (W: 1 x 1, 2 x 2 or 3 x 3, SPD).
+
+    Open when ``q_N >= 0``; else stick when ``-W^-1 q`` lies in the cone; else slip: the
+    normal impulse closes the row, ``r_N = -q_N / (W_NN - mu W_NT . tau)``, and the direction
+    ``tau`` of the tangential velocity solves ``y_T(tau) = |y_T| tau`` (two candidates in 2D;
+    in 3D a fixed point from the stick solution's direction, else a scan of the angle).
+    """
+    if q[0] >= 0.0:
+        return np.zeros(q.size)
+    if q.size == 1 or mu == 0.0:
+        r = np.zeros(q.size)
+        r[0] = -q[0] / W[0, 0]
+        return r
+    stick = -np.linalg.solve(W, q)
+    if stick[0] >= 0.0 and float(np.sqrt(stick[1:].dot(stick[1:]))) <= mu * stick[0] * (1.0 + 1e-14):
+        return stick
+
+    def slip(tau: np.ndarray):
+        denominator = W[0, 0] - mu * W[0, 1:].dot(tau)
+        if denominator <= 0.0:
+            return None
+        r_n = -q[0] / denominator
+        y_t = q[1:] + r_n * (W[1:, 0] - mu * W[1:, 1:].dot(tau))
+        return r_n, y_t
+
+    def as_row(r_n: float, tau: np.ndarray) -> np.ndarray:
+        return np.concatenate([[r_n], -mu * r_n * tau])
+
+    if q.size == 2:
+        best, best_res = None, np.inf
+        for sign in (1.0, -1.0):
+            tau = np.array([sign])
+            out = slip(tau)
+            if out is None:
+                continue
+            r = as_row(out[0], tau)
+            res = row_residual(r, W.dot(r) + q, mu, 1.0 / W[0, 0])
+            if out[1][0] * sign >= 0.0 and res < best_res:
+                best, best_res = r, res
+        return best if best is not None else _projected_row(W, q, mu, stick)
+    # 3D: the direction of the tangential velocity; first by fixed point from the stick guess.
+    tau = -stick[1:] / max(float(np.linalg.norm(stick[1:])), TINY)
+    for _ in range(50):
+        out = slip(tau)
+        if out is None:
+            break
+        norm = float(np.linalg.norm(out[1]))
+        if norm <= TINY:
+            break
+        new = out[1] / norm
+        if np.linalg.norm(new - tau) <= 1e-15:
+            return as_row(out[0], new)
+        tau = new
+    found = _scan_angle(W, q, mu, slip, as_row)
+    return found if found is not None else _projected_row(W, q, mu, stick)
+
+
+def _scan_angle(W, q, mu, slip, as_row):
+    """3D slip: the angle phi of tau = (cos phi, sin phi) where y_T is parallel to tau (a scan
+    of 360 angles for sign changes of tau x y_T, each refined by bisection to round-off)."""
+    def cross(phi):
+        tau = np.array([np.cos(phi), np.sin(phi)])
+        out = slip(tau)
+        if out is None:
+            return np.nan, None
+        return tau[0] * out[1][1] - tau[1] * out[1][0], out
+
+    phis = np.linspace(0.0, 2.0 * np.pi, 361)
+    values = [cross(phi)[0] for phi in phis]
+    best, best_res = None, np.inf
+    for k in range(360):
+        a, b = values[k], values[k + 1]
+        if not (np.isfinite(a) and np.isfinite(b)) or a * b > 0.0:
+            continue
+        lo, hi, f_lo = phis[k], phis[k + 1], a
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            f_mid = cross(mid)[0]
+            if not np.isfinite(f_mid):
+                break
+            if f_lo * f_mid <= 0.0:
+                hi = mid
+            else:
+                lo, f_lo = mid, f_mid
+        phi = 0.5 * (lo + hi)
+        tau = np.array([np.cos(phi), np.sin(phi)])
+        out = slip(tau)
+        if out is None or out[1].dot(tau) < 0.0 or out[0] < 0.0:
+            continue
+        r = as_row(out[0], tau)
+        res = row_residual(r, W.dot(r) + q, mu, 1.0 / W[0, 0])
+        if res < best_res:
+            best, best_res = r, res
+    return best
+
+
+def _projected_row(W, q, mu, start):
+    """Fallback for a row with no closed-form candidate: the projected fixed point
+    ``r <- proj_K(r - rho (W r + q + mu |y_T| e_N))`` (its residual decides whether it is kept)."""
+    rho = 1.0 / np.linalg.eigvalsh(W).max()
+    r = np.concatenate([[max(start[0], 0.0)], np.zeros(q.size - 1)])
+    for _ in range(2000):
+        y = W.dot(r) + q
+        shifted = y[0] + mu * float(np.linalg.norm(y[1:]))
+        r_n, r_t = project_on_cone(r[0] - rho * shifted, r[1:] - rho * y[1:], mu)
+        new = np.concatenate([[r_n], r_t])
+        if np.abs(new - r).max() <= 1e-15 * max(np.abs(new).max(), TINY):
+            return new
+        r = new
+    return r
+
+
+class FrictionProblem:
+    """The frictional contact problem of a step in one Delassus matrix (module docstring).
+
+    ``W``: (p + pt) x (p + pt), normal rows first, then the tangent rows; ``tangent_of[k]`` is the
+    normal row of tangent row k; ``mu``: the friction coefficient per normal row.
+    """
+
+    TOLERANCE = 1e-10
+    MAX_SWEEPS = 2000
+
+    def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray):
+        self.W = np.ascontiguousarray(W, dtype=float)
+        self.p, self.mu = mu.size, np.asarray(mu, dtype=float)
+        self.blocks = [np.array([i] + [self.p + k for k in np.flatnonzero(tangent_of == i)])
+                       for i in range(self.p)]
+        self.local = [self.W[np.ix_(b, b)] for b in self.blocks]
+        self.rho = 1.0 / np.diag(self.W)[:self.p]
+
+    def solve(self, q: np.ndarray, active: np.ndarray, guess: np.ndarray | None = None) -> FrictionSolution:
+        """Solve on the ``active`` normal rows (and their tangent rows); the others carry nothing."""
+        n = q.size
+        rows = np.flatnonzero(active)
+        r = np.zeros(n)
+        if not rows.size:
+            return FrictionSolution(r, q.copy(), 0.0, 0, True, -1)
+        idx = np.concatenate([self.blocks[i] for i in rows])
+        if guess is not None:
+            r[idx] = guess[idx]
+        Wa = self.W[np.ix_(idx, idx)]
+        y = q.copy()
+        y[idx] = Wa.dot(r[idx]) + q[idx]
+        # Each row's position within idx, for the updates of y.
+        where, start = [], 0
+        for i in rows:
+            where.append(slice(start, start + self.blocks[i].size))
+            start += self.blocks[i].size
+        ya, ra = y[idx], r[idx]
+        residual, worst, sweeps = np.inf, -1, 0
+        for sweeps in range(1, self.MAX_SWEEPS + 1):
+            for i, s in zip(rows, where):
+                Wi = self.local[i]
+                qi = ya[s] - Wi.dot(ra[s])
+                new = solve_row(Wi, qi, self.mu[i])
+                change = new - ra[s]
+                if np.count_nonzero(change):
+                    ya += Wa[:, s].dot(change)
+                    ra[s] = new
+            residual, worst = self._residual(ra, ya, q[idx], rows, where)
+            if residual <= self.TOLERANCE:
+                break
+        r[idx], y[idx] = ra, Wa.dot(ra) + q[idx]
+        return FrictionSolution(r, y, residual, sweeps, residual <= self.TOLERANCE, worst)
+
+    def _residual(self, ra, ya, qa, rows, where) -> tuple[float, int]:
+        worst, worst_row, scale = 0.0, -1, float(np.abs(ra).max(initial=0.0))
+        for i, s in zip(rows, where):
+            scale = max(scale, self.rho[i] * float(np.abs(qa[s]).max()))
+            res = row_residual(ra[s], ya[s], self.mu[i], self.rho[i])
+            if res > worst:
+                worst, worst_row = res, i
+        return worst / max(scale, TINY), worst_row

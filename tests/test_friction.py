@@ -1,0 +1,205 @@
+"""Coulomb friction (docs/theory.md s. 10) against exact answers.
+
+- A point mass hitting a floor obliquely (v_N = -1, v_T = 0.5 in 2D, (0.3, 0.4) in 3D, e = 0.5): with
+  mu = 0.2 it leaves sliding, |v_T| reduced by mu (1 + e) |v_N|; with mu = 0.5 it sticks (v_T = 0).
+- An elastic block sliding on a floor under gravity with speed v0 decelerates at mu g and stops at
+  v0 / (mu g) after v0^2 / (2 mu g), then stays where it stopped.
+- A block on an incline (gravity turned by theta) stays at rest when tan(theta) <= mu, else slides
+  with acceleration g (sin theta - mu cos theta).
+- A free strip hitting a wall end-on while sliding along it: its tangential momentum changes by mu
+  times the change of its normal momentum, against the slip.
+Every run: the friction loss never decreases while a contact persists, and E <= E0 + W_ext.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import ConstantLoad
+import fem_impact as fi
+from fem_impact.errors import CaseError, ContactSolverError
+from fem_impact.integrators import MoreauJean, Operators, integrate
+from fem_impact.nonsmooth.friction import FrictionProblem, project_on_cone, row_residual, solve_row
+from fem_impact.nonsmooth.relation import tangent_basis
+
+G = 9.81
+
+
+class Rows:
+    def __init__(self):
+        self.states = []
+
+    def write(self, s):
+        self.states.append((s.t, s.V.copy(), s.energy.copy()))
+
+
+def point_impact(dim, mu, e=0.5, m=2.0, dt=1e-3):
+    """A point mass at the floor (gap 0) moving down at 1 and along it: v after three steps."""
+    normal = np.zeros(dim)
+    normal[1] = -1.0
+    tangents = tangent_basis(normal)
+    v0 = np.zeros(dim)
+    v0[1] = -1.0
+    v_t = np.array([0.5]) if dim == 2 else np.array([0.3, 0.4])
+    for t, c in zip(tangents, v_t):
+        v0 += c * t
+    ops = Operators(np.full(dim, m), np.zeros(dim), None, ConstantLoad(0.0), normal[:, None], np.zeros(1),
+                    np.array([e]), friction=np.array([mu]), tangents=np.array(tangents).T,
+                    tangent_of=np.zeros(dim - 1, dtype=int))
+    rec = Rows()
+    integrate(MoreauJean(ops, dt), np.zeros(dim), v0.copy(), 3 * dt, [rec])
+    v = rec.states[-1][1]
+    return v.dot(normal), np.array([v.dot(t) for t in tangents]), v_t, rec
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_an_oblique_impact_that_slides_loses_mu_1_plus_e_of_the_normal_speed(dim):
+    v_n, v_t, v_t0, rec = point_impact(dim, mu=0.2)
+    assert v_n == pytest.approx(-0.5, abs=1e-12)    # leaves at e |v_N| (the normal points into the floor)
+    speed0 = np.linalg.norm(v_t0)
+    expected = v_t0 * (speed0 - 0.2 * 1.5) / speed0  # same direction, reduced by mu (1 + e) |v_N|
+    assert np.allclose(v_t, expected, rtol=0, atol=1e-8)
+    for _, _, energy in rec.states:
+        assert energy.friction_loss >= 0.0 and energy.error == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_an_oblique_impact_inside_the_cone_sticks(dim):
+    v_n, v_t, _, rec = point_impact(dim, mu=0.5)
+    assert v_n == pytest.approx(-0.5, abs=1e-12)
+    assert np.abs(v_t).max() <= 1e-8
+    # The friction impulse took the whole tangential kinetic energy, 1/2 m |v_T|^2 = 0.25 J.
+    assert rec.states[-1][2].friction_loss == pytest.approx(0.25, rel=1e-9)
+
+
+def test_the_cone_projection_and_the_row_solver_agree_with_the_law():
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        dim = int(rng.integers(2, 4))
+        A = rng.normal(size=(dim, dim))
+        W = A @ A.T + dim * np.eye(dim)
+        q = rng.normal(size=dim)
+        mu = float(rng.uniform(0.0, 1.5))
+        r = solve_row(W, q, mu)
+        assert row_residual(r, W @ r + q, mu, 1.0 / W[0, 0]) <= 1e-9 * max(np.abs(q).max(), 1.0)
+        assert np.linalg.norm(r[1:]) <= mu * r[0] * (1 + 1e-12) + 1e-15
+    r_n, r_t = project_on_cone(1.0, np.array([3.0, 4.0]), 0.5)   # onto the cone's surface
+    assert np.linalg.norm(r_t) == pytest.approx(0.5 * r_n)
+
+
+def test_an_unsolved_contact_problem_is_reported_not_accepted(monkeypatch):
+    """Coupled rows need several sweeps: with one allowed, the solve misses its tolerance and says so."""
+    W = np.array([[2.0, 0.9, 0.5, 0.3], [0.9, 2.0, 0.2, 0.4], [0.5, 0.2, 1.0, 0.1], [0.3, 0.4, 0.1, 1.0]])
+    problem = FrictionProblem(W, np.array([0, 1]), np.array([0.3, 0.3]))
+    monkeypatch.setattr(FrictionProblem, "MAX_SWEEPS", 1)
+    sol = problem.solve(np.array([-1.0, -0.5, 0.8, -0.6]), np.array([True, True]))
+    assert not sol.converged and sol.residual > FrictionProblem.TOLERANCE
+    monkeypatch.setattr(FrictionProblem, "MAX_SWEEPS", 2000)
+    sol = problem.solve(np.array([-1.0, -0.5, 0.8, -0.6]), np.array([True, True]))
+    assert sol.converged and sol.residual <= FrictionProblem.TOLERANCE
+
+
+# --- an elastic block on a rigid floor ------------------------------------------------------
+
+def block(dim, mu, gravity, v0=0.0, dt=2e-3, t_end=1.0, cells=8):
+    """A block 0.2 x 0.05 (x 0.05), E = 1e7, rho = 1000 (c = 100 m/s, h = 0.025: dt = 2e-3 is a
+    Courant number of 8), nu = 0, on a floor at its bottom face, under the acceleration ``gravity``."""
+    mesh = {"shape": "bar", "dim": dim, "length": 0.2, "height": 0.05, "cells": cells}
+    pad = [0.0] * (dim - 2)
+    if dim == 3:
+        mesh["width"] = 0.05
+    data = {"name": "block", "mesh": mesh,
+            "material": {"E": 1e7, "rho": 1000.0, "nu": 0.0, **({"area": 1.0} if dim == 2 else {})},
+            "initial": {"velocity": [v0, 0.0] + pad},
+            "loads": [{"body": "all", "acceleration": list(gravity) + pad}],
+            "contacts": [{"name": "floor", "type": "obstacle", "nodes": "bottom", "normal": [0.0, -1.0] + pad,
+                          "gap": 0.0, "friction": mu}],
+            "solver": {"dt": dt, "t_end": t_end}, "output": {"vtk": False}}
+    result = fi.run(fi.Case.from_dict(data))
+    h = result.history
+    return h, h["bar.px"] / result.summary["body_mass"]["bar"], result.summary
+
+
+def check_energy(h, tolerance=1e-9):
+    """E <= E0 + W_ext, the losses non-negative, and the balance closed."""
+    energy = h["kinetic"] + h["strain"]
+    scale = max(energy[0] + h["external_work"].max(), 1e-300)
+    assert np.all(energy - energy[0] - h["external_work"] <= tolerance * scale)
+    assert h["friction_loss"].min() >= -tolerance * scale
+    assert np.abs(h["energy_error"]).max() <= tolerance * scale
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_sliding_block_stops_where_coulomb_says(dim):
+    mu, v0 = 0.3, 2.0
+    h, v, summary = block(dim, mu, (0.0, -G), v0=v0, t_end=0.9)
+    t = h["t"]
+    sliding = (t > 0.05) & (t < 0.6)
+    slope, intercept = np.polyfit(t[sliding], v[sliding], 1)
+    assert slope == pytest.approx(-mu * G, rel=0.01)
+    assert -intercept / slope == pytest.approx(v0 / (mu * G), rel=0.01)    # the stop
+    ux = h["bar.px"] * 0   # (the travel: the mean displacement, from the integrated velocity)
+    travel = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+    assert travel[-1] == pytest.approx(v0 ** 2 / (2 * mu * G), rel=0.01)
+    after = t > 1.05 * v0 / (mu * G)
+    assert np.ptp(travel[after]) <= 0.01 * travel[-1]                        # at rest
+    check_energy(h)
+    assert summary["max_friction_residual"] <= FrictionProblem.TOLERANCE
+
+
+@pytest.mark.parametrize("theta_deg, mu", [(10.0, 0.3), (25.0, 0.3)])
+def test_a_block_on_an_incline_holds_or_slides(theta_deg, mu):
+    theta = np.radians(theta_deg)
+    gravity = (G * np.sin(theta), -G * np.cos(theta))
+    h, v, _ = block(2, mu, gravity, t_end=0.5)
+    t = h["t"]
+    travel = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+    frictionless = 0.5 * G * np.sin(theta) * t[-1] ** 2
+    if np.tan(theta) <= mu:
+        assert abs(travel[-1]) <= 0.01 * frictionless
+    else:
+        late = t > 0.1
+        slope = np.polyfit(t[late], v[late], 1)[0]
+        assert slope == pytest.approx(G * (np.sin(theta) - mu * np.cos(theta)), rel=0.01)
+    check_energy(h)
+
+
+def test_a_strip_hitting_a_wall_while_sliding_loses_mu_times_its_normal_momentum():
+    """A free strip 1 x 0.1 (E = rho = 1, nu = 0) moving at -1 along x onto a wall at its left end and at
+    3 along y: every row slides throughout, so the friction impulse is mu times the normal one."""
+    mu = 0.25
+    data = {"name": "strip", "mesh": {"shape": "bar", "dim": 2, "length": 1.0, "height": 0.1, "cells": 20},
+            "material": {"E": 1.0, "rho": 1.0, "nu": 0.0, "area": 1.0},
+            "initial": {"velocity": [-1.0, 3.0]},
+            "contacts": [{"name": "wall", "type": "obstacle", "nodes": "left", "normal": [-1.0, 0.0],
+                          "gap": 0.01, "restitution": 0.0, "friction": mu}],
+            "solver": {"dt": 0.01, "t_end": 3.0}, "output": {"vtk": False}}
+    result = fi.run(fi.Case.from_dict(data))
+    h = result.history
+    m = result.summary["body_mass"]["bar"]
+    dpx = h["bar.px"][-1] - h["bar.px"][0]
+    dpy = h["bar.py"][-1] - h["bar.py"][0]
+    assert dpx > 0.5 * m                                  # the wall pushed it back (it leaves at rest or rebounding)
+    assert dpy == pytest.approx(-mu * dpx, rel=1e-6)       # against the slip (+y)
+    assert h["wall.slip"][h["wall.force"] > 0].min() > 0.0  # sliding throughout the contact
+    check_energy(h)
+
+
+def test_friction_is_refused_where_it_cannot_be_solved():
+    base = {"name": "x", "mesh": {"shape": "bar", "dim": 2, "length": 1.0, "height": 0.1, "cells": 4},
+            "material": {"E": 1.0, "rho": 1.0, "area": 1.0},
+            "contacts": [{"name": "wall", "type": "obstacle", "nodes": "left", "normal": [-1.0, 0.0],
+                          "gap": 0.01, "friction": 0.2}],
+            "solver": {"dt": 0.01, "t_end": 0.1}}
+    with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: solver.method newmark cannot take friction"):
+        fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "newmark"}})
+    with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: friction is not available with the reduced"):
+        fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "modal", "modes": 4}})
+    with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: must be >= 0"):
+        fi.Case.from_dict({**base, "contacts": [{**base["contacts"][0], "friction": -0.1}]})
+    one_d = {**base, "mesh": {"shape": "bar", "length": 1.0, "cells": 4},
+             "contacts": [{"name": "wall", "type": "obstacle", "nodes": "left", "normal": [-1.0], "gap": 0.01,
+                           "friction": 0.2}]}
+    with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: friction needs a tangent direction"):
+        fi.run(fi.Case.from_dict(one_d))
