@@ -120,7 +120,7 @@ def solve_row(W: np.ndarray, q: np.ndarray, mu: float) -> np.ndarray:
         if norm <= TINY:
             break
         new = out[1] / norm
-        if np.linalg.norm(new - tau) <= 1e-15:
+        if np.abs(new - tau).max() <= 1e-13:
             return as_row(out[0], new)
         tau = new
     found = _scan_angle(W, q, mu, slip, as_row)
