@@ -1,4 +1,4 @@
-"""Coulomb friction (docs/theory.md s. 10) against exact answers.
+"""Coulomb friction (docs/theory.md s. 11) against exact answers.
 
 - A point mass hitting a floor obliquely (v_N = -1, v_T = 0.5 in 2D, (0.3, 0.4) in 3D, e = 0.5): with
   mu = 0.2 it leaves sliding, |v_T| reduced by mu (1 + e) |v_N|; with mu = 0.5 it sticks (v_T = 0).

@@ -525,7 +525,7 @@ class EnergyBudget:
     # Not a term of the balance: the energy the load R(t) can give the structure at the step
     # (ContactScheme._load_energy), the watch's scale while E0 + W_ext is still zero or tiny.
     load_scale: float = 0.0
-    friction_loss: float = 0.0   # the work of the friction impulses, lost (docs/theory.md s. 10)
+    friction_loss: float = 0.0   # the work of the friction impulses, lost (docs/theory.md s. 11)
 
     @property
     def total(self) -> float:

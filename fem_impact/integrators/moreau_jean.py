@@ -105,7 +105,7 @@ class MoreauJean(ContactScheme):
         self.KU, self.KV, self.KV_prev = new(), new(), new()
 
     def _build_friction(self, compliance: np.ndarray) -> None:
-        """The frictional one-step problem on ``[P; P_T]`` (docs/theory.md s. 10).
+        """The frictional one-step problem on ``[P; P_T]`` (docs/theory.md s. 11).
 
         A rigid row with friction takes Newton's law and Coulomb's at the velocity level (De
         Saxce's form, as Siconos' Moreau-Jean): the impulse of an impact then lies in the cone

@@ -1,6 +1,6 @@
 """Coulomb friction: the one-step frictional contact problem and its certified solver.
 
-The problem (docs/theory.md s. 10). Every contact row i has a normal unknown ``r_N`` (the
+The problem (docs/theory.md s. 11). Every contact row i has a normal unknown ``r_N`` (the
 impulse of the step, as in the frictionless LCP) and, where its contact has a friction
 coefficient ``mu > 0``, one tangential unknown per tangent direction (one in 2D, two in 3D):
 the tangential impulse ``r_T`` that acts on the structure as ``-P_T^T r_T``. The local

@@ -37,7 +37,7 @@ class Constraints:
     restitution: np.ndarray
     contacts: list[ContactRows]
     compliance: np.ndarray      # 1/stiffness of an elastic stop per row (m/N); 0 on rigid rows
-    # Coulomb friction (docs/theory.md s. 10): mu per row; the tangent rows of the rows with mu > 0
+    # Coulomb friction (docs/theory.md s. 11): mu per row; the tangent rows of the rows with mu > 0
     # (owned rows of P_T^T, n_local x pt; 1 per row in 2D, 2 in 3D), the normal row of each, and
     # its unit direction in global axes (pt x dim).
     friction: np.ndarray | None = None
