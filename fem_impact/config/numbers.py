@@ -41,8 +41,12 @@ def _values(case: Case):
         yield from ((("mesh", name), getattr(case.mesh, name)) for name in ("length", "height", "width"))
     yield from ((("damping", name), getattr(case.damping, name)) for name in ("alpha", "beta"))
     for index, contact in enumerate(case.contacts):
-        yield from ((("contacts", index, name), getattr(contact, name)) for name in ("gap", "stiffness"))
+        yield from ((("contacts", index, name), getattr(contact, name)) for name in ("gap", "stiffness", "friction"))
     yield from ((("solver", name), getattr(case.solver, name)) for name in ("dt", "t_end"))
+    # A method's own coefficients (Newmark's beta and gamma, Moreau-Jean's theta): a subnormal beta
+    # makes the contact problem's matrix beta dt^2 P S^-1 P^T zero.
+    yield from ((("solver", name), getattr(case.solver, name)) for name in ("beta", "gamma", "theta")
+                if isinstance(getattr(case.solver, name, None), float))
 
 
 @dataclass
