@@ -113,6 +113,11 @@ class _Bar:
         return math.sqrt(self.E / self.rho)
 
 
+def _holds_x(support) -> bool:
+    """Whether a support holds the x component (``fix: all`` holds every one)."""
+    return support.all_components or 0 in support.fix
+
+
 def _refuse(case: Case, message: str) -> CaseError:
     return case.error(("reference",), f"{case.reference}: {message}")
 
@@ -245,7 +250,7 @@ class B1(Reference):
         contact = case.contacts[0]
         self.n = _end_contact(case, contact, f"contact '{contact.name}'")
         clamp = "right" if contact.nodes[0] == "left" else "left"
-        if len(case.supports) != 1 or case.supports[0].nodes != clamp or 0 not in case.supports[0].fix:
+        if len(case.supports) != 1 or case.supports[0].nodes != clamp or not _holds_x(case.supports[0]):
             raise _refuse(case, f"needs one support holding x at the other end ({clamp})")
         if contact.gap != 0.0:
             raise _refuse(case, f"needs the obstacle at gap 0, got {contact.gap:g}")
@@ -306,7 +311,7 @@ class BarMode(Reference):
         if case.contacts:
             raise _refuse(case, "is free vibration without contact: remove 'contacts'")
         L = bar.length
-        ends = {s.nodes for s in case.supports if 0 in s.fix}
+        ends = {s.nodes for s in case.supports if _holds_x(s)}
         if len(case.supports) != len(ends) or not ends <= {"left", "right"}:
             raise _refuse(case, "takes supports holding x at the end node groups left and/or right only")
         x = np.linspace(0.0, L, 201)
