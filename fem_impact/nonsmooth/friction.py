@@ -199,6 +199,7 @@ class FrictionProblem:
                        for i in range(self.p)]
         self.local = [self.W[np.ix_(b, b)] for b in self.blocks]
         self.rho = 1.0 / np.diag(self.W)[:self.p]
+        self._block_key, self._block_matrix = None, None
 
     def solve(self, q: np.ndarray, active: np.ndarray, guess: np.ndarray | None = None) -> FrictionSolution:
         """Solve on the ``active`` normal rows (and their tangent rows); the others carry nothing."""
@@ -210,7 +211,7 @@ class FrictionProblem:
         idx = np.concatenate([self.blocks[i] for i in rows])
         if guess is not None:
             r[idx] = guess[idx]
-        Wa = self.W[np.ix_(idx, idx)]
+        Wa = self._block(idx)
         y = q.copy()
         y[idx] = Wa.dot(r[idx]) + q[idx]
         # Each row's position within idx, for the updates of y.
@@ -234,6 +235,14 @@ class FrictionProblem:
                 break
         r[idx], y[idx] = ra, Wa.dot(ra) + q[idx]
         return FrictionSolution(r, y, residual, sweeps, residual <= self.TOLERANCE, worst)
+
+    def _block(self, idx: np.ndarray) -> np.ndarray:
+        """``W[idx][:, idx]``, kept while the closed rows stay the same (a persisting contact copies nothing)."""
+        key = idx.tobytes()
+        if key != self._block_key:
+            self._block_key = key
+            self._block_matrix = self.W[np.ix_(idx, idx)]
+        return self._block_matrix
 
     def _residual(self, ra, ya, qa, rows, where) -> tuple[float, int]:
         worst, worst_row, scale = 0.0, -1, float(np.abs(ra).max(initial=0.0))
