@@ -73,6 +73,29 @@ def test_an_oblique_impact_inside_the_cone_sticks(dim):
     assert rec.states[-1][2].friction_loss == pytest.approx(0.25, rel=1e-9)
 
 
+def test_a_point_mass_sliding_to_rest_stops_where_coulomb_says_and_stays():
+    """m = 2 sliding at 2 m/s on a floor under gravity, mu = 0.3, dt = 0.01 (68 steps to the stop): it
+    stops after v0^2 / (2 mu g) and then has no velocity at all (the slip law alone would leave it
+    alternating +-1.2e-3 m/s: Carnot's correction in the tangent plane removes that); the friction
+    loss grows every step (a persisting contact) and the balance closes."""
+    m, mu, v0, dt = 2.0, 0.3, 2.0, 1e-2
+    ops = Operators(np.full(2, m), np.zeros(2), None, ConstantLoad(np.array([0.0, -m * G])),
+                    np.array([[0.0], [-1.0]]), np.zeros(1), np.zeros(1), friction=np.array([mu]),
+                    tangents=np.array([[1.0], [0.0]]), tangent_of=np.zeros(1, dtype=int))
+    rec = Rows()
+    integrate(MoreauJean(ops, dt), np.zeros(2), np.array([v0, 0.0]), 1.0, [rec])
+    t = np.array([s[0] for s in rec.states])
+    v = np.array([s[1][0] for s in rec.states])
+    loss = np.array([s[2].friction_loss for s in rec.states])
+    stop = v0 / (mu * G)
+    assert np.all(v[t > stop + dt] == 0.0)
+    sliding = t < stop - dt
+    assert np.allclose(v[sliding], v0 - mu * G * t[sliding], rtol=0, atol=1e-12)   # exact: a constant force
+    assert np.all(np.diff(loss) >= 0.0)
+    assert loss[-1] == pytest.approx(0.5 * m * v0 ** 2, rel=1e-12)                   # all of it, to friction
+    assert max(abs(s[2].error) for s in rec.states) <= 1e-12 * loss[-1]
+
+
 def test_the_cone_projection_and_the_row_solver_agree_with_the_law():
     rng = np.random.default_rng(3)
     for _ in range(200):

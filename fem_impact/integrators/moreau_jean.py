@@ -126,6 +126,8 @@ class MoreauJean(ContactScheme):
         shifted[:ops.p, :ops.p] += compliance / (theta * dt * dt)
         self.friction = FrictionProblem(shifted, ops.tangent_of, ops.friction)
         self.r_prev = np.zeros(ops.p + ops.pt)
+        self._persists, self._r_t = None, np.zeros(ops.pt)
+        self._stick_D = self._stick_H = None   # H M^-1 H^T and M^-1 H^T, built on the first stick
         self.friction_residual, self.friction_sweeps = 0.0, 0
 
     @classmethod
@@ -201,7 +203,10 @@ class MoreauJean(ContactScheme):
         axpy(U, dt * theta, V)
         if ops.C is not None:   # C V1 of the step's equation (before Carnot's correction): its damping work
             alg.mult(ops.C, V, self.CV)
-        pv_star, restitution_loss, percussion = pv, 0.0, impulse
+        pv_star, pt_star, restitution_loss, percussion = pv, pt, 0.0, impulse
+        stick_loss = 0.0
+        if tangential is not None and self._persists is not None:
+            pv, pt, tangential, stick_loss = self._stick(impulse, tangential, pv, pt, jump)
         if p:   # the work of the impulse with the step's mean velocity (exact for theta = 1/2)
             step_contact_loss = float(impulse.dot(0.5 * (st.normal_velocity + pv_star)))
             if np.count_nonzero(self.carnot_rows):
@@ -236,7 +241,7 @@ class MoreauJean(ContactScheme):
             energy.contact_loss += step_contact_loss
             energy.impact_loss += restitution_loss
             if tangential is not None:   # the friction impulses' work with the step's mean sliding velocity
-                energy.friction_loss += float(tangential.dot(0.5 * (st.tangential_velocity + pt)))
+                energy.friction_loss += float(self._r_t.dot(0.5 * (st.tangential_velocity + pt_star))) + stick_loss
             if ops.static:
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
         self._step_energies(energy, t1, 1.0 - theta, theta, self.MV, KU=self.KU)
@@ -245,7 +250,7 @@ class MoreauJean(ContactScheme):
         self._book_stored(energy, st, force, t1, theta)
         self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, percussion, energy, pu, pv)
         if tangential is not None:
-            if corrected:   # Carnot's correction on frictionless rows moved the tangent rows' dofs too
+            if corrected:   # a velocity correction moved the tangent rows' dofs too
                 pt = self.rows.project_many(V)[0][p:]
             self.state.tangential, self.state.tangential_velocity = tangential / dt, pt
         return self.state
@@ -266,7 +271,8 @@ class MoreauJean(ContactScheme):
         # this step takes it on the velocity at its end, as an impact must.
         q_t = -pt_free
         persists = (st.impulse > 0.0)[ops.tangent_of]
-        if np.count_nonzero(persists):
+        self._persists = persists if np.count_nonzero(persists) else None
+        if self._persists is not None:
             q_t = q_t - np.where(persists, (1.0 - self.theta) / self.theta * st.tangential_velocity, 0.0)
         sol = self.friction.solve(np.concatenate([q, q_t]), active, guess=self.r_prev)
         self.friction_residual = max(self.friction_residual, sol.residual)
@@ -278,12 +284,55 @@ class MoreauJean(ContactScheme):
                 f"contact row {sol.worst_row}{self._row_name(sol.worst_row)}")
         r = sol.r
         self.r_prev = r
+        self._r_t = r[p:]
         if not np.count_nonzero(r):
             return r[:p], r[p:], pv_free, pt_free, 0.0
         self.G_all.subtract_from(V, r)
         self.rows.subtract_transpose(rhs, r)   # the step's equation with the impulses, for K V1
         Wr = self.W_all.dot(r)
         return r[:p], r[p:], pv_free - Wr[:p], pt_free - Wr[p:], float(np.abs(Wr[:p]).max())
+
+    def _stick(self, impulse: np.ndarray, r_t: np.ndarray, pv: np.ndarray, pt: np.ndarray, jump: float):
+        """Carnot's correction in the tangent plane, on the persisting rows that stick.
+
+        The slip law of a persisting row sticks when the slip over the step vanishes, which for
+        theta = 1/2 leaves ``P_T V1 = -P_T V0``: a row that stops sliding would go on alternating
+        its tangential velocity at a fixed position. The smallest velocity change in the norm of
+        M that brings those rows' ``P_T V`` to zero, ``dV = -M^-1 P_T^T lam``, ``lam = D_ss^-1
+        P_T V`` (``D = H M^-1 H^T`` on them), removes it and loses ``1/2 x . D_ss^-1 x >= 0``; it is
+        kept where the step's total tangential impulse stays in the cone (a row where it would not
+        is left as it is). Returns (P V, P_T V, the tangential impulses, the loss).
+        """
+        ops, p = self.ops, self.ops.p
+        mu_r_n = (ops.friction * impulse)[ops.tangent_of]
+        size = np.sqrt(np.bincount(ops.tangent_of, weights=r_t * r_t, minlength=p))[ops.tangent_of]
+        stuck = self._persists & (mu_r_n > 0.0) & (size < (1.0 - 1e-9) * mu_r_n)
+        stuck &= np.abs(pt) > ROUND_OFF * max(jump, float(np.abs(pt).max()))
+        if not np.count_nonzero(stuck):
+            return pv, pt, r_t, 0.0
+        if self._stick_D is None:
+            self._stick_D, self._stick_H = self.rows.delassus(self.solve_M)
+        D = self._stick_D
+        for _ in range(2):   # (once more without the rows whose total would leave the cone)
+            s = np.flatnonzero(stuck)
+            lam = np.linalg.solve(D[np.ix_(p + s, p + s)], pt[s])
+            total = r_t.copy()
+            total[s] += lam
+            size = np.sqrt(np.bincount(ops.tangent_of, weights=total * total, minlength=p))[ops.tangent_of]
+            outside = stuck & (size > mu_r_n * (1.0 + 1e-12))
+            if not np.count_nonzero(outside):
+                break
+            stuck &= ~outside
+            if not np.count_nonzero(stuck):
+                return pv, pt, r_t, 0.0
+        else:
+            return pv, pt, r_t, 0.0
+        c = np.zeros(p + ops.pt)
+        c[p + s] = lam
+        self._stick_H.subtract_from(self.V, c)
+        change = D[:, p + s].dot(lam)
+        loss = float(lam.dot(pt[s]) - 0.5 * lam.dot(change[p + s]))
+        return pv - change[:p], pt - change[p:], total, loss
 
     def _row_name(self, row: int) -> str:
         names = getattr(self.ops, "row_names", None)
