@@ -237,6 +237,7 @@ def _contact_data(contact: Contact) -> dict:
                 if key not in ("law", "law_keys", "restitution", "stiffness")} | {"law": contact.law, **contact.law_keys}
     if not contact.friction:   # (frictionless: the key left out, as files without friction write it)
         data.pop("friction", None)
+    data.pop("point" if contact.point is None else "gap", None)
     return data | {"nodes": contact.nodes[0] if contact.type == "obstacle" else list(contact.nodes)}
 
 
@@ -796,7 +797,7 @@ def _contact(value, path):
         "nodes": (lambda nodes, _: nodes, _REQUIRED), "normal": (_vector(_number), _REQUIRED),
         "gap": _real(), "restitution": _real(ge=0, le=1),
         "coupling": _choice(*CONTACT_COUPLINGS), "stiffness": _real(gt=0),
-        "law": _choice(*BUILT_IN_LAWS), "friction": _real(ge=0)}, Contact)
+        "law": _choice(*BUILT_IN_LAWS), "friction": _real(ge=0), "point": _vector(_number)}, Contact)
     f = _contact_relation(f, value, path)
     inferred = "elastic_stop" if f["stiffness"] is not None else "newton"
     if value.get("law") is not None and f["law"] != inferred:
@@ -826,12 +827,12 @@ def _registered_law_contact(value, path):
     if not isinstance(name, str) or name not in LAWS:
         raise _Invalid(path + ("law",), f"must be one of {', '.join(LAWS)}; got {_show(name)}")
     law = LAWS[name]
-    relation = ("name", "type", "nodes", "normal", "gap", "coupling", "law", "friction")
+    relation = ("name", "type", "nodes", "normal", "gap", "coupling", "law", "friction", "point")
     f = _fields({k: v for k, v in value.items() if k in relation}, path, {
         "name": (_csv_name, _REQUIRED), "type": (_choice(*CONTACT_TYPES), _REQUIRED),
         "nodes": (lambda nodes, _: nodes, _REQUIRED), "normal": (_vector(_number), _REQUIRED),
         "gap": _real(), "coupling": _choice(*CONTACT_COUPLINGS), "law": _string,
-        "friction": _real(ge=0)}, Contact)
+        "friction": _real(ge=0), "point": _vector(_number)}, Contact)
     f = _contact_relation(f, value, path)
     given = {k: v for k, v in value.items() if k not in relation}
     try:
@@ -845,17 +846,26 @@ def _registered_law_contact(value, path):
                                           f"law {name}: {keys}") from None
         raise _Invalid(path + ((key,) if key else ()), error["msg"]) from None
     return Contact(**{k: v for k, v in f.items() if k in ("name", "type", "nodes", "normal", "gap", "coupling",
-                                                          "law", "law_keys") or (k == "friction" and v is not None)})
+                                                          "law", "law_keys", "point")
+                      or (k == "friction" and v is not None)})
 
 
 def _contact_relation(f: dict, value, path) -> dict:
     """The relation's keys of a contact: node groups per type, the gap of an obstacle, a unit normal."""
     nodes = [f["nodes"]] if isinstance(f["nodes"], str) else f["nodes"]
+    if f.get("point") is not None:
+        if f["type"] != "obstacle":
+            raise _Invalid(path + ("point",), "a point of the obstacle's plane is for an obstacle contact "
+                                              "(a pair's gaps are its nodes' distances)")
+        if f["gap"] is not None:
+            raise _Invalid(path + ("point",), "give either gap (one for every node) or point (each node's gap "
+                                              "its own distance to the plane through it), not both")
     if f["type"] == "obstacle":
         if not (isinstance(nodes, list) and len(nodes) == 1):
             raise _Invalid(path + ("nodes",), f"an obstacle contact takes one node group, "
                                               f"got {_show(f['nodes'])}")
-        f["gap"] = 0.0 if f["gap"] is None else f["gap"]
+        if f.get("point") is None:
+            f["gap"] = 0.0 if f["gap"] is None else f["gap"]
     elif not (isinstance(nodes, list) and len(nodes) == 2):
         raise _Invalid(path + ("nodes",), f"a pair contact takes a list of two node groups, "
                                           f"got {_show(f['nodes'])}")
@@ -869,7 +879,8 @@ def _contact_relation(f: dict, value, path) -> dict:
     return f
 
 
-CONTACT_KEYS = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness", "law", "friction")
+CONTACT_KEYS = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness", "law", "friction",
+                "point")
 BUILT_IN_LAWS = ("newton", "elastic_stop")   # (their keys are the contact's own, as before laws were named)
 
 

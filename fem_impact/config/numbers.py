@@ -42,6 +42,7 @@ def _values(case: Case):
     yield from ((("damping", name), getattr(case.damping, name)) for name in ("alpha", "beta"))
     for index, contact in enumerate(case.contacts):
         yield from ((("contacts", index, name), getattr(contact, name)) for name in ("gap", "stiffness", "friction"))
+        yield from ((("contacts", index, "point", k), x) for k, x in enumerate(contact.point or []))
     yield from ((("solver", name), getattr(case.solver, name)) for name in ("dt", "t_end"))
     # A method's own coefficients (Newmark's beta and gamma, Moreau-Jean's theta): a subnormal beta
     # makes the contact problem's matrix beta dt^2 P S^-1 P^T zero.

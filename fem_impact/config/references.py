@@ -166,6 +166,8 @@ def _end_contact(case: Case, contact, what: str) -> float:
     """The x component (+1 or -1) of an obstacle contact's normal at an end node group."""
     if contact.type != "obstacle" or contact.nodes[0] not in ("left", "right"):
         raise _refuse(case, f"{what} must be an obstacle contact on the node group left or right")
+    if contact.gap is None:
+        raise _refuse(case, f"{what} must give its gap (not a point of the obstacle's plane)")
     normal = np.asarray(contact.normal)
     outward = -1.0 if contact.nodes[0] == "left" else 1.0
     if abs(normal[0] - outward) > 1e-12 or np.any(normal[1:] != 0.0):

@@ -75,7 +75,11 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
             nodes = model.node_set(contact.nodes[0], key + ("nodes",))
             col = _rows(n_local, bs, normal, nodes)
             t_cols = [_rows(n_local, bs, t, nodes) for t in tangents]
-            gap = np.full(len(nodes), contact.gap if contact.gap is not None else 0.0)
+            if contact.point is not None:   # a plane through the point: each node's own distance to it
+                point = np.asarray(pad_vector(contact.point, dim, key + ("point",), "point"), dtype=float)
+                gap = (point - nodes.coords[:, :dim]) @ normal
+            else:
+                gap = np.full(len(nodes), contact.gap if contact.gap is not None else 0.0)
         else:
             a = model.node_set(contact.nodes[0], key + ("nodes",))
             b = model.node_set(contact.nodes[1], key + ("nodes",))

@@ -18,6 +18,7 @@ class Contact:
     law: str = "newton"         # the contact law (fem_impact.nonsmooth.laws): newton, elastic_stop, or registered
     law_keys: dict = field(default_factory=dict)   # the law's own keys, as its schema validated them
     friction: float = 0.0       # Coulomb's coefficient mu on every row of the contact (0: frictionless)
+    point: list[float] | None = None   # obstacle: a point of its plane; each node's gap its own distance to it
 
     @property
     def law_is_inferred(self) -> bool:
