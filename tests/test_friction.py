@@ -144,13 +144,13 @@ def block(dim, mu, gravity, v0=0.0, dt=2e-3, t_end=1.0, cells=8):
     return h, h["bar.px"] / result.summary["body_mass"]["bar"], result.summary
 
 
-def check_energy(h, tolerance=1e-9):
-    """E <= E0 + W_ext, the losses non-negative, and the balance closed."""
+def check_energy(h, tolerance=1e-9, balance=1e-9):
+    """E <= E0 + W_ext, the losses non-negative, and the balance closed (to ``balance`` of the scale)."""
     energy = h["kinetic"] + h["strain"]
     scale = max(energy[0] + h["external_work"].max(), 1e-300)
     assert np.all(energy - energy[0] - h["external_work"] <= tolerance * scale)
     assert h["friction_loss"].min() >= -tolerance * scale
-    assert np.abs(h["energy_error"]).max() <= tolerance * scale
+    assert np.abs(h["energy_error"]).max() <= balance * scale
 
 
 @pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])   # 3D: 10 rows, about a minute
@@ -225,3 +225,52 @@ def test_friction_is_refused_where_it_cannot_be_solved():
                            "friction": 0.2}]}
     with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: friction needs a tangent direction"):
         fi.run(fi.Case.from_dict(one_d))
+
+
+def test_a_disk_thrown_onto_a_floor_slips_then_rolls_at_two_thirds_of_its_speed(tmp_path):
+    """A disk R = 1 (E = 1e11, rho = 1000, nu = 0.3, a little stiffness damping for its contact ringing),
+    thrown at v0 = 0.5 without spin onto a floor through a point (each rim node its own gap; the mesh
+    graded from 3 mm at the contact point). Friction slows it at mu g and spins it up at 2 mu g / R
+    until v0 / (3 mu g), when it rolls at 2 v0 / 3. The model is linear (small rotations): at the
+    end of the slip the disk has turned by 0.0094 rad, three rim nodes' spacing."""
+    import gmsh
+
+    R, v0, mu = 1.0, 0.5, 0.3
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("disk")
+        surface = gmsh.model.occ.addDisk(0, R, 0, R, R)
+        gmsh.model.occ.synchronize()
+        gmsh.model.setPhysicalName(2, gmsh.model.addPhysicalGroup(2, [surface]), "disk")
+        rim = [t for _, t in gmsh.model.getBoundary([(2, surface)], oriented=False)]
+        gmsh.model.setPhysicalName(1, gmsh.model.addPhysicalGroup(1, rim), "rim")
+        field = gmsh.model.mesh.field.add("MathEval")
+        gmsh.model.mesh.field.setString(field, "F", "0.003 + 0.04*Sqrt(x*x + y*y)")
+        gmsh.model.mesh.field.setAsBackgroundMesh(field)
+        for option in ("Mesh.MeshSizeFromPoints", "Mesh.MeshSizeFromCurvature", "Mesh.MeshSizeExtendFromBoundary"):
+            gmsh.option.setNumber(option, 0)
+        gmsh.model.mesh.generate(2)
+        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
+        gmsh.write(str(tmp_path / "disk.msh"))
+    finally:
+        gmsh.finalize()
+    data = {"name": "disk", "mesh": {"file": str(tmp_path / "disk.msh")},
+            "material": {"E": 1e11, "rho": 1000.0, "nu": 0.3, "area": 1.0}, "damping": {"beta": 1e-4},
+            "initial": {"velocity": [v0, 0.0]}, "loads": [{"body": "all", "acceleration": [0.0, -G]}],
+            "contacts": [{"name": "floor", "type": "obstacle", "nodes": "rim", "normal": [0.0, -1.0],
+                          "point": [0.0, 0.0], "friction": mu}],
+            "solver": {"dt": 1e-4, "t_end": 0.08}, "output": {"vtk": False}}
+    result = fi.run(fi.Case.from_dict(data))
+    h = result.history
+    t, v = h["t"], h["disk.px"] / result.summary["body_mass"]["disk"]
+    stop = v0 / (3 * mu * G)
+    sliding = (t > 0.1 * stop) & (t < 0.9 * stop)
+    assert np.polyfit(t[sliding], v[sliding], 1)[0] == pytest.approx(-mu * G, rel=0.01)
+    slipping = np.flatnonzero(h["floor.slip"] > 1e-3 * v0)
+    assert t[slipping[-1]] == pytest.approx(stop, rel=0.01)                     # then it rolls
+    assert np.interp(1.1 * stop, t, v) == pytest.approx(2 * v0 / 3, rel=0.01)
+    assert np.all(h["floor.sticking"][t > 1.05 * stop] >= 1)
+    # (The same disk without friction closes its balance to 6.5e-9 of the energy: round-off that
+    # accumulates over 800 steps of a model this stiff, E = 1e11 with 3 mm cells.)
+    check_energy(h, balance=1e-8)

@@ -141,7 +141,7 @@ class FrictionColumns:
     """history.csv's friction columns, after the others: per contact with friction
     ``NAME.tangential_force`` (the magnitude of the summed friction force on the body, the first node
     group of a pair), its components ``NAME.tx``, ``NAME.ty`` (``NAME.tz``) along the global axes,
-    ``NAME.slip`` (the largest sliding speed of its rows), ``NAME.sticking`` and ``NAME.slipping``
+    ``NAME.slip`` (the largest sliding speed of its rows in contact), ``NAME.sticking`` and ``NAME.slipping``
     (rows carrying a normal force, strictly inside the friction cone or on it); then ``friction_loss``."""
 
     STICK = 1e-9   # relative margin inside the cone that counts as sticking
@@ -165,6 +165,7 @@ class FrictionColumns:
         per_row_speed = np.sqrt(np.bincount(cons.tangent_of, weights=state.tangential_velocity ** 2, minlength=p))
         on_body = -(f[:, None] * cons.tangent_dirs)   # the friction force on the body, per tangent row
         loaded = state.force > 0.0
+        per_row_speed = np.where(loaded, per_row_speed, 0.0)   # sliding: of the rows in contact only
         sticking = loaded & (per_row_force < (1.0 - self.STICK) * cons.friction * state.force)
         values = []
         for c in self.contacts:

@@ -356,9 +356,11 @@ class Operators:
         """The same system with the rows ``[P; P_T]``: normal rows first, then the tangent rows (its
         ``project_many``, ``subtract_transpose`` and ``delassus`` act on all of them)."""
         p_all = self.p + self.pt
-        return Operators(self.M, self.K, self.C, self.load,
+        rows = Operators(self.M, self.K, self.C, self.load,
                          sparse.hstack([sparse.csr_matrix(self.P_local), sparse.csr_matrix(self.tangents)]).tocsr(),
                          np.zeros(p_all), np.zeros(p_all), massless=self.massless)
+        rows.algebra = self.algebra   # one algebra: its vectors are the ones the factors solve with
+        return rows
 
     def project(self, local: np.ndarray) -> np.ndarray:
         """``P x`` (or ``P X`` for a block of columns) from owned entries: one global sum."""
