@@ -8,7 +8,7 @@
   with acceleration g (sin theta - mu cos theta).
 - A free strip hitting a wall end-on while sliding along it: its tangential momentum changes by mu
   times the change of its normal momentum, against the slip.
-Every run: the friction loss never decreases while a contact persists, and E <= E0 + W_ext.
+Every run: the friction loss never decreases from one step to the next, and E <= E0 + W_ext.
 """
 
 from __future__ import annotations
@@ -149,7 +149,8 @@ def check_energy(h, tolerance=1e-9, balance=1e-9):
     energy = h["kinetic"] + h["strain"]
     scale = max(energy[0] + h["external_work"].max(), 1e-300)
     assert np.all(energy - energy[0] - h["external_work"] <= tolerance * scale)
-    assert h["friction_loss"].min() >= -tolerance * scale
+    # Every step, to round-off of the friction's own work (a block held on an incline: 1e-4 J in all).
+    assert np.diff(h["friction_loss"]).min() >= -1e-9 * max(scale, h["friction_loss"].max())
     assert np.abs(h["energy_error"]).max() <= balance * scale
 
 

@@ -269,19 +269,31 @@ class MoreauJean(ContactScheme):
         # the slip over the step, (1 - theta) P_T V0 + theta P_T V1, scaled by 1/theta (W stays
         # symmetric); the friction then never does positive work in a step. A row that closes in
         # this step takes it on the velocity at its end, as an impact must.
-        q_t = -pt_free
-        persists = (st.impulse > 0.0)[ops.tangent_of]
-        self._persists = persists if np.count_nonzero(persists) else None
-        if self._persists is not None:
-            q_t = q_t - np.where(persists, (1.0 - self.theta) / self.theta * st.tangential_velocity, 0.0)
-        sol = self.friction.solve(np.concatenate([q, q_t]), active, guess=self.r_prev)
-        self.friction_residual = max(self.friction_residual, sol.residual)
-        self.friction_sweeps = max(self.friction_sweeps, sol.sweeps)
-        if not sol.converged:
-            raise ContactSolverError(
-                f"the frictional contact problem was not solved at t = {t1:.6g} (step {st.step + 1}): residual "
-                f"{sol.residual:.3g} after {sol.sweeps} sweeps (tolerance {self.friction.TOLERANCE:.0e}), worst at "
-                f"contact row {sol.worst_row}{self._row_name(sol.worst_row)}")
+        # A closing row whose friction would do positive work over the step (its tangential velocity
+        # reverses within it, pushed by the rest of the body: the impulse acted along the velocity it
+        # started with) takes the slip law too, and the problem is solved again.
+        pt0 = st.tangential_velocity
+        slip_law = (st.impulse > 0.0)[ops.tangent_of]
+        guess = self.r_prev
+        for _ in range(3):
+            q_t = -pt_free - np.where(slip_law, (1.0 - self.theta) / self.theta * pt0, 0.0)
+            sol = self.friction.solve(np.concatenate([q, q_t]), active, guess=guess)
+            self.friction_residual = max(self.friction_residual, sol.residual)
+            self.friction_sweeps = max(self.friction_sweeps, sol.sweeps)
+            if not sol.converged:
+                raise ContactSolverError(
+                    f"the frictional contact problem was not solved at t = {t1:.6g} (step {st.step + 1}): residual "
+                    f"{sol.residual:.3g} after {sol.sweeps} sweeps (tolerance {self.friction.TOLERANCE:.0e}), worst "
+                    f"at contact row {sol.worst_row}{self._row_name(sol.worst_row)}")
+            r_t = sol.r[p:]
+            work = np.bincount(ops.tangent_of, weights=r_t * (pt0 + pt_free - self.W_all[p:].dot(sol.r)),
+                               minlength=p)[ops.tangent_of]
+            giving = ~slip_law & (work < 0.0)
+            if not np.count_nonzero(giving):
+                break
+            slip_law |= giving
+            guess = sol.r
+        self._persists = slip_law if np.count_nonzero(slip_law) else None
         r = sol.r
         self.r_prev = r
         self._r_t = r[p:]
