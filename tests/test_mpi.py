@@ -18,11 +18,15 @@ pytestmark = pytest.mark.mpi
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
 @pytest.mark.parametrize("dim, cells, method", [(1, 100, "newmark"), (2, 60, "newmark"), (2, 60, "modal"),
-                                               (2, 60, "moreau_jean")])
+                                               (2, 60, "moreau_jean"), (2, 60, "friction")])
 def test_serial_and_two_ranks_agree(tmp_path, dim, cells, method):
+    # "friction": moreau_jean, the bar sliding along the wall as it hits it (mu = 0.3).
+    friction = ["--set", "contacts.0.friction=0.3", "--set", "initial.velocity=[-1.0, 0.5]"]
     overrides = ["--set", f"mesh.dim={dim}", "--set", f"mesh.cells={cells}", "--set", f"solver.dt={0.5 / cells}",
-                 "--set", "solver.t_end=2.5", "--set", "output.every=50", "--set", f"solver.method={method}",
-                 *(["--set", "solver.modes=10"] if method == "modal" else [])]
+                 "--set", "solver.t_end=2.5", "--set", "output.every=50",
+                 "--set", f"solver.method={'moreau_jean' if method == 'friction' else method}",
+                 *(["--set", "solver.modes=10"] if method == "modal" else []),
+                 *(friction if method == "friction" else [])]
     case = str(CASES / "impacting_bar.yaml")
     serial = run_cli("run", case, "-o", str(tmp_path / "serial"), "-q", *overrides)
     assert serial.returncode == 0, serial.stderr
@@ -42,12 +46,15 @@ def test_serial_and_two_ranks_agree(tmp_path, dim, cells, method):
         # The balance residual is round-off itself: compare it on the scale of the energy; a body's
         # momentum on the scale of its largest component (the bar's py is round-off about zero).
         # (and a loss that is round-off itself, as Moreau-Jean's contact loss on this bar is).
-        energy_terms = ("energy_error", "contact_loss", "impact_loss", "damping_loss", "external_work")
+        energy_terms = ("energy_error", "contact_loss", "impact_loss", "damping_loss", "external_work",
+                        "friction_loss")
         scale = energy_scale if name in energy_terms else max(np.abs(a[name]).max(), 1e-300)
         if name.endswith(("_px", "_py", "_pz")):
             scale = max(np.abs(a[c]).max() for c in a.dtype.names if c.startswith(name[:-1]))
         assert np.abs(a[name] - b[name]).max() <= 1e-8 * scale, name
     # The contact really happened in both runs (the comparison is not of two empty histories).
     assert a["wall_impulse"].sum() > 0.9 * (1.0 / 20 if dim == 2 else 1.0) * 2
+    if method == "friction":   # and the friction acted, on both
+        assert a["friction_loss"][-1] > 0.0 and a["wall_tangential_force"].max() > 0.0
     if method == "modal":   # modes and static solves computed on 2 ranks, not read from the cache
         assert json.loads((tmp_path / "mpi" / "summary.json").read_text())["reused_from_cache"] == []
