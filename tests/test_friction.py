@@ -275,3 +275,46 @@ def test_a_disk_thrown_onto_a_floor_slips_then_rolls_at_two_thirds_of_its_speed(
     # (The same disk without friction closes its balance to 6.5e-9 of the energy: round-off that
     # accumulates over 800 steps of a model this stiff, E = 1e11 with 3 mm cells.)
     check_energy(h, balance=1e-8)
+
+
+# --- where friction must never give energy: a family of landings -----------------------------
+
+def landing(dim, mu, e, courant, steps=60):
+    """The block of ``block`` (4 cells along: 5 rows in 2D, 10 in 3D) falling from 1 mm onto the floor at
+    0.5 m/s while sliding along it at 1 m/s (and 0.5 m/s across in 3D), restitution e, at a Courant
+    number c dt / h (c = 100 m/s, h = 0.05 m), for ``steps`` steps."""
+    pad = [0.0] * (dim - 2)
+    mesh = {"shape": "bar", "dim": dim, "length": 0.2, "height": 0.05, "cells": 4}
+    if dim == 3:
+        mesh["width"] = 0.05
+    dt = courant * 0.05 / 100.0
+    data = {"name": "landing", "mesh": mesh,
+            "material": {"E": 1e7, "rho": 1000.0, "nu": 0.3, **({"area": 1.0} if dim == 2 else {})},
+            "initial": {"velocity": [1.0, -0.5] + ([0.5] if dim == 3 else [])},
+            "loads": [{"body": "all", "acceleration": [0.0, -G] + pad}],
+            "contacts": [{"name": "floor", "type": "obstacle", "nodes": "bottom", "normal": [0.0, -1.0] + pad,
+                          "gap": 1e-3, "friction": mu, "restitution": e}],
+            "solver": {"dt": dt, "t_end": steps * dt}, "output": {"vtk": False}}
+    return fi.run(fi.Case.from_dict(data))
+
+
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("courant", [0.5, 8.0, 50.0])
+@pytest.mark.parametrize("mu, e", [(0.3, 0.0), (1.0, 0.0), (0.3, 1.0), (1.0, 1.0)])
+def test_friction_never_gives_energy_in_a_family_of_landings(dim, courant, mu, e):
+    result = landing(dim, mu, e, courant)
+    h = result.history
+    assert h["friction_loss"][-1] > 0.0 and h["floor.impulse"].sum() > 0.0   # it landed and slid
+    check_energy(h)
+    assert result.summary["energy_created"] == 0.0
+
+
+def test_an_unsolved_contact_problem_stops_the_run_and_says_where(monkeypatch, tmp_path):
+    """One sweep allowed: the landing's coupled rows cannot be solved; the run stops (status 3 on the
+    command line: a SimulationError) naming the time, the step and the row, and writes nothing."""
+    from fem_impact.errors import SimulationError
+
+    monkeypatch.setattr(FrictionProblem, "MAX_SWEEPS", 1)
+    with pytest.raises(SimulationError, match=r"the frictional contact problem was not solved at t = .* \(step \d+\): "
+                                               r"residual .* after 1 sweeps .* contact row \d+"):
+        landing(2, 0.3, 0.0, 8.0)

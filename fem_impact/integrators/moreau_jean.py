@@ -275,7 +275,7 @@ class MoreauJean(ContactScheme):
         pt0 = st.tangential_velocity
         slip_law = (st.impulse > 0.0)[ops.tangent_of]
         guess = self.r_prev
-        for _ in range(3):
+        for attempt in range(p + 1):   # (each new solve adds a row to the slip law: at most p)
             q_t = -pt_free - np.where(slip_law, (1.0 - self.theta) / self.theta * pt0, 0.0)
             sol = self.friction.solve(np.concatenate([q, q_t]), active, guess=guess)
             self.friction_residual = max(self.friction_residual, sol.residual)
@@ -289,7 +289,7 @@ class MoreauJean(ContactScheme):
             work = np.bincount(ops.tangent_of, weights=r_t * (pt0 + pt_free - self.W_all[p:].dot(sol.r)),
                                minlength=p)[ops.tangent_of]
             giving = ~slip_law & (work < 0.0)
-            if not np.count_nonzero(giving):
+            if not np.count_nonzero(giving) or attempt == p:
                 break
             slip_law |= giving
             guess = sol.r

@@ -18,7 +18,9 @@ velocity at the end of the step). Rows without friction have only their normal p
 
 Solver: nonsmooth Gauss-Seidel over the rows (each row's 2 x 2 or 3 x 3 problem solved
 exactly: open, stick, or slip in the direction that makes the tangential velocity parallel to
-the friction impulse), warm-started from the previous step. It stops when the residual below
+the friction impulse), warm-started from the previous step; every ``NEWTON_AFTER`` sweeps Alart
+and Curnier's semismooth Newton method takes over from the iterate (coupled rows, where
+Gauss-Seidel crawls) and is kept when it does better. It stops when the residual below
 is under the tolerance; a solve that misses it is reported (``FrictionSolution.converged``),
 never accepted in silence.
 
@@ -191,6 +193,7 @@ class FrictionProblem:
 
     TOLERANCE = 1e-10
     MAX_SWEEPS = 2000
+    NEWTON_AFTER = 100   # sweeps of Gauss-Seidel before Newton's method takes over (coupled rows)
 
     def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray):
         self.W = np.ascontiguousarray(W, dtype=float)
@@ -233,8 +236,88 @@ class FrictionProblem:
             residual, worst = self._residual(ra, ya, q[idx], rows, where)
             if residual <= self.TOLERANCE:
                 break
+            if sweeps % self.NEWTON_AFTER == 0 and len(rows) > 1:
+                # Gauss-Seidel crawls where the rows are strongly coupled (a stiff body on many rows at a
+                # large step: W nearly singular): Newton's method from where it got to.
+                ra_n = self._newton(Wa, q[idx], ra, rows, where)
+                ya_n = Wa.dot(ra_n) + q[idx]
+                res_n, worst_n = self._residual(ra_n, ya_n, q[idx], rows, where)
+                if res_n < residual:
+                    ra, ya, residual, worst = ra_n, ya_n, res_n, worst_n
+                    if residual <= self.TOLERANCE:
+                        break
         r[idx], y[idx] = ra, Wa.dot(ra) + q[idx]
         return FrictionSolution(r, y, residual, sweeps, residual <= self.TOLERANCE, worst)
+
+    def _newton(self, W: np.ndarray, q: np.ndarray, r: np.ndarray, rows, where, iterations: int = 60) -> np.ndarray:
+        """Alart and Curnier's semismooth Newton method on the closed rows (docs/theory.md s. 11).
+
+        ``F(r) = 0`` with, per row (rho = 1 / W_NN), ``F_N = r_N - max(0, r_N - rho y_N)`` and
+        ``F_T = r_T - proj_B(r_T - rho y_T)`` on the disk of radius ``mu max(0, r_N - rho y_N)``: the same
+        Coulomb law. Each step solves ``J d = -F`` by least squares (W may be singular: many impulses
+        give the same velocities) and takes the largest of 1, 1/2, ... that decreases ``|F|``.
+        """
+        n = r.size
+
+        def evaluate(r, jacobian=True):
+            y = W.dot(r) + q
+            F = np.empty(n)
+            J = np.zeros((n, n)) if jacobian else None
+            for i, s in zip(rows, where):
+                rho, mu = self.rho[i], self.mu[i]
+                k = s.start
+                z_n = r[k] - rho * y[k]
+                F[k] = r[k] - max(z_n, 0.0)
+                if jacobian:
+                    J[k, k] = 1.0
+                    if z_n > 0.0:
+                        J[k] -= -rho * W[k]
+                        J[k, k] -= 1.0
+                if s.stop - k == 1:
+                    continue
+                t = slice(k + 1, s.stop)
+                z_t = r[t] - rho * y[t]
+                radius = mu * max(z_n, 0.0)
+                norm = float(np.linalg.norm(z_t))
+                if norm <= radius:   # stick: F_T = rho y_T
+                    F[t] = rho * y[t]
+                    if jacobian:
+                        J[t] = rho * W[t]
+                elif radius > 0.0:   # slip on the disk's edge
+                    u = z_t / norm
+                    F[t] = r[t] - radius * u
+                    if jacobian:
+                        dz_t = -rho * W[t]
+                        dz_t[:, t] += np.eye(s.stop - k - 1)
+                        dz_n = -rho * W[k]
+                        dz_n[k] += 1.0
+                        J[t] = -(np.outer(u, mu * dz_n) + radius / norm * (np.eye(u.size) - np.outer(u, u)) @ dz_t)
+                        J[t, t] += np.eye(s.stop - k - 1)
+                else:                # open: no friction
+                    F[t] = r[t]
+                    if jacobian:
+                        J[t, t] = np.eye(s.stop - k - 1)
+            return F, J
+
+        F, J = evaluate(r)
+        size = float(F.dot(F))
+        for _ in range(iterations):
+            if size == 0.0:
+                break
+            d = np.linalg.lstsq(J, -F, rcond=None)[0]
+            step = 1.0
+            while step > 1e-6:
+                trial = r + step * d
+                F_trial, _ = evaluate(trial, jacobian=False)
+                if F_trial.dot(F_trial) < size:
+                    break
+                step *= 0.5
+            else:
+                break
+            r = trial
+            F, J = evaluate(r)
+            size = float(F.dot(F))
+        return r
 
     def _block(self, idx: np.ndarray) -> np.ndarray:
         """``W[idx][:, idx]``, kept while the closed rows stay the same (a persisting contact copies nothing)."""
