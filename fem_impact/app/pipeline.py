@@ -282,7 +282,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         if getattr(integrator, "friction", None) is not None:   # (keys added only where friction is)
             summary.update(friction_loss=final.energy.friction_loss,
                            max_friction_residual=integrator.friction_residual,
-                           max_friction_sweeps=integrator.friction_sweeps, friction_retries=0)
+                           max_friction_sweeps=integrator.friction_sweeps,
+                           friction_retries=integrator.friction_retries)
         if comm.rank == 0 and stage is not None:
             with writing(stage / "summary.json"):
                 (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

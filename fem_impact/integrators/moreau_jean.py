@@ -128,7 +128,7 @@ class MoreauJean(ContactScheme):
         self.r_prev = np.zeros(ops.p + ops.pt)
         self._persists, self._r_t = None, np.zeros(ops.pt)
         self._stick_D = self._stick_H = None   # H M^-1 H^T and M^-1 H^T, built on the first stick
-        self.friction_residual, self.friction_sweeps = 0.0, 0
+        self.friction_residual, self.friction_sweeps, self.friction_retries = 0.0, 0, 0
 
     @classmethod
     def from_solver(cls, ops: Operators, solver) -> MoreauJean:
@@ -280,6 +280,7 @@ class MoreauJean(ContactScheme):
             sol = self.friction.solve(np.concatenate([q, q_t]), active, guess=guess)
             self.friction_residual = max(self.friction_residual, sol.residual)
             self.friction_sweeps = max(self.friction_sweeps, sol.sweeps)
+            self.friction_retries += sol.newton
             if not sol.converged:
                 raise ContactSolverError(
                     f"the frictional contact problem was not solved at t = {t1:.6g} (step {st.step + 1}): residual "

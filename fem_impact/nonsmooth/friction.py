@@ -47,6 +47,7 @@ class FrictionSolution:
     sweeps: int
     converged: bool
     worst_row: int         # the normal row with the largest residual
+    newton: int = 0        # times Newton's method took over from Gauss-Seidel (another solver: a retry)
 
 
 def project_on_cone(z_n: float, z_t: np.ndarray, mu: float) -> tuple[float, np.ndarray]:
@@ -223,7 +224,7 @@ class FrictionProblem:
             where.append(slice(start, start + self.blocks[i].size))
             start += self.blocks[i].size
         ya, ra = y[idx], r[idx]
-        residual, worst, sweeps = np.inf, -1, 0
+        residual, worst, sweeps, newton = np.inf, -1, 0, 0
         for sweeps in range(1, self.MAX_SWEEPS + 1):
             for i, s in zip(rows, where):
                 Wi = self.local[i]
@@ -239,6 +240,7 @@ class FrictionProblem:
             if sweeps % self.NEWTON_AFTER == 0 and len(rows) > 1:
                 # Gauss-Seidel crawls where the rows are strongly coupled (a stiff body on many rows at a
                 # large step: W nearly singular): Newton's method from where it got to.
+                newton += 1
                 ra_n = self._newton(Wa, q[idx], ra, rows, where)
                 ya_n = Wa.dot(ra_n) + q[idx]
                 res_n, worst_n = self._residual(ra_n, ya_n, q[idx], rows, where)
@@ -247,7 +249,7 @@ class FrictionProblem:
                     if residual <= self.TOLERANCE:
                         break
         r[idx], y[idx] = ra, Wa.dot(ra) + q[idx]
-        return FrictionSolution(r, y, residual, sweeps, residual <= self.TOLERANCE, worst)
+        return FrictionSolution(r, y, residual, sweeps, residual <= self.TOLERANCE, worst, newton)
 
     def _newton(self, W: np.ndarray, q: np.ndarray, r: np.ndarray, rows, where, iterations: int = 60) -> np.ndarray:
         """Alart and Curnier's semismooth Newton method on the closed rows (docs/theory.md s. 11).
