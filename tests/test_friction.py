@@ -125,7 +125,7 @@ def test_an_unsolved_contact_problem_is_reported_not_accepted(monkeypatch):
 
 # --- an elastic block on a rigid floor ------------------------------------------------------
 
-def block(dim, mu, gravity, v0=0.0, dt=2e-3, t_end=1.0, cells=8):
+def block(dim, mu, gravity, v0=0.0, dt=2e-3, t_end=1.0, cells=8, solver=None):
     """A block 0.2 x 0.05 (x 0.05), E = 1e7, rho = 1000 (c = 100 m/s, h = 0.025: dt = 2e-3 is a
     Courant number of 8), nu = 0, on a floor at its bottom face, under the acceleration ``gravity``."""
     mesh = {"shape": "bar", "dim": dim, "length": 0.2, "height": 0.05, "cells": cells}
@@ -138,7 +138,7 @@ def block(dim, mu, gravity, v0=0.0, dt=2e-3, t_end=1.0, cells=8):
             "loads": [{"body": "all", "acceleration": list(gravity) + pad}],
             "contacts": [{"name": "floor", "type": "obstacle", "nodes": "bottom", "normal": [0.0, -1.0] + pad,
                           "gap": 0.0, "friction": mu}],
-            "solver": {"dt": dt, "t_end": t_end}, "output": {"vtk": False}}
+            "solver": {"dt": dt, "t_end": t_end, **(solver or {})}, "output": {"vtk": False}}
     result = fi.run(fi.Case.from_dict(data))
     h = result.history
     return h, h["bar.px"] / result.summary["body_mass"]["bar"], result.summary
@@ -169,6 +169,20 @@ def test_a_sliding_block_stops_where_coulomb_says(dim):
     assert np.ptp(travel[after]) <= 0.01 * travel[-1]                        # at rest
     check_energy(h)
     assert summary["max_friction_residual"] <= FrictionProblem.TOLERANCE
+
+
+def test_the_reduced_model_slides_the_block_as_the_full_one():
+    """Friction on the modes alone (no static correction yet): 30 modes (3 rigid) of the sliding block."""
+    mu, v0 = 0.3, 2.0
+    h, v, summary = block(2, mu, (0.0, -G), v0=v0, t_end=0.9,
+                          solver={"method": "modal", "modes": 30, "static_correction": False})
+    assert summary["modes"] == 30
+    t = h["t"]
+    sliding = (t > 0.05) & (t < 0.6)
+    slope, intercept = np.polyfit(t[sliding], v[sliding], 1)
+    assert slope == pytest.approx(-mu * G, rel=0.01)
+    assert -intercept / slope == pytest.approx(v0 / (mu * G), rel=0.01)
+    check_energy(h)
 
 
 @pytest.mark.parametrize("theta_deg, mu", [(10.0, 0.3), (25.0, 0.3)])
@@ -217,7 +231,7 @@ def test_friction_is_refused_where_it_cannot_be_solved():
             "solver": {"dt": 0.01, "t_end": 0.1}}
     with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: solver.method newmark cannot take friction"):
         fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "newmark"}})
-    with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: friction is not available with the reduced"):
+    with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: friction is not available with the reduced model's static"):
         fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "modal", "modes": 4}})
     with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: must be >= 0"):
         fi.Case.from_dict({**base, "contacts": [{**base["contacts"][0], "friction": -0.1}]})

@@ -1154,9 +1154,10 @@ def _check_friction(case: Case) -> None:
     for i, contact in enumerate(case.contacts):
         if not contact.friction:
             continue
-        if is_reduced(case.solver):
-            raise case.error(("contacts", i, "friction"), "friction is not available with the reduced model "
-                                                          "(solver.method: modal) yet: use solver.method: moreau_jean")
+        if is_reduced(case.solver) and case.solver.static_correction:
+            raise case.error(("contacts", i, "friction"), "friction is not available with the reduced model's static "
+                                                          "correction yet: use solver.static_correction: false (modes "
+                                                          "alone) or solver.method: moreau_jean")
         if not getattr(integrator_class(scheme_of(case.solver)), "takes_friction", False):
             raise case.error(("contacts", i, "friction"),
                              f"solver.method {case.solver.method} cannot take friction (its contact step is an "

@@ -195,7 +195,10 @@ class ReducedFields:
 
     def frame(self, state: StepState) -> dict[str, np.ndarray]:
         u, v = self._parts(state, slice(None))
-        return {"u": u, "v": v, "a": self.Y1 @ state.A, "contact_force": -(self.cons.P_local @ state.force)}
+        force = -(self.cons.P_local @ state.force)
+        if state.tangential is not None:   # friction (the model without static correction)
+            force -= self.cons.tangent_local @ state.tangential
+        return {"u": u, "v": v, "a": self.Y1 @ state.A, "contact_force": force}
 
     def velocity_functionals(self, rows: np.ndarray, comm: MPI.Comm):
         """A reader of ``rows^T v`` at each step for a few fixed rows (owned entries, n_local x k),
@@ -288,8 +291,12 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
         )
     # The modal equations are diagonal: M = I, K = diag(w1^2), C = diag(alpha + beta w1^2).
     C = (alpha + beta * w2) if (alpha or beta) else None
+    friction = {}
+    if cons.pt:   # tangent rows on the modes (friction: the case allows it without the static correction)
+        friction = dict(friction=cons.friction, tangents=allsum(comm, cons.tangent_local.T @ Y1).T.copy(),
+                        tangent_of=cons.tangent_of)
     ops = Operators(np.ones(n1), w2.copy(), C, modal_load, Pr.T.copy(), cons.d0, cons.restitution, static=static,
-                    stop_compliance=cons.compliance)
+                    stop_compliance=cons.compliance, **friction)
     fields = ReducedFields(Y1, XR if static else None, XP if static else None, static, cons, dt)
     cutoff = float(np.sqrt(w2[-1]) / (2 * np.pi))
     log.info("reduced model: %d modes (cut-off %.4g Hz), static correction %s", n1, cutoff, static_correction)
