@@ -83,20 +83,33 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
         else:
             a = model.node_set(contact.nodes[0], key + ("nodes",))
             b = model.node_set(contact.nodes[1], key + ("nodes",))
-            order = match_pairs(key, a, b, normal)
-            b = NodeSet(b.name, b.coords[order], b.global_node[order], b.local_node[order])
-            col = _rows(n_local, bs, normal, a) - _rows(n_local, bs, normal, b)
-            t_cols = [_rows(n_local, bs, t, a) - _rows(n_local, bs, t, b) for t in tangents]
-            mesh_gap = (b.coords - a.coords)[:, :dim] @ normal
-            # Coincident nodes (bodies meshed apart that touch) differ by their coordinates' round-off.
-            mesh_gap[np.abs(mesh_gap) <= 1e-12 * model.meshdata.extent] = 0.0
-            gap = np.full(len(a), contact.gap) if contact.gap is not None else mesh_gap
-        if contact.coupling == "mean":
+            if contact.coupling == "mean":
+                # Two faces, each on its mean motion: one row between the means, whatever the nodes
+                # (a pad on a flat face: the contact follows the face as it slides along it).
+                col = _rows(n_local, bs, normal, a).mean(axis=1) - _rows(n_local, bs, normal, b).mean(axis=1)
+                t_cols = [_rows(n_local, bs, t, a).mean(axis=1) - _rows(n_local, bs, t, b).mean(axis=1)
+                          for t in tangents]
+                mesh_gap = (b.coords[:, :dim].mean(axis=0) - a.coords[:, :dim].mean(axis=0)) @ normal
+                if abs(mesh_gap) <= 1e-12 * model.meshdata.extent:
+                    mesh_gap = 0.0
+                gap = np.array([contact.gap if contact.gap is not None else mesh_gap])
+            else:
+                order = match_pairs(key, a, b, normal)
+                b = NodeSet(b.name, b.coords[order], b.global_node[order], b.local_node[order])
+                col = _rows(n_local, bs, normal, a) - _rows(n_local, bs, normal, b)
+                t_cols = [_rows(n_local, bs, t, a) - _rows(n_local, bs, t, b) for t in tangents]
+                mesh_gap = (b.coords - a.coords)[:, :dim] @ normal
+                # Coincident nodes (bodies meshed apart that touch) differ by their coordinates' round-off.
+                mesh_gap[np.abs(mesh_gap) <= 1e-12 * model.meshdata.extent] = 0.0
+                gap = np.full(len(a), contact.gap) if contact.gap is not None else mesh_gap
+        if contact.coupling == "mean" and contact.type == "obstacle":
             # One row on the group's mean normal displacement (a distributing coupling): its
             # force P^T lam is shared equally by the nodes, as a load on a node group is.
-            col = sparse.csr_matrix(col.mean(axis=1))
-            t_cols = [sparse.csr_matrix(t.mean(axis=1)) for t in t_cols]
+            col = col.mean(axis=1)
+            t_cols = [t.mean(axis=1) for t in t_cols]
             gap = np.array([gap.mean()])
+        col = sparse.csr_matrix(col)
+        t_cols = [sparse.csr_matrix(t) for t in t_cols]
         start = sum(len(g) for g in gaps)
         friction.append(np.full(len(gap), contact.friction))
         for k, (t, t_col) in enumerate(zip(tangents, t_cols)):

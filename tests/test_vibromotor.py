@@ -1,0 +1,61 @@
+"""The friction drive of cases/vibromotor.yaml: a slider pressed (P = 20 N) onto a driver face that moves on
+an ellipse, held back by a load F_L. Coulomb friction (mu = 0.3) is what moves it.
+
+- Against F_L = 2 N it moves forward, steadily, at a speed below the unloaded one; the load impulse
+  and the contact's normal and friction impulses account for the slider's momentum to round-off (the
+  scheme applies exactly the impulses it reports); friction never gives energy.
+- At stall (F_L = 3 N: the slider's mean speed is 1e-3 of its unloaded speed) the mean thrust is what
+  Coulomb's law gives a slider at rest on a face that moves both ways: mu mean(N(t) sign(v_tip(t)))
+  (the check the issue states for a tip whose tangential velocity keeps one sign, generalized: here
+  the contact persists over the period and the tip moves both ways).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import CASES
+import fem_impact as fi
+
+MU, P, DT = 0.3, 20.0, 5e-6
+
+
+def drive(load: float, t_end: float = 0.01):
+    # Every step in the history (the tip probe's velocity for the stall check); no VTK frames.
+    changes = {"parameters.FL": load, "solver.t_end": t_end, "output.every": 1, "output.vtk": False}
+    case = fi.load_case(CASES / "vibromotor.yaml").with_changes(changes)
+    result = fi.run(case)
+    h = result.history
+    return h, h["slider.px"] / result.summary["body_mass"]["slider"], result.summary
+
+
+def test_the_slider_moves_forward_against_the_load_and_its_momentum_is_accounted_for():
+    h0, v0, _ = drive(0.0)
+    h, v, summary = drive(2.0)
+    t = h["t"]
+    late = t > 0.5 * t[-1]
+    assert 0.0 < v[late].mean() < v0[t > 0.5 * t[-1]].mean()      # forward, slower than unloaded
+    # Momentum of the slider: the contact's normal impulses (+y: the normal points from the tip to the
+    # slider) and friction impulses (-tx: tx is the force on the driver), the load and the preload.
+    px, py = h["slider.px"], h["slider.py"]
+    friction = np.cumsum(-h["drive.tx"][1:] * DT)
+    normal = np.cumsum(h["drive.impulse"][1:])
+    scale = P * t[-1]
+    assert np.abs(px[1:] - px[0] - (friction - 2.0 * t[1:])).max() <= 1e-9 * scale
+    assert np.abs(py[1:] - py[0] - (normal - P * t[1:])).max() <= 1e-9 * scale
+    assert np.diff(h["friction_loss"]).min() >= -1e-9 * h["friction_loss"][-1]
+    energy = h["kinetic"] + h["strain"]
+    assert np.all(energy - energy[0] - h["external_work"] <= 1e-9 * max(h["external_work"].max(), 1e-300))
+    assert summary["energy_created"] == 0.0
+
+
+def test_at_stall_the_thrust_is_coulombs_on_a_face_that_moves_both_ways():
+    h, v, _ = drive(3.0)
+    t = h["t"]
+    late = t > 0.5 * t[-1]
+    assert abs(v[late].mean()) < 0.002 * 0.043                      # stalled (unloaded: 43 mm/s)
+    thrust = -h["drive.tx"][late].mean()
+    assert thrust == pytest.approx(3.0, rel=1e-3)                    # it balances the load
+    coulomb = MU * np.mean(h["drive.force"][late] * np.sign(h["tip.vx"][late]))
+    assert thrust == pytest.approx(coulomb, rel=0.02)
