@@ -25,7 +25,7 @@ def run_example(name: str, tmp_path, monkeypatch):
 
 
 def test_every_example_is_tested():
-    tested = {"parameter_study", "gmsh_scene", "reduced_vs_full", "large_steps"}
+    tested = {"parameter_study", "gmsh_scene", "reduced_vs_full", "large_steps", "vibromotor_curves"}
     assert {p.stem for p in EXAMPLES.glob("*.py")} == tested
 
 
@@ -74,3 +74,11 @@ def test_a_script_sees_no_compiler_log(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "build_ext" not in result.stderr and "INFO" not in result.stderr, result.stderr[:500]
     assert (tmp_path / "cache").is_dir()   # (the forms were compiled in this run)
+
+
+def test_the_vibromotor_characteristic_falls_with_the_load_to_a_stall(tmp_path, monkeypatch):
+    out = run_example("vibromotor_curves", tmp_path, monkeypatch)
+    speeds = out["speeds"]
+    assert out["loads"] == [0.0, 2.0, 4.0]
+    assert speeds[0] > speeds[1] > 0.0 > speeds[2]   # forward, slower under load, pushed back past stall
+    assert 2.0 < out["stall"] < 4.0
