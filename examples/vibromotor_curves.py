@@ -6,7 +6,7 @@ Each point is a run in memory (nothing written) of 0.01 s (50 periods at 5 kHz);
 slider's mean over the second half (the regime is periodic after a few periods).
 
     python examples/vibromotor_curves.py                    # the curves, printed
-    python examples/vibromotor_curves.py --plot docs        # and drawn into docs/vibromotor_*.png
+    python examples/vibromotor_curves.py --plot docs        # and drawn into docs/vibromotor_characteristic.png, docs/vibromotor_period.png
     python examples/vibromotor_curves.py --convergence      # the unloaded speed at h/2 and dt/2 too
     python examples/vibromotor_curves.py --coarse           # three loads only (what the test suite runs)
 """
