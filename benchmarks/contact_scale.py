@@ -37,7 +37,7 @@ METHODS = {"moreau_jean": ["solver.method=moreau_jean"],
            "newmark": ["solver.method=newmark"]}
 
 
-def measure(cells: int, coupling: str, steps: int, method: str) -> dict:
+def measure(cells: int, coupling: str, steps: int, method: str, friction: float = 0.0) -> dict:
     """One configuration, in this process."""
     import numpy as np
     from mpi4py import MPI
@@ -53,11 +53,15 @@ def measure(cells: int, coupling: str, steps: int, method: str) -> dict:
     dt = 0.5 / cells
     overrides = [f"mesh.cells={cells}", f"solver.dt={dt}", f"contacts.0.gap={1.5 * dt}",
                  f"contacts.0.coupling={coupling}", *METHODS[method]]
+    if friction:   # every row with friction, the plate sliding along its face as it lands
+        overrides += [f"contacts.0.friction={friction}", "initial.velocity=[-1.0, 0.5, 0.3]"]
     t0 = time.perf_counter()
     case = load_case(CASE, overrides)
     model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
     cons = build_constraints(case.contacts, model)
-    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
+    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
+                    friction=cons.friction if cons.pt else None, tangents=cons.tangent_local,
+                    tangent_of=cons.tangent_of)
     integrator = make_integrator(case, ops)
     integrator.start(model.U0, model.V0)
     if method != "velocity":
@@ -71,16 +75,17 @@ def measure(cells: int, coupling: str, steps: int, method: str) -> dict:
         contact.append(np.count_nonzero(state.force) >= 0.5 * ops.p)
     assert all(contact[1:-1]), "the timed steps should be contact steps"
     timings = integrator.timings
-    return {"cells": cells, "coupling": coupling, "rows": ops.p, "dofs": model.dofs,
+    extra = {"sweeps": getattr(integrator, "friction_sweeps", 0), "newton": getattr(integrator, "friction_retries", 0)}
+    return {**extra, "cells": cells, "coupling": coupling, "rows": ops.p, "dofs": model.dofs,
             "factorize_s": timings["factorize S"], "W_s": timings["W"], "D_s": timings.get("D", 0.0),
             "setup_s": setup,
             "first_contact_ms": 1e3 * times[1], "step_ms": 1e3 * float(np.median(times[2:-1])),
             "peak_MiB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
-def run_child(cells: int, coupling: str, steps: int, method: str) -> dict:
+def run_child(cells: int, coupling: str, steps: int, method: str, friction: float = 0.0) -> dict:
     out = subprocess.run([sys.executable, __file__, "--one", str(cells), coupling, "--steps", str(steps),
-                          "--method", method],
+                          "--method", method, "--friction", str(friction)],
                          capture_output=True, text=True)
     if out.returncode:
         raise RuntimeError(out.stderr)
@@ -95,10 +100,16 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="the smallest plate only (for CI)")
     parser.add_argument("--method", choices=sorted(METHODS), default="moreau_jean",
                         help="moreau_jean (the default), velocity (moreau_jean, level velocity), newmark")
+    parser.add_argument("--friction", type=float, default=0.0,
+                        help="Coulomb's mu on every row, the plate sliding as it lands (moreau_jean): the "
+                             "frictional step against the frictionless one of the same rows")
     parser.add_argument("--one", nargs=2, metavar=("CELLS", "COUPLING"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one:
-        print(json.dumps(measure(int(args.one[0]), args.one[1], max(4, args.steps), args.method)))
+        print(json.dumps(measure(int(args.one[0]), args.one[1], max(4, args.steps), args.method, args.friction)))
+        return
+    if args.friction:
+        friction_table(args)
         return
     sizes = [2] if args.quick else args.sizes
     header = (f"{'rows':>6}{'coupling':>9}{'unknowns':>9}{'factor s':>9}{'W s':>8}{'D s':>8}{'setup s':>9}"
@@ -118,6 +129,19 @@ def main() -> None:
     print("factor: the factorization of S; W, D: P S^-1 P^T and P M^-1 P^T (with their corrections' setup);\n"
           "setup: case to the started integrator, D included; 1st: the step in which the floor is reached;\n"
           "step: median contact step; step x, setup x: the many-row plate against the one-row plate.")
+
+
+def friction_table(args) -> None:
+    """Per size, every face node a row: the contact step with friction against the frictionless one."""
+    header = f"{'rows':>6}{'unknowns':>9}{'no friction ms':>15}{'friction ms':>12}{'ratio':>7}{'sweeps':>7}{'newton':>7}"
+    print(f"method: moreau_jean, mu = {args.friction}, the plate sliding at (0.5, 0.3) as it lands")
+    print(header)
+    print("-" * len(header))
+    for cells in ([2] if args.quick else args.sizes):
+        plain = run_child(cells, "each", args.steps, "moreau_jean")
+        rough = run_child(cells, "each", args.steps, "moreau_jean", args.friction)
+        print(f"{rough['rows']:>6}{rough['dofs']:>9}{plain['step_ms']:>15.1f}{rough['step_ms']:>12.1f}"
+              f"{rough['step_ms'] / plain['step_ms']:>7.2f}{rough['sweeps']:>7}{rough['newton']:>7}", flush=True)
 
 
 if __name__ == "__main__":

@@ -78,7 +78,7 @@ def solve_row(W: np.ndarray, q: np.ndarray, mu: float) -> np.ndarray:
     Open when ``q_N >= 0``; else stick when ``-W^-1 q`` lies in the cone; else slip: the
     normal impulse closes the row, ``r_N = -q_N / (W_NN - mu W_NT . tau)``, and the direction
     ``tau`` of the tangential velocity solves ``y_T(tau) = |y_T| tau`` (two candidates in 2D;
-    in 3D a fixed point from the stick solution's direction, else a scan of the angle).
+    in 3D the real roots of a quartic in tan(phi / 2), phi the direction's angle).
     """
     if q[0] >= 0.0:
         return np.zeros(q.size)
@@ -113,60 +113,36 @@ def solve_row(W: np.ndarray, q: np.ndarray, mu: float) -> np.ndarray:
             if out[1][0] * sign >= 0.0 and res < best_res:
                 best, best_res = r, res
         return best if best is not None else _projected_row(W, q, mu, stick)
-    # 3D: the direction of the tangential velocity; first by fixed point from the stick guess.
-    tau = -stick[1:] / max(float(np.linalg.norm(stick[1:])), TINY)
-    for _ in range(50):
-        out = slip(tau)
-        if out is None:
-            break
-        norm = float(np.linalg.norm(out[1]))
-        if norm <= TINY:
-            break
-        new = out[1] / norm
-        if np.abs(new - tau).max() <= 1e-13:
-            return as_row(out[0], new)
-        tau = new
-    found = _scan_angle(W, q, mu, slip, as_row)
-    return found if found is not None else _projected_row(W, q, mu, stick)
-
-
-def _scan_angle(W, q, mu, slip, as_row):
-    """3D slip: the angle phi of tau = (cos phi, sin phi) where y_T is parallel to tau (a scan
-    of 360 angles for sign changes of tau x y_T, each refined by bisection to round-off)."""
-    def cross(phi):
-        tau = np.array([np.cos(phi), np.sin(phi)])
-        out = slip(tau)
-        if out is None:
-            return np.nan, None
-        return tau[0] * out[1][1] - tau[1] * out[1][0], out
-
-    phis = np.linspace(0.0, 2.0 * np.pi, 361)
-    values = [cross(phi)[0] for phi in phis]
+    # 3D: the direction tau = (cos phi, sin phi) of the tangential velocity, from y_T(tau) x tau = 0:
+    # multiplied by (W_NN - mu W_NT . tau) it is a trigonometric polynomial of degree 2 in phi, a quartic
+    # in t = tan(phi / 2) (its roots exact, no iteration); each real root is a candidate.
     best, best_res = None, np.inf
-    for k in range(360):
-        a, b = values[k], values[k + 1]
-        if not (np.isfinite(a) and np.isfinite(b)) or a * b > 0.0:
-            continue
-        lo, hi, f_lo = phis[k], phis[k + 1], a
-        for _ in range(60):
-            mid = 0.5 * (lo + hi)
-            f_mid = cross(mid)[0]
-            if not np.isfinite(f_mid):
-                break
-            if f_lo * f_mid <= 0.0:
-                hi = mid
-            else:
-                lo, f_lo = mid, f_mid
-        phi = 0.5 * (lo + hi)
-        tau = np.array([np.cos(phi), np.sin(phi)])
+    for tau in _slip_directions(W, q, mu):
         out = slip(tau)
-        if out is None or out[1].dot(tau) < 0.0 or out[0] < 0.0:
+        if out is None or out[0] < 0.0 or out[1].dot(tau) < 0.0:
             continue
         r = as_row(out[0], tau)
         res = row_residual(r, W.dot(r) + q, mu, 1.0 / W[0, 0])
         if res < best_res:
             best, best_res = r, res
-    return best
+    return best if best is not None else _projected_row(W, q, mu, stick)
+
+
+def _slip_directions(W: np.ndarray, q: np.ndarray, mu: float) -> list[np.ndarray]:
+    """Unit directions tau in the tangent plane (3D) where the slip law's tangential velocity is
+    parallel to tau: the real roots of the quartic in t = tan(phi / 2), and phi = pi."""
+    a, b, D = W[0, 0], W[0, 1:], W[1:, 1:]
+    c, q_n, (q1, q2) = W[1:, 0], q[0], q[1:]
+    # F(phi) = A1 C + A2 S + A3 C^2 + A4 S^2 + A5 S C with C = cos phi, S = sin phi.
+    A1 = a * q2 - q_n * c[1]
+    A2 = -a * q1 + q_n * c[0]
+    A3 = mu * (q_n * D[0, 1] - b[0] * q2)
+    A4 = mu * (b[1] * q1 - q_n * D[0, 1])
+    A5 = mu * (b[0] * q1 - b[1] * q2 + q_n * (D[1, 1] - D[0, 0]))
+    coefficients = [A3 - A1, 2.0 * (A2 - A5), 4.0 * A4 - 2.0 * A3, 2.0 * (A2 + A5), A1 + A3]
+    roots = np.roots(coefficients) if np.any(coefficients) else np.zeros(0)
+    phis = [2.0 * np.arctan(t.real) for t in roots if abs(t.imag) <= 1e-9 * max(1.0, abs(t))] + [np.pi]
+    return [np.array([np.cos(phi), np.sin(phi)]) for phi in phis]
 
 
 def _projected_row(W, q, mu, start):
@@ -195,6 +171,7 @@ class FrictionProblem:
     TOLERANCE = 1e-10
     MAX_SWEEPS = 2000
     NEWTON_AFTER = 100   # sweeps of Gauss-Seidel before Newton's method takes over (coupled rows)
+    NEWTON_SIZE = 600    # unknowns up to which it may (its steps are dense least-squares solves)
 
     def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray):
         self.W = np.ascontiguousarray(W, dtype=float)
@@ -237,7 +214,7 @@ class FrictionProblem:
             residual, worst = self._residual(ra, ya, q[idx], rows, where)
             if residual <= self.TOLERANCE:
                 break
-            if sweeps % self.NEWTON_AFTER == 0 and len(rows) > 1:
+            if sweeps % self.NEWTON_AFTER == 0 and 1 < idx.size <= self.NEWTON_SIZE:
                 # Gauss-Seidel crawls where the rows are strongly coupled (a stiff body on many rows at a
                 # large step: W nearly singular): Newton's method from where it got to.
                 newton += 1
