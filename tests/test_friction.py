@@ -171,6 +171,7 @@ def test_a_sliding_block_stops_where_coulomb_says(dim):
     assert summary["max_friction_residual"] <= FrictionProblem.TOLERANCE
 
 
+@pytest.mark.slow   # (12 s)
 def test_the_reduced_model_slides_the_block_as_the_full_one():
     """Friction on the modes alone (no static correction yet): 30 modes (3 rigid) of the sliding block."""
     mu, v0 = 0.3, 2.0
