@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import ConstantLoad
+from conftest import CASES, ConstantLoad
 import fem_impact as fi
 from fem_impact.errors import CaseError, ContactSolverError
 from fem_impact.integrators import MoreauJean, Operators, integrate
@@ -104,11 +104,35 @@ def test_the_cone_projection_and_the_row_solver_agree_with_the_law():
         W = A @ A.T + dim * np.eye(dim)
         q = rng.normal(size=dim)
         mu = float(rng.uniform(0.0, 1.5))
-        r = solve_row(W, q, mu)
-        assert row_residual(r, W @ r + q, mu, 1.0 / W[0, 0]) <= 1e-9 * max(np.abs(q).max(), 1.0)
-        assert np.linalg.norm(r[1:]) <= mu * r[0] * (1 + 1e-12) + 1e-15
+        # From no start, and (3D: the slip direction is sought by Newton's method from the start's
+        # direction, then among the quartic's roots) from any start.
+        for start in (None, rng.normal(size=dim), np.zeros(dim)):
+            r = solve_row(W, q, mu, start)
+            assert row_residual(r, W @ r + q, mu, 1.0 / W[0, 0]) <= 1e-9 * max(np.abs(q).max(), 1.0)
+            assert np.linalg.norm(r[1:]) <= mu * r[0] * (1 + 1e-12) + 1e-15
     r_n, r_t = project_on_cone(1.0, np.array([3.0, 4.0]), 0.5)   # onto the cone's surface
     assert np.linalg.norm(r_t) == pytest.approx(0.5 * r_n)
+
+
+def test_the_float32_sweeps_end_on_the_same_certified_solution(monkeypatch):
+    """Many rows: the sweeps run on a float32 copy of W, y = W r + q is made exact between rounds and
+    the residual is judged on it. The solution is the float64 sweeps' to the tolerance."""
+    rng = np.random.default_rng(5)
+    rows = 60   # 3D: 180 unknowns, coupled like neighbouring nodes of a face
+    A = rng.normal(size=(3 * rows, 3 * rows)) / np.sqrt(3 * rows)
+    W = A @ A.T + np.eye(3 * rows)
+    q = np.concatenate([-rng.uniform(0.5, 1.0, rows), rng.normal(size=2 * rows)])
+    tangent_of, mu, active = np.repeat(np.arange(rows), 2), np.full(rows, 0.3), np.ones(rows, bool)
+    plain = FrictionProblem(W, tangent_of, mu).solve(q, active)
+    monkeypatch.setattr(FrictionProblem, "SINGLE_FROM", 0)
+    single = FrictionProblem(W, tangent_of, mu)
+    assert single.columns32 is not None
+    sol = single.solve(q, active)
+    assert plain.converged and sol.converged and sol.residual <= FrictionProblem.TOLERANCE
+    assert np.abs(sol.y - (W @ sol.r + q)).max() <= 1e-12 * np.abs(q).max()
+    assert np.abs(sol.r - plain.r).max() <= 1e-8 * np.abs(plain.r).max()
+    again = single.solve(q + 0.01, active, guess=sol.r)   # warm start: the last solution's W r reused
+    assert again.converged and np.abs(again.y - (W @ again.r + q + 0.01)).max() <= 1e-12 * np.abs(q).max()
 
 
 def test_an_unsolved_contact_problem_is_reported_not_accepted(monkeypatch):
@@ -294,10 +318,10 @@ def test_a_disk_thrown_onto_a_floor_slips_then_rolls_at_two_thirds_of_its_speed(
 
 # --- where friction must never give energy: a family of landings -----------------------------
 
-def landing(dim, mu, e, courant, steps=60):
+def landing(dim, mu, e, courant, steps=60, modes=None):
     """The block of ``block`` (4 cells along: 5 rows in 2D, 10 in 3D) falling from 1 mm onto the floor at
     0.5 m/s while sliding along it at 1 m/s (and 0.5 m/s across in 3D), restitution e, at a Courant
-    number c dt / h (c = 100 m/s, h = 0.05 m), for ``steps`` steps."""
+    number c dt / h (c = 100 m/s, h = 0.05 m), for ``steps`` steps; full, or reduced to ``modes``."""
     pad = [0.0] * (dim - 2)
     mesh = {"shape": "bar", "dim": dim, "length": 0.2, "height": 0.05, "cells": 4}
     if dim == 3:
@@ -310,21 +334,70 @@ def landing(dim, mu, e, courant, steps=60):
             "contacts": [{"name": "floor", "type": "obstacle", "nodes": "bottom", "normal": [0.0, -1.0] + pad,
                           "gap": 1e-3, "friction": mu, "restitution": e}],
             "solver": {"dt": dt, "t_end": steps * dt}, "output": {"vtk": False}}
+    if modes:
+        data["solver"].update({"method": "modal", "modes": modes, "static_correction": False})
     return fi.run(fi.Case.from_dict(data))
 
 
-@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("courant", [0.5, 8.0, 50.0])
 @pytest.mark.parametrize("mu, e", [(0.3, 0.0), (1.0, 0.0), (0.3, 1.0), (1.0, 1.0)])
-def test_friction_never_gives_energy_in_a_family_of_landings(dim, courant, mu, e):
-    result = landing(dim, mu, e, courant)
+@pytest.mark.parametrize("reduced", [False, True])
+def test_friction_never_gives_energy_in_a_family_of_landings(dim, courant, mu, e, reduced):
+    """Full and reduced (16 modes of 20 in 2D, 40 of 75 in 3D: more than the 10 or 30 contact
+    unknowns, so that the impulses are unique)."""
+    modes = (16 if dim == 2 else 40) if reduced else None
+    result = landing(dim, mu, e, courant, modes=modes)
     h = result.history
     assert h["friction_loss"][-1] > 0.0 and h["floor.impulse"].sum() > 0.0   # it landed and slid
     check_energy(h)
     assert result.summary["energy_created"] == 0.0
     assert result.summary["max_friction_residual"] <= FrictionProblem.TOLERANCE
-    if courant == 50.0 and dim == 2:   # a nearly rigid block on 5 rows: Gauss-Seidel hands over to Newton
+    if courant == 50.0 and dim == 2 and not modes:   # a nearly rigid block on 5 rows: Newton takes over
         assert result.summary["friction_retries"] > 0
+
+
+def plate_landing(cells, courant, mu, e, modes=None):
+    """cases/plate_drop.yaml (every node of its 5 x 5 face a row: 121, 441, 1681 rows for 2, 4, 8
+    cells through the thickness; nu = 0.3 here) landing while sliding at (0.5, 0.3) along the
+    floor, at a Courant number c dt / h (c = 1, h = 1 / cells), until 3 time units after it (the
+    contact lasts about 2 L / c = 2), full or reduced (``modes``, without the static correction)."""
+    case = fi.load_case(CASES / "plate_drop.yaml")
+    dt = courant / cells
+    changes = {"mesh.cells": cells, "material.nu": 0.3, "solver.dt": dt, "solver.t_end": 3.2 + 4 * dt,
+               "initial.velocity": [-1.0, 0.5, 0.3], "contacts.0.gap": 0.2, "contacts.0.friction": mu,
+               "contacts.0.restitution": e, "output.vtk": False}
+    if modes:
+        changes.update({"solver.method": "modal", "solver.modes": modes, "solver.static_correction": False})
+    return fi.run(case.with_changes(changes))
+
+
+@pytest.mark.parametrize("cells, courant, mu, e, modes", [
+    (2, 0.5, 0.3, 0.0, None), (2, 8.0, 1.0, 1.0, None), (2, 50.0, 0.3, 1.0, None), (2, 0.5, 1.0, 0.0, None),
+    (4, 0.5, 0.3, 0.0, None), (4, 50.0, 1.0, 0.0, None),
+    *[pytest.param(8, courant, mu, e, None, marks=pytest.mark.slow)
+      for courant, mu, e in [(0.5, 0.3, 0.0), (8.0, 1.0, 1.0), (50.0, 0.3, 1.0), (0.5, 1.0, 1.0)]]])
+def test_friction_never_gives_energy_on_a_plate_of_many_rows(cells, courant, mu, e, modes):
+    """The family on 121 to 1681 rows (a 3D face; the reduced model: on 5 and 10 rows above): every
+    step's friction loss >= 0, E <= E0 + W_ext, no energy created, each cone problem solved to the
+    tolerance."""
+    result = plate_landing(cells, courant, mu, e, modes)
+    h, summary = result.history, result.summary
+    assert summary["constraints"] == (5 * cells + 1) ** 2
+    assert h["friction_loss"][-1] > 0.0 and h["floor.impulse"].sum() > 0.0   # it landed and slid
+    check_energy(h)
+    assert summary["energy_created"] == 0.0
+    assert summary["max_friction_residual"] <= FrictionProblem.TOLERANCE
+
+
+@pytest.mark.slow   # (23 s: 2000 sweeps and 19 Newton hand-overs before it gives up)
+def test_a_reduced_face_of_many_frictional_rows_stops_and_says_why():
+    """Where the solver fails: the plate's 121 face rows in a reduced model (400 modes of 1089, no
+    static correction) see only the modes' motion, so their problem is nearly singular (W's smallest
+    eigenvalue 1e-13 of its largest); Gauss-Seidel and Newton's method miss the tolerance. The run
+    stops (status 3) at its first contact step and says what to do."""
+    with pytest.raises(ContactSolverError, match="nearly singular on many rows: use coupling: mean"):
+        plate_landing(2, 8.0, 1.0, 1.0, 400)
 
 
 def test_an_unsolved_contact_problem_stops_the_run_and_says_where(monkeypatch, tmp_path):

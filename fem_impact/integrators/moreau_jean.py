@@ -42,12 +42,13 @@ import numpy as np
 from ..errors import ContactSolverError
 from ..nonsmooth.friction import FrictionProblem
 from ..nonsmooth.lcp import TINY, Delassus, solve_lcp
-from .base import EnergyBudget, Operators, StepState, axpy
+from .base import DenseAlgebra, EnergyBudget, Operators, StepState, axpy
 from .scheme import ContactScheme
 
 CHECK_EVERY = 32   # steps: K U and K V by products with K instead of from the step's identity
 LEVELS = ("velocity", "position")
 ROUND_OFF = 1e-12   # a velocity change below this fraction of the step's impulse's is no correction
+REGULARIZATION = 1e-10   # of the diagonal: the shift of a singular frictional W (lcp.regularized's)
 
 
 class MoreauJean(ContactScheme):
@@ -119,11 +120,18 @@ class MoreauJean(ContactScheme):
         self.carnot_rows = self.carnot_rows & ~rigid
         self.rows = ops.with_tangents()
         clock = time.perf_counter()
-        W_all, self.G_all = self.rows.delassus(self.solve_S)
+        shifted, self.G_all = self.rows.delassus(self.solve_S)
         self.timings["W with tangents"] = time.perf_counter() - clock
-        self.W_all = W_all
-        shifted = W_all.copy()
-        shifted[:ops.p, :ops.p] += compliance / (theta * dt * dt)
+        # The elastic rows' compliance on the normal block (in place: W is (p + pt)^2, the largest
+        # array of a frictional run); the step's products W r come from the solution's y = W r + q.
+        self.compliance = compliance / (theta * dt * dt)
+        shifted[:ops.p, :ops.p] += self.compliance
+        self._degenerate = self.alg.sizes[1] < ops.p + ops.pt
+        if self._degenerate:
+            # More contact unknowns than the motion has (a reduced model with fewer modes): W is
+            # singular, its impulses not unique; the shift selects the smallest (as lcp.regularized,
+            # at the price of a velocity error of 1e-10 of the impulse's).
+            np.fill_diagonal(shifted, shifted.diagonal() + REGULARIZATION * np.abs(shifted.diagonal()).max())
         self.friction = FrictionProblem(shifted, ops.tangent_of, ops.friction)
         self.r_prev = np.zeros(ops.p + ops.pt)
         self._persists, self._r_t = None, np.zeros(ops.pt)
@@ -285,9 +293,9 @@ class MoreauJean(ContactScheme):
                 raise ContactSolverError(
                     f"the frictional contact problem was not solved at t = {t1:.6g} (step {st.step + 1}): residual "
                     f"{sol.residual:.3g} after {sol.sweeps} sweeps (tolerance {self.friction.TOLERANCE:.0e}), worst "
-                    f"at contact row {sol.worst_row}{self._row_name(sol.worst_row)}")
-            r_t = sol.r[p:]
-            work = np.bincount(ops.tangent_of, weights=r_t * (pt0 + pt_free - self.W_all[p:].dot(sol.r)),
+                    f"at contact row {sol.worst_row}{self._row_name(sol.worst_row)}" + self._degenerate_hint())
+            r_t = sol.r[p:]   # (P_T V1 = pt_free - W_T r = pt_free - y_T + q_t)
+            work = np.bincount(ops.tangent_of, weights=r_t * (pt0 + pt_free - sol.y[p:] + q_t),
                                minlength=p)[ops.tangent_of]
             giving = ~slip_law & (work < 0.0)
             if not np.count_nonzero(giving) or attempt == p:
@@ -302,7 +310,9 @@ class MoreauJean(ContactScheme):
             return r[:p], r[p:], pv_free, pt_free, 0.0
         self.G_all.subtract_from(V, r)
         self.rows.subtract_transpose(rhs, r)   # the step's equation with the impulses, for K V1
-        Wr = self.W_all.dot(r)
+        q_all = np.concatenate([q, q_t])
+        Wr = sol.y - q_all   # W r with the compliance; without it on the normal rows:
+        Wr[:p] -= self.compliance.dot(r[:p])
         return r[:p], r[p:], pv_free - Wr[:p], pt_free - Wr[p:], float(np.abs(Wr[:p]).max())
 
     def _stick(self, impulse: np.ndarray, r_t: np.ndarray, pv: np.ndarray, pt: np.ndarray, jump: float):
@@ -346,6 +356,17 @@ class MoreauJean(ContactScheme):
         change = D[:, p + s].dot(lam)
         loss = float(lam.dot(pt[s]) - 0.5 * lam.dot(change[p + s]))
         return pv - change[:p], pt - change[p:], total, loss
+
+    def _degenerate_hint(self) -> str:
+        """Why a reduced model's frictional problem may not be solved, and what to do."""
+        if self._degenerate:
+            return (f"; the model has {self.alg.sizes[1]} unknowns of motion (modes) for {self.ops.p + self.ops.pt} "
+                    "contact unknowns, so its impulses are not unique: use more modes than contact unknowns, "
+                    "or fewer rows (coupling: mean)")
+        if isinstance(self.alg, DenseAlgebra) and self.ops.p > 1:
+            return ("; in a reduced model the contact rows of a face see only the modes' motion, so their "
+                    "problem is nearly singular on many rows: use coupling: mean, or the full model")
+        return ""
 
     def _row_name(self, row: int) -> str:
         names = getattr(self.ops, "row_names", None)

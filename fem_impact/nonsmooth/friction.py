@@ -18,7 +18,8 @@ velocity at the end of the step). Rows without friction have only their normal p
 
 Solver: nonsmooth Gauss-Seidel over the rows (each row's 2 x 2 or 3 x 3 problem solved
 exactly: open, stick, or slip in the direction that makes the tangential velocity parallel to
-the friction impulse), warm-started from the previous step; every ``NEWTON_AFTER`` sweeps Alart
+the friction impulse), warm-started from the previous step, compiled (cone.py); every
+``NEWTON_AFTER`` sweeps Alart
 and Curnier's semismooth Newton method takes over from the iterate (coupled rows, where
 Gauss-Seidel crawls) and is kept when it does better. It stops when the residual below
 is under the tolerance; a solve that misses it is reported (``FrictionSolution.converged``),
@@ -32,6 +33,7 @@ the size of the data, ``max(|r|_inf, max_i rho_i |q_i|_inf)``: dimensionless, 0 
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,113 +54,27 @@ class FrictionSolution:
 
 def project_on_cone(z_n: float, z_t: np.ndarray, mu: float) -> tuple[float, np.ndarray]:
     """The projection of ``(z_n, z_t)`` on the cone ``|r_T| <= mu r_N`` (Euclidean)."""
-    norm_t = float(np.sqrt(z_t.dot(z_t)))
-    if norm_t <= mu * z_n:
-        return z_n, z_t
-    if mu * norm_t <= -z_n or (mu == 0.0 and z_n <= 0.0):
-        return 0.0, np.zeros_like(z_t)
-    if mu == 0.0:
-        return z_n, np.zeros_like(z_t)
-    r_n = (z_n + mu * norm_t) / (1.0 + mu * mu)
-    return r_n, (mu * r_n / norm_t) * z_t
+    from . import cone
+
+    z_t = np.asarray(z_t, dtype=float)
+    out = np.empty_like(z_t)
+    return float(cone.project(float(z_n), z_t, float(mu), out)), out
 
 
 def row_residual(r: np.ndarray, y: np.ndarray, mu: float, rho: float) -> float:
     """``|r - proj_K(r - rho (y + mu |y_T| e_N))|`` for one row (r, y: normal first)."""
-    y_t = y[1:]
-    shifted = y[0] + mu * float(np.sqrt(y_t.dot(y_t)))
-    z_n, z_t = r[0] - rho * shifted, r[1:] - rho * y_t
-    p_n, p_t = project_on_cone(z_n, z_t, mu)
-    return float(np.sqrt((r[0] - p_n) ** 2 + np.sum((r[1:] - p_t) ** 2)))
+    from . import cone
+
+    return float(cone.row_residual(np.asarray(r, dtype=float), np.asarray(y, dtype=float), float(mu), float(rho)))
 
 
-def solve_row(W: np.ndarray, q: np.ndarray, mu: float) -> np.ndarray:
-    """Exact solution of one row's problem ``y = W r + q`` (W: 1 x 1, 2 x 2 or 3 x 3, SPD).
+def solve_row(W: np.ndarray, q: np.ndarray, mu: float, start: np.ndarray | None = None) -> np.ndarray:
+    """Exact solution of one row's problem ``y = W r + q`` (cone.solve_row; ``start``: the row's
+    impulse so far, whose direction starts the 3D slip direction's search)."""
+    from . import cone
 
-    Open when ``q_N >= 0``; else stick when ``-W^-1 q`` lies in the cone; else slip: the
-    normal impulse closes the row, ``r_N = -q_N / (W_NN - mu W_NT . tau)``, and the direction
-    ``tau`` of the tangential velocity solves ``y_T(tau) = |y_T| tau`` (two candidates in 2D;
-    in 3D the real roots of a quartic in tan(phi / 2), phi the direction's angle).
-    """
-    if q[0] >= 0.0:
-        return np.zeros(q.size)
-    if q.size == 1 or mu == 0.0:
-        r = np.zeros(q.size)
-        r[0] = -q[0] / W[0, 0]
-        return r
-    stick = -np.linalg.solve(W, q)
-    if stick[0] >= 0.0 and float(np.sqrt(stick[1:].dot(stick[1:]))) <= mu * stick[0] * (1.0 + 1e-14):
-        return stick
-
-    def slip(tau: np.ndarray):
-        denominator = W[0, 0] - mu * W[0, 1:].dot(tau)
-        if denominator <= 0.0:
-            return None
-        r_n = -q[0] / denominator
-        y_t = q[1:] + r_n * (W[1:, 0] - mu * W[1:, 1:].dot(tau))
-        return r_n, y_t
-
-    def as_row(r_n: float, tau: np.ndarray) -> np.ndarray:
-        return np.concatenate([[r_n], -mu * r_n * tau])
-
-    if q.size == 2:
-        best, best_res = None, np.inf
-        for sign in (1.0, -1.0):
-            tau = np.array([sign])
-            out = slip(tau)
-            if out is None:
-                continue
-            r = as_row(out[0], tau)
-            res = row_residual(r, W.dot(r) + q, mu, 1.0 / W[0, 0])
-            if out[1][0] * sign >= 0.0 and res < best_res:
-                best, best_res = r, res
-        return best if best is not None else _projected_row(W, q, mu, stick)
-    # 3D: the direction tau = (cos phi, sin phi) of the tangential velocity, from y_T(tau) x tau = 0:
-    # multiplied by (W_NN - mu W_NT . tau) it is a trigonometric polynomial of degree 2 in phi, a quartic
-    # in t = tan(phi / 2) (its roots exact, no iteration); each real root is a candidate.
-    best, best_res = None, np.inf
-    for tau in _slip_directions(W, q, mu):
-        out = slip(tau)
-        if out is None or out[0] < 0.0 or out[1].dot(tau) < 0.0:
-            continue
-        r = as_row(out[0], tau)
-        res = row_residual(r, W.dot(r) + q, mu, 1.0 / W[0, 0])
-        if res < best_res:
-            best, best_res = r, res
-    return best if best is not None else _projected_row(W, q, mu, stick)
-
-
-def _slip_directions(W: np.ndarray, q: np.ndarray, mu: float) -> list[np.ndarray]:
-    """Unit directions tau in the tangent plane (3D) where the slip law's tangential velocity is
-    parallel to tau: the real roots of the quartic in t = tan(phi / 2), and phi = pi."""
-    a, b, D = W[0, 0], W[0, 1:], W[1:, 1:]
-    c, q_n, (q1, q2) = W[1:, 0], q[0], q[1:]
-    # F(phi) = A1 C + A2 S + A3 C^2 + A4 S^2 + A5 S C with C = cos phi, S = sin phi.
-    A1 = a * q2 - q_n * c[1]
-    A2 = -a * q1 + q_n * c[0]
-    A3 = mu * (q_n * D[0, 1] - b[0] * q2)
-    A4 = mu * (b[1] * q1 - q_n * D[0, 1])
-    A5 = mu * (b[0] * q1 - b[1] * q2 + q_n * (D[1, 1] - D[0, 0]))
-    coefficients = [A3 - A1, 2.0 * (A2 - A5), 4.0 * A4 - 2.0 * A3, 2.0 * (A2 + A5), A1 + A3]
-    roots = np.roots(coefficients) if np.any(coefficients) else np.zeros(0)
-    phis = [2.0 * np.arctan(t.real) for t in roots if abs(t.imag) <= 1e-9 * max(1.0, abs(t))] + [np.pi]
-    return [np.array([np.cos(phi), np.sin(phi)]) for phi in phis]
-
-
-def _projected_row(W, q, mu, start):
-    """Fallback for a row with no closed-form candidate: the projected fixed point
-    ``r <- proj_K(r - rho (W r + q + mu |y_T| e_N))`` (its residual decides whether it is kept)."""
-    rho = 1.0 / np.linalg.eigvalsh(W).max()
-    r = np.concatenate([[max(start[0], 0.0)], np.zeros(q.size - 1)])
-    for _ in range(2000):
-        y = W.dot(r) + q
-        shifted = y[0] + mu * float(np.linalg.norm(y[1:]))
-        r_n, r_t = project_on_cone(r[0] - rho * shifted, r[1:] - rho * y[1:], mu)
-        new = np.concatenate([[r_n], r_t])
-        if np.abs(new - r).max() <= 1e-15 * max(np.abs(new).max(), TINY):
-            return new
-        r = new
-    return r
+    W, q = np.ascontiguousarray(W, dtype=float), np.ascontiguousarray(q, dtype=float)
+    return cone.solve_row(W, q, float(mu), None if start is None else np.ascontiguousarray(start, dtype=float))
 
 
 class FrictionProblem:
@@ -171,62 +87,118 @@ class FrictionProblem:
     TOLERANCE = 1e-10
     MAX_SWEEPS = 2000
     NEWTON_AFTER = 100   # sweeps of Gauss-Seidel before Newton's method takes over (coupled rows)
-    NEWTON_SIZE = 600    # unknowns up to which it may (its steps are dense least-squares solves)
+    NEWTON_SIZE = 6000   # unknowns up to which it may (its steps are dense LU solves: 2.3 s at 5043)
+    LEAST_SQUARES_SIZE = 600   # ... and least-squares ones where J is singular
+    SINGLE_FROM = 2000   # unknowns from which the sweeps start on a float32 copy of W (memory-bound)
+    SINGLE_TARGET = 1e-7  # the first float32 round's (its round-off floor: about 3e-8 on the landing plate)
 
     def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray):
-        self.W = np.ascontiguousarray(W, dtype=float)
+        from . import cone   # (Numba: imported, and its kernels loaded, only where friction is)
+
         self.p, self.mu = mu.size, np.asarray(mu, dtype=float)
         self.blocks = [np.array([i] + [self.p + k for k in np.flatnonzero(tangent_of == i)])
                        for i in range(self.p)]
-        self.local = [self.W[np.ix_(b, b)] for b in self.blocks]
-        self.rho = 1.0 / np.diag(self.W)[:self.p]
-        self._block_key, self._block_matrix = None, None
+        # Inside, the unknowns are in row order: row i's normal and tangents at start[i] on, so that
+        # a Gauss-Seidel sweep streams W's rows once, in order (cone.gauss_seidel). W is kept only so.
+        self.order = np.concatenate(self.blocks)
+        self.sizes = np.array([b.size for b in self.blocks], dtype=np.int64)
+        self.start = np.concatenate([[0], np.cumsum(self.sizes)[:-1]]).astype(np.int64)
+        self.W = np.ascontiguousarray(np.asarray(W, dtype=float)[np.ix_(self.order, self.order)])
+        self.rho = 1.0 / self.W[self.start, self.start]
+        # The sweeps update y along rows of W, its columns when symmetric (always, from Moreau-Jean).
+        symmetric = np.allclose(self.W, self.W.T, rtol=0.0, atol=1e-13 * np.abs(self.W).max(initial=0.0))
+        self.columns = self.W if symmetric else np.ascontiguousarray(self.W.T)
+        self.columns32 = self.columns.astype(np.float32) if self.W.shape[0] >= self.SINGLE_FROM else None
+        self._last = None   # (r, W r) of the last solution, in row order: the next warm start's y
 
     def solve(self, q: np.ndarray, active: np.ndarray, guess: np.ndarray | None = None) -> FrictionSolution:
-        """Solve on the ``active`` normal rows (and their tangent rows); the others carry nothing."""
+        """Solve on the ``active`` normal rows (and their tangent rows); the others carry nothing.
+        ``y = W r + q`` on every row (a row that is not active may show where it would go)."""
+        from . import cone
+
         n = q.size
-        rows = np.flatnonzero(active)
-        r = np.zeros(n)
+        rows = np.flatnonzero(active).astype(np.int64)
         if not rows.size:
-            return FrictionSolution(r, q.copy(), 0.0, 0, True, -1)
-        idx = np.concatenate([self.blocks[i] for i in rows])
+            return FrictionSolution(np.zeros(n), np.array(q, dtype=float), 0.0, 0, True, -1)
+        q = np.ascontiguousarray(np.asarray(q, dtype=float)[self.order])
+        idx = np.concatenate([np.arange(self.start[i], self.start[i] + self.sizes[i]) for i in rows])
+        r = np.zeros(n)
         if guess is not None:
-            r[idx] = guess[idx]
-        Wa = self._block(idx)
-        y = q.copy()
-        y[idx] = Wa.dot(r[idx]) + q[idx]
-        # Each row's position within idx, for the updates of y.
+            r[idx] = np.asarray(guess, dtype=float)[self.order][idx]
+        if not np.count_nonzero(r):
+            y = q.copy()
+        elif self._last is not None and np.array_equal(r, self._last[0]):
+            y = self._last[1] + q   # (the last solution again: its W r is known)
+        else:
+            y = self.W.dot(r) + q
+        residual, worst, sweeps, newton, exact = np.inf, -1, 0, 0, False
+        # Many rows: sweeps on a float32 copy of W first (the sweeps stream W from memory): one round
+        # to 1e-7 (they converge to a problem perturbed at float32's round-off), y made exact, a
+        # second round from there to the tolerance (its changes are small: so is their round-off).
+        # The residual is always judged on y = W r + q exactly; float64 sweeps finish if need be.
+        for target in ((self.SINGLE_TARGET, self.TOLERANCE) if self.columns32 is not None else ()):
+            done, residual, worst = cone.gauss_seidel(self.columns32, q, r, y, rows, self.start, self.sizes,
+                                                      self.mu, self.rho, target, self.NEWTON_AFTER, True)
+            sweeps += done
+            y = self.W.dot(r) + q
+            residual, worst = cone.residual(r, y, q, rows, self.start, self.sizes, self.mu, self.rho)
+            exact = True
+            if residual <= self.TOLERANCE:
+                break
+        while sweeps < self.MAX_SWEEPS and residual > self.TOLERANCE:
+            batch = min(self.NEWTON_AFTER, self.MAX_SWEEPS - sweeps)
+            done, residual, worst = cone.gauss_seidel(self.columns, q, r, y, rows, self.start, self.sizes,
+                                                      self.mu, self.rho, self.TOLERANCE, batch)
+            sweeps += done
+            exact = False
+            if residual <= self.TOLERANCE or sweeps >= self.MAX_SWEEPS:
+                break
+            if 1 < idx.size <= self.NEWTON_SIZE:
+                # Gauss-Seidel crawls where the rows are strongly coupled (a stiff body on many rows at a
+                # large step: W nearly singular): Newton's method from where it got to.
+                newton += 1
+                ra_n = self._newton(self.W[np.ix_(idx, idx)], q[idx], r[idx], rows, self._where(rows))
+                trial = np.zeros(n)
+                trial[idx] = ra_n
+                y_n = self.W.dot(trial) + q
+                res_n, worst_n = cone.residual(trial, y_n, q, rows, self.start, self.sizes, self.mu, self.rho)
+                if res_n < residual:
+                    r, y, residual, worst, exact = trial, y_n, res_n, worst_n, True
+                    if residual <= self.TOLERANCE:
+                        break
+        if not exact:   # y exactly (the sweeps updated it row by row): the residual the solution is judged by
+            y = self.W.dot(r) + q
+            residual, worst = cone.residual(r, y, q, rows, self.start, self.sizes, self.mu, self.rho)
+        self._last = (r, y - q)
+        out_r, out_y = np.empty(n), np.empty(n)
+        out_r[self.order], out_y[self.order] = r, y
+        return FrictionSolution(out_r, out_y, residual, sweeps, residual <= self.TOLERANCE, worst, newton)
+
+    @staticmethod
+    def _newton_direction(J: np.ndarray, F: np.ndarray) -> np.ndarray:
+        """``J d = -F`` by LU; by least squares where J is singular to working precision (W may be:
+        many impulses give the same velocities) and small enough for it."""
+        from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", LinAlgWarning)
+            try:
+                d = lu_solve(lu_factor(J, check_finite=False), -F, check_finite=False)
+                if np.isfinite(d).all():
+                    return d
+            except (LinAlgWarning, ValueError, np.linalg.LinAlgError):
+                pass
+        if F.size > FrictionProblem.LEAST_SQUARES_SIZE:
+            return np.zeros_like(F)
+        return np.linalg.lstsq(J, -F, rcond=None)[0]
+
+    def _where(self, rows: np.ndarray) -> list[slice]:
+        """Each row's unknowns as a slice of the active unknowns (its normal, then its tangents)."""
         where, start = [], 0
         for i in rows:
             where.append(slice(start, start + self.blocks[i].size))
             start += self.blocks[i].size
-        ya, ra = y[idx], r[idx]
-        residual, worst, sweeps, newton = np.inf, -1, 0, 0
-        for sweeps in range(1, self.MAX_SWEEPS + 1):
-            for i, s in zip(rows, where):
-                Wi = self.local[i]
-                qi = ya[s] - Wi.dot(ra[s])
-                new = solve_row(Wi, qi, self.mu[i])
-                change = new - ra[s]
-                if np.count_nonzero(change):
-                    ya += Wa[:, s].dot(change)
-                    ra[s] = new
-            residual, worst = self._residual(ra, ya, q[idx], rows, where)
-            if residual <= self.TOLERANCE:
-                break
-            if sweeps % self.NEWTON_AFTER == 0 and 1 < idx.size <= self.NEWTON_SIZE:
-                # Gauss-Seidel crawls where the rows are strongly coupled (a stiff body on many rows at a
-                # large step: W nearly singular): Newton's method from where it got to.
-                newton += 1
-                ra_n = self._newton(Wa, q[idx], ra, rows, where)
-                ya_n = Wa.dot(ra_n) + q[idx]
-                res_n, worst_n = self._residual(ra_n, ya_n, q[idx], rows, where)
-                if res_n < residual:
-                    ra, ya, residual, worst = ra_n, ya_n, res_n, worst_n
-                    if residual <= self.TOLERANCE:
-                        break
-        r[idx], y[idx] = ra, Wa.dot(ra) + q[idx]
-        return FrictionSolution(r, y, residual, sweeps, residual <= self.TOLERANCE, worst, newton)
+        return where
 
     def _newton(self, W: np.ndarray, q: np.ndarray, r: np.ndarray, rows, where, iterations: int = 60) -> np.ndarray:
         """Alart and Curnier's semismooth Newton method on the closed rows (docs/theory.md s. 11).
@@ -283,7 +255,7 @@ class FrictionProblem:
         for _ in range(iterations):
             if size == 0.0:
                 break
-            d = np.linalg.lstsq(J, -F, rcond=None)[0]
+            d = self._newton_direction(J, F)
             step = 1.0
             while step > 1e-6:
                 trial = r + step * d
@@ -297,20 +269,3 @@ class FrictionProblem:
             F, J = evaluate(r)
             size = float(F.dot(F))
         return r
-
-    def _block(self, idx: np.ndarray) -> np.ndarray:
-        """``W[idx][:, idx]``, kept while the closed rows stay the same (a persisting contact copies nothing)."""
-        key = idx.tobytes()
-        if key != self._block_key:
-            self._block_key = key
-            self._block_matrix = self.W[np.ix_(idx, idx)]
-        return self._block_matrix
-
-    def _residual(self, ra, ya, qa, rows, where) -> tuple[float, int]:
-        worst, worst_row, scale = 0.0, -1, float(np.abs(ra).max(initial=0.0))
-        for i, s in zip(rows, where):
-            scale = max(scale, self.rho[i] * float(np.abs(qa[s]).max()))
-            res = row_residual(ra[s], ya[s], self.mu[i], self.rho[i])
-            if res > worst:
-                worst, worst_row = res, i
-        return worst / max(scale, TINY), worst_row
