@@ -376,11 +376,13 @@ def plate_landing(cells, courant, mu, e, modes=None):
     (2, 0.5, 0.3, 0.0, None), (2, 8.0, 1.0, 1.0, None), (2, 50.0, 0.3, 1.0, None), (2, 0.5, 1.0, 0.0, None),
     (4, 0.5, 0.3, 0.0, None), (4, 50.0, 1.0, 0.0, None),
     *[pytest.param(8, courant, mu, e, None, marks=pytest.mark.slow)
-      for courant, mu, e in [(0.5, 0.3, 0.0), (8.0, 1.0, 1.0), (50.0, 0.3, 1.0), (0.5, 1.0, 1.0)]]])
+      for courant, mu, e in [(0.5, 0.3, 0.0), (8.0, 1.0, 1.0), (8.0, 0.3, 1.0), (0.5, 1.0, 1.0)]]])
 def test_friction_never_gives_energy_on_a_plate_of_many_rows(cells, courant, mu, e, modes):
     """The family on 121 to 1681 rows (a 3D face; the reduced model: on 5 and 10 rows above): every
     step's friction loss >= 0, E <= E0 + W_ext, no energy created, each cone problem solved to the
-    tolerance."""
+    tolerance. Courant number 50 up to 441 rows: there the plate is nearly rigid, Gauss-Seidel
+    crawls and Newton's method takes over (dense LU: 1323 unknowns, 5 s a run; at 1681 rows, 5043
+    unknowns, minutes a step)."""
     result = plate_landing(cells, courant, mu, e, modes)
     h, summary = result.history, result.summary
     assert summary["constraints"] == (5 * cells + 1) ** 2
