@@ -132,6 +132,8 @@ def test_the_float32_sweeps_end_on_the_same_certified_solution(monkeypatch):
     assert np.abs(sol.y - (W @ sol.r + q)).max() <= 1e-12 * np.abs(q).max()
     assert np.abs(sol.r - plain.r).max() <= 1e-8 * np.abs(plain.r).max()
     again = single.solve(q + 0.01, active, guess=sol.r)   # warm start: the last solution's W r reused
+    in_place = FrictionProblem(W.copy(), tangent_of, mu, overwrite=True)   # (W permuted in its own memory)
+    np.testing.assert_array_equal(in_place.W, single.W)
     assert again.converged and np.abs(again.y - (W @ again.r + q + 0.01)).max() <= 1e-12 * np.abs(q).max()
 
 

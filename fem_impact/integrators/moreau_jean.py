@@ -132,7 +132,7 @@ class MoreauJean(ContactScheme):
             # singular, its impulses not unique; the shift selects the smallest (as lcp.regularized,
             # at the price of a velocity error of 1e-10 of the impulse's).
             np.fill_diagonal(shifted, shifted.diagonal() + REGULARIZATION * np.abs(shifted.diagonal()).max())
-        self.friction = FrictionProblem(shifted, ops.tangent_of, ops.friction)
+        self.friction = FrictionProblem(shifted, ops.tangent_of, ops.friction, overwrite=True)
         self.r_prev = np.zeros(ops.p + ops.pt)
         self._persists, self._r_t = None, np.zeros(ops.pt)
         self._stick_D = self._stick_H = None   # H M^-1 H^T and M^-1 H^T, built on the first stick

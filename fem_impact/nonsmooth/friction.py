@@ -77,6 +77,34 @@ def solve_row(W: np.ndarray, q: np.ndarray, mu: float, start: np.ndarray | None 
     return cone.solve_row(W, q, float(mu), None if start is None else np.ascontiguousarray(start, dtype=float))
 
 
+def _permuted_in_place(W: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """``W[order][:, order]`` in W's own memory (one row of scratch): each row's entries, then the rows
+    along the permutation's cycles."""
+    for i in range(W.shape[0]):
+        W[i] = W[i, order]
+    done = order == np.arange(order.size)
+    for start in np.flatnonzero(~done):
+        if done[start]:
+            continue
+        held, j = W[start].copy(), start
+        while True:
+            done[j] = True
+            source = order[j]
+            if source == start:
+                W[j] = held
+                break
+            W[j] = W[source]
+            j = source
+    return W
+
+
+def _symmetric(W: np.ndarray, rows: int = 512) -> bool:
+    """W = W^T to 1e-13 of its largest entry, by blocks of rows (no temporary of W's size)."""
+    scale = 1e-13 * max((np.abs(W[i:i + rows]).max(initial=0.0) for i in range(0, W.shape[0], rows)), default=0.0)
+    return all(np.abs(W[i:i + rows] - W[:, i:i + rows].T).max(initial=0.0) <= scale
+               for i in range(0, W.shape[0], rows))
+
+
 class FrictionProblem:
     """The frictional contact problem of a step in one Delassus matrix (module docstring).
 
@@ -92,7 +120,7 @@ class FrictionProblem:
     SINGLE_FROM = 2000   # unknowns from which the sweeps start on a float32 copy of W (memory-bound)
     SINGLE_TARGET = 1e-7  # the first float32 round's (its round-off floor: about 3e-8 on the landing plate)
 
-    def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray):
+    def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray, overwrite: bool = False):
         from . import cone   # (Numba: imported, and its kernels loaded, only where friction is)
 
         self.p, self.mu = mu.size, np.asarray(mu, dtype=float)
@@ -103,10 +131,13 @@ class FrictionProblem:
         self.order = np.concatenate(self.blocks)
         self.sizes = np.array([b.size for b in self.blocks], dtype=np.int64)
         self.start = np.concatenate([[0], np.cumsum(self.sizes)[:-1]]).astype(np.int64)
-        self.W = np.ascontiguousarray(np.asarray(W, dtype=float)[np.ix_(self.order, self.order)])
+        if overwrite and isinstance(W, np.ndarray) and W.dtype == float and W.flags.c_contiguous:
+            self.W = _permuted_in_place(W, self.order)   # (the caller's W, no second copy: the largest array)
+        else:
+            self.W = np.ascontiguousarray(np.asarray(W, dtype=float)[np.ix_(self.order, self.order)])
         self.rho = 1.0 / self.W[self.start, self.start]
         # The sweeps update y along rows of W, its columns when symmetric (always, from Moreau-Jean).
-        symmetric = np.allclose(self.W, self.W.T, rtol=0.0, atol=1e-13 * np.abs(self.W).max(initial=0.0))
+        symmetric = _symmetric(self.W)
         self.columns = self.W if symmetric else np.ascontiguousarray(self.W.T)
         self.columns32 = self.columns.astype(np.float32) if self.W.shape[0] >= self.SINGLE_FROM else None
         self._last = None   # (r, W r) of the last solution, in row order: the next warm start's y
