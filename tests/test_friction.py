@@ -180,7 +180,7 @@ def check_energy(h, tolerance=1e-9, balance=1e-9):
     assert np.abs(h["energy_error"]).max() <= balance * scale
 
 
-@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])   # 3D: 10 rows, about a minute
+@pytest.mark.parametrize("dim", [2, 3])
 def test_a_sliding_block_stops_where_coulomb_says(dim):
     mu, v0 = 0.3, 2.0
     h, v, summary = block(dim, mu, (0.0, -G), v0=v0, t_end=0.9, cells=8 if dim == 2 else 4)
@@ -197,7 +197,6 @@ def test_a_sliding_block_stops_where_coulomb_says(dim):
     assert summary["max_friction_residual"] <= FrictionProblem.TOLERANCE
 
 
-@pytest.mark.slow   # (12 s)
 def test_the_reduced_model_slides_the_block_as_the_full_one():
     """Friction on the modes alone (no static correction yet): 30 modes (3 rigid) of the sliding block."""
     mu, v0 = 0.3, 2.0

@@ -353,7 +353,7 @@ class MoreauJean(ContactScheme):
         c = np.zeros(p + ops.pt)
         c[p + s] = lam
         self._stick_H.subtract_from(self.V, c)
-        change = D[:, p + s].dot(lam)
+        change = lam.dot(D[p + s])   # (D symmetric: its rows, contiguous)
         loss = float(lam.dot(pt[s]) - 0.5 * lam.dot(change[p + s]))
         return pv - change[:p], pt - change[p:], total, loss
 
