@@ -54,8 +54,7 @@ class FrictionSolution:
 
 def project_on_cone(z_n: float, z_t: np.ndarray, mu: float) -> tuple[float, np.ndarray]:
     """The projection of ``(z_n, z_t)`` on the cone ``|r_T| <= mu r_N`` (Euclidean)."""
-    from . import cone
-
+    cone = _kernels()
     z_t = np.asarray(z_t, dtype=float)
     out = np.empty_like(z_t)
     return float(cone.project(float(z_n), z_t, float(mu), out)), out
@@ -63,18 +62,28 @@ def project_on_cone(z_n: float, z_t: np.ndarray, mu: float) -> tuple[float, np.n
 
 def row_residual(r: np.ndarray, y: np.ndarray, mu: float, rho: float) -> float:
     """``|r - proj_K(r - rho (y + mu |y_T| e_N))|`` for one row (r, y: normal first)."""
-    from . import cone
-
-    return float(cone.row_residual(np.asarray(r, dtype=float), np.asarray(y, dtype=float), float(mu), float(rho)))
+    return float(_kernels().row_residual(np.asarray(r, dtype=float), np.asarray(y, dtype=float), float(mu), float(rho)))
 
 
 def solve_row(W: np.ndarray, q: np.ndarray, mu: float, start: np.ndarray | None = None) -> np.ndarray:
     """Exact solution of one row's problem ``y = W r + q`` (cone.solve_row; ``start``: the row's
     impulse so far, whose direction starts the 3D slip direction's search)."""
-    from . import cone
-
+    cone = _kernels()
     W, q = np.ascontiguousarray(W, dtype=float), np.ascontiguousarray(q, dtype=float)
     return cone.solve_row(W, q, float(mu), None if start is None else np.ascontiguousarray(start, dtype=float))
+
+
+def _kernels():
+    """The compiled kernels (cone.py): Numba is imported, and the kernels loaded from its cache, only
+    where friction is."""
+    try:
+        from . import cone
+    except ImportError as exc:
+        from ..errors import SimulationError
+
+        raise SimulationError(f"friction needs Numba, which is missing ({exc}): install Debian's python3-numba "
+                              "(`make setup` does)") from None
+    return cone
 
 
 def _permuted_in_place(W: np.ndarray, order: np.ndarray) -> np.ndarray:
@@ -121,7 +130,7 @@ class FrictionProblem:
     SINGLE_TARGET = 1e-7  # the first float32 round's (its round-off floor: about 3e-8 on the landing plate)
 
     def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray, overwrite: bool = False):
-        from . import cone   # (Numba: imported, and its kernels loaded, only where friction is)
+        cone = _kernels()
 
         self.p, self.mu = mu.size, np.asarray(mu, dtype=float)
         self.blocks = [np.array([i] + [self.p + k for k in np.flatnonzero(tangent_of == i)])
@@ -145,7 +154,7 @@ class FrictionProblem:
     def solve(self, q: np.ndarray, active: np.ndarray, guess: np.ndarray | None = None) -> FrictionSolution:
         """Solve on the ``active`` normal rows (and their tangent rows); the others carry nothing.
         ``y = W r + q`` on every row (a row that is not active may show where it would go)."""
-        from . import cone
+        cone = _kernels()
 
         n = q.size
         rows = np.flatnonzero(active).astype(np.int64)
