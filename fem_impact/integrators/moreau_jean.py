@@ -124,8 +124,9 @@ class MoreauJean(ContactScheme):
         self.timings["W with tangents"] = time.perf_counter() - clock
         # The elastic rows' compliance on the normal block (in place: W is (p + pt)^2, the largest
         # array of a frictional run); the step's products W r come from the solution's y = W r + q.
-        self.compliance = compliance / (theta * dt * dt)
-        shifted[:ops.p, :ops.p] += self.compliance
+        shifted[:ops.p, :ops.p] += compliance / (theta * dt * dt)
+        # (kept only where some row is compliant: a p x p product per step otherwise for nothing)
+        self.compliance = compliance / (theta * dt * dt) if np.any(compliance) else None
         self._degenerate = self.alg.sizes[1] < ops.p + ops.pt
         if self._degenerate:
             # More contact unknowns than the motion has (a reduced model with fewer modes): W is
@@ -312,7 +313,8 @@ class MoreauJean(ContactScheme):
         self.rows.subtract_transpose(rhs, r)   # the step's equation with the impulses, for K V1
         q_all = np.concatenate([q, q_t])
         Wr = sol.y - q_all   # W r with the compliance; without it on the normal rows:
-        Wr[:p] -= self.compliance.dot(r[:p])
+        if self.compliance is not None:
+            Wr[:p] -= self.compliance.dot(r[:p])
         return r[:p], r[p:], pv_free - Wr[:p], pt_free - Wr[p:], float(np.abs(Wr[:p]).max())
 
     def _stick(self, impulse: np.ndarray, r_t: np.ndarray, pv: np.ndarray, pt: np.ndarray, jump: float):

@@ -262,23 +262,13 @@ def residual(r, y, q, rows, start, sizes, mu, rho):
 
 
 @njit(cache=True)
-def gauss_seidel(W, q, r, y, rows, start, sizes, mu, rho, tolerance, sweeps, stall=False, block=BLOCK, inner=INNER):
-    """Up to ``sweeps`` sweeps of nonsmooth block Gauss-Seidel over ``rows``; ``r`` and ``y = W r + q``
-    (all entries) updated in place.
-
-    The rows are taken in blocks of ``block`` consecutive rows; within a block, ``inner`` sweeps of
-    Gauss-Seidel, each row solved exactly with the others fixed, on the block's own part of W (a
-    few hundred unknowns: it stays in cache); then the rest of y takes the block's change at once.
-    A sweep so reads W once whatever ``inner`` (the unknowns are in row order, row i's at
-    ``start[i]`` on, and W is symmetric: a row's change is along a contiguous slab of W's rows, in
-    memory order), and the inner sweeps settle the strongly coupled neighbours that plain
-    Gauss-Seidel leaves to later sweeps (on the landing plate, half the sweeps). W in float64, or
-    a float32 copy: half the memory traffic, y then drifts from W r + q by its round-off. Returns
-    (sweeps done, residual, worst row) after the first sweep whose residual is within the tolerance,
-    or whose residual fell by less than a third (``stall``: float32's floor reached), or the last."""
+def blocks_of(W, rows, start, sizes, block=BLOCK):
+    """The blocks of ``block`` consecutive rows of the sweeps: ``first`` (block c's unknowns are
+    ``unknowns[first[c]:first[c + 1]]``), ``unknowns``, ``local`` (each row's first unknown within
+    its block), each block's part of W (``parts[c]``, zero-padded) and its rows (``rows[row_first[c]:
+    row_first[c + 1]]``): built once per set of rows."""
     m = rows.size
     blocks = (m + block - 1) // block
-    # Each block's unknowns (``local``: its rows' first unknown within the block) and part of W.
     first = np.zeros(blocks + 1, np.int64)
     for t in range(m):
         first[t // block + 1] += sizes[rows[t]]
@@ -295,13 +285,35 @@ def gauss_seidel(W, q, r, y, rows, start, sizes, mu, rho, tolerance, sweeps, sta
     size = 0
     for c in range(blocks):
         size = max(size, first[c + 1] - first[c])
-    W_blocks = np.empty((blocks, size, size))
+    parts = np.zeros((blocks, size, size))
     for c in range(blocks):
         idx = unknowns[first[c]:first[c + 1]]
         for e in range(idx.size):
             row = W[idx[e]]
             for f in range(idx.size):
-                W_blocks[c, e, f] = row[idx[f]]
+                parts[c, e, f] = row[idx[f]]
+    row_first = np.minimum(np.arange(blocks + 1) * block, m)
+    return first, unknowns, local, parts, row_first
+
+
+@njit(cache=True)
+def gauss_seidel(W, q, r, y, rows, start, sizes, mu, rho, tolerance, sweeps, layout, stall=False, inner=INNER):
+    """Up to ``sweeps`` sweeps of nonsmooth block Gauss-Seidel over ``rows``; ``r`` and ``y = W r + q``
+    (all entries) updated in place.
+
+    The rows are taken in blocks of consecutive rows (``layout``: ``blocks_of``'s); within a block,
+    ``inner`` sweeps of Gauss-Seidel, each row solved exactly with the others fixed, on the block's
+    own part of W (a few hundred unknowns: it stays in cache); then the rest of y takes the block's
+    change at once. A sweep so reads W once whatever ``inner`` (the unknowns are in row order, row
+    i's at ``start[i]`` on, and W is symmetric: a row's change is along a contiguous slab of W's
+    rows, in memory order), and the inner sweeps settle the strongly coupled neighbours that plain
+    Gauss-Seidel leaves to later sweeps (on the landing plate, half the sweeps). W in float64, or a
+    float32 copy: half the memory traffic, y then drifts from W r + q by its round-off (the blocks'
+    parts are float64 either way). Returns (sweeps done, residual, worst row) after the first sweep
+    whose residual is within the tolerance, or whose residual fell by less than a third (``stall``:
+    float32's floor reached), or the last."""
+    first, unknowns, local, W_blocks, row_first = layout
+    blocks = first.size - 1
     # One row's matrix, data and impulse so far, per size (reused: no allocation per row).
     W_row = [np.empty((k, k)) for k in range(ROW + 1)]
     q_row = [np.empty(k) for k in range(ROW + 1)]
@@ -316,7 +328,7 @@ def gauss_seidel(W, q, r, y, rows, start, sizes, mu, rho, tolerance, sweeps, sta
             y_b, r_b = y[idx], r[idx]
             old = r_b.copy()
             for _ in range(inner):
-                for t in range(c * block, min(m, (c + 1) * block)):
+                for t in range(row_first[c], row_first[c + 1]):
                     i, o = rows[t], local[t]
                     k = sizes[i]
                     W_i, q_i, r_i = W_row[k], q_row[k], r_row[k]
@@ -334,7 +346,7 @@ def gauss_seidel(W, q, r, y, rows, start, sizes, mu, rho, tolerance, sweeps, sta
                             r_b[o + a] = new[a]
                             _axpy1(y_b, W_b[o + a], change)
             # The rest of y (and the block's own, to the same values up to round-off): W[:, block] change.
-            for t in range(c * block, min(m, (c + 1) * block)):
+            for t in range(row_first[c], row_first[c + 1]):
                 i, o = rows[t], local[t]
                 s, k = start[i], sizes[i]
                 moved = False
@@ -355,6 +367,22 @@ def gauss_seidel(W, q, r, y, rows, start, sizes, mu, rho, tolerance, sweeps, sta
         if res <= tolerance or (stall and sweep > 2 and res > 0.67 * previous):
             break
     return done, res, worst
+
+
+@njit(cache=True)
+def add_product(y, M, d):
+    """``y += M d`` for a symmetric M (float32 or float64; in float64), reading M once, three rows
+    at a time (its columns), skipping the zeros of d."""
+    n = d.shape[0]
+    j = 0
+    while j + 2 < n:
+        if d[j] != 0.0 or d[j + 1] != 0.0 or d[j + 2] != 0.0:
+            _axpy3(y, M[j], M[j + 1], M[j + 2], d[j], d[j + 1], d[j + 2])
+        j += 3
+    while j < n:
+        if d[j] != 0.0:
+            _axpy1(y, M[j], d[j])
+        j += 1
 
 
 # y += the changes times W's rows: separate functions on 1D arrays, which LLVM vectorizes.

@@ -148,8 +148,16 @@ class FrictionProblem:
         # The sweeps update y along rows of W, its columns when symmetric (always, from Moreau-Jean).
         symmetric = _symmetric(self.W)
         self.columns = self.W if symmetric else np.ascontiguousarray(self.W.T)
-        self.columns32 = self.columns.astype(np.float32) if self.W.shape[0] >= self.SINGLE_FROM else None
+        self.columns32 = self.lower32 = None
+        if self.W.shape[0] >= self.SINGLE_FROM:
+            # W = columns32 + lower32 to float32's round-off squared (1e-15): y made exact after a round
+            # of float32 sweeps by the lower part's product alone (half the reading of W's).
+            self.columns32 = self.columns.astype(np.float32)
+            self.lower32 = np.empty_like(self.columns32)
+            for i in range(0, self.W.shape[0], 512):   # (by rows: no temporary of W's size)
+                self.lower32[i:i + 512] = self.columns[i:i + 512] - self.columns32[i:i + 512]
         self._last = None   # (r, W r) of the last solution, in row order: the next warm start's y
+        self._layout = (None, None)   # (the active rows, the sweeps' blocks of them: cone.blocks_of)
 
     def solve(self, q: np.ndarray, active: np.ndarray, guess: np.ndarray | None = None) -> FrictionSolution:
         """Solve on the ``active`` normal rows (and their tangent rows); the others carry nothing.
@@ -161,7 +169,10 @@ class FrictionProblem:
         if not rows.size:
             return FrictionSolution(np.zeros(n), np.array(q, dtype=float), 0.0, 0, True, -1)
         q = np.ascontiguousarray(np.asarray(q, dtype=float)[self.order])
-        idx = np.concatenate([np.arange(self.start[i], self.start[i] + self.sizes[i]) for i in rows])
+        if not np.array_equal(self._layout[0], rows):
+            self._layout = (rows, cone.blocks_of(self.W, rows, self.start, self.sizes))
+        layout = self._layout[1]
+        idx = layout[1]   # the active rows' unknowns, row after row
         r = np.zeros(n)
         if guess is not None:
             r[idx] = np.asarray(guess, dtype=float)[self.order][idx]
@@ -175,12 +186,13 @@ class FrictionProblem:
         # Many rows: sweeps on a float32 copy of W first (the sweeps stream W from memory): one round
         # to 1e-7 (they converge to a problem perturbed at float32's round-off), y made exact, a
         # second round from there to the tolerance (its changes are small: so is their round-off).
-        # The residual is always judged on y = W r + q exactly; float64 sweeps finish if need be.
+        # The residual is always judged on y = W r + q exactly (to 1e-15); float64 sweeps finish if need be.
         for target in ((self.SINGLE_TARGET, self.TOLERANCE) if self.columns32 is not None else ()):
+            before = r.copy()
             done, residual, worst = cone.gauss_seidel(self.columns32, q, r, y, rows, self.start, self.sizes,
-                                                      self.mu, self.rho, target, self.NEWTON_AFTER, True)
+                                                      self.mu, self.rho, target, self.NEWTON_AFTER, layout, True)
             sweeps += done
-            y = self.W.dot(r) + q
+            cone.add_product(y, self.lower32, r - before)   # (y had columns32 (r - before) added: now W's)
             residual, worst = cone.residual(r, y, q, rows, self.start, self.sizes, self.mu, self.rho)
             exact = True
             if residual <= self.TOLERANCE:
@@ -188,7 +200,7 @@ class FrictionProblem:
         while sweeps < self.MAX_SWEEPS and residual > self.TOLERANCE:
             batch = min(self.NEWTON_AFTER, self.MAX_SWEEPS - sweeps)
             done, residual, worst = cone.gauss_seidel(self.columns, q, r, y, rows, self.start, self.sizes,
-                                                      self.mu, self.rho, self.TOLERANCE, batch)
+                                                      self.mu, self.rho, self.TOLERANCE, batch, layout)
             sweeps += done
             exact = False
             if residual <= self.TOLERANCE or sweeps >= self.MAX_SWEEPS:
