@@ -126,7 +126,7 @@ def test_the_float32_sweeps_end_on_the_same_certified_solution(monkeypatch):
     plain = FrictionProblem(W, tangent_of, mu).solve(q, active)
     monkeypatch.setattr(FrictionProblem, "SINGLE_FROM", 0)
     single = FrictionProblem(W, tangent_of, mu)
-    assert single.columns32 is not None
+    assert single.upper32 is not None
     sol = single.solve(q, active)
     assert plain.converged and sol.converged and sol.residual <= FrictionProblem.TOLERANCE
     assert np.abs(sol.y - (W @ sol.r + q)).max() <= 1e-12 * np.abs(q).max()

@@ -1,5 +1,6 @@
 """Compiled kernels of the frictional contact problem (friction.py): one row's cone projection,
-natural-map residual and exact solution, and the Gauss-Seidel sweeps over the rows.
+natural-map residual and exact solution, the block Gauss-Seidel sweeps over the rows, and the
+products with the symmetric W (in float64, or float32 with its lower part) that make y exact.
 
 A row's unknowns are its normal impulse first, then its 0, 1 (2D) or 2 (3D) tangential ones.
 Compiled with Numba (Debian's python3-numba, cached beside this file after the first run): the

@@ -145,17 +145,17 @@ class FrictionProblem:
         else:
             self.W = np.ascontiguousarray(np.asarray(W, dtype=float)[np.ix_(self.order, self.order)])
         self.rho = 1.0 / self.W[self.start, self.start]
-        # The sweeps update y along rows of W, its columns when symmetric (always, from Moreau-Jean).
-        symmetric = _symmetric(self.W)
-        self.columns = self.W if symmetric else np.ascontiguousarray(self.W.T)
-        self.columns32 = self.lower32 = None
+        # The sweeps update y along rows of W, which are its columns: W = H S^-1 H^T is symmetric.
+        if not _symmetric(self.W):
+            raise ValueError("the frictional contact problem's matrix W must be symmetric")
+        self.upper32 = self.lower32 = None
         if self.W.shape[0] >= self.SINGLE_FROM:
-            # W = columns32 + lower32 to float32's round-off squared (1e-15): y made exact after a round
+            # W = upper32 + lower32 to float32's round-off squared (1e-15): y made exact after a round
             # of float32 sweeps by the lower part's product alone (half the reading of W's).
-            self.columns32 = self.columns.astype(np.float32)
-            self.lower32 = np.empty_like(self.columns32)
+            self.upper32 = self.W.astype(np.float32)
+            self.lower32 = np.empty_like(self.upper32)
             for i in range(0, self.W.shape[0], 512):   # (by rows: no temporary of W's size)
-                self.lower32[i:i + 512] = self.columns[i:i + 512] - self.columns32[i:i + 512]
+                self.lower32[i:i + 512] = self.W[i:i + 512] - self.upper32[i:i + 512]
         self._last = None   # (r, W r) of the last solution, in row order: the next warm start's y
         self._layout = (None, None)   # (the active rows, the sweeps' blocks of them: cone.blocks_of)
 
@@ -187,19 +187,19 @@ class FrictionProblem:
         # to 1e-7 (they converge to a problem perturbed at float32's round-off), y made exact, a
         # second round from there to the tolerance (its changes are small: so is their round-off).
         # The residual is always judged on y = W r + q exactly (to 1e-15); float64 sweeps finish if need be.
-        for target in ((self.SINGLE_TARGET, self.TOLERANCE) if self.columns32 is not None else ()):
+        for target in ((self.SINGLE_TARGET, self.TOLERANCE) if self.upper32 is not None else ()):
             before = r.copy()
-            done, residual, worst = cone.gauss_seidel(self.columns32, q, r, y, rows, self.start, self.sizes,
+            done, residual, worst = cone.gauss_seidel(self.upper32, q, r, y, rows, self.start, self.sizes,
                                                       self.mu, self.rho, target, self.NEWTON_AFTER, layout, True)
             sweeps += done
-            cone.add_product(y, self.lower32, r - before)   # (y had columns32 (r - before) added: now W's)
+            cone.add_product(y, self.lower32, r - before)   # (y had upper32 (r - before) added: now W's)
             residual, worst = cone.residual(r, y, q, rows, self.start, self.sizes, self.mu, self.rho)
             exact = True
             if residual <= self.TOLERANCE:
                 break
         while sweeps < self.MAX_SWEEPS and residual > self.TOLERANCE:
             batch = min(self.NEWTON_AFTER, self.MAX_SWEEPS - sweeps)
-            done, residual, worst = cone.gauss_seidel(self.columns, q, r, y, rows, self.start, self.sizes,
+            done, residual, worst = cone.gauss_seidel(self.W, q, r, y, rows, self.start, self.sizes,
                                                       self.mu, self.rho, self.TOLERANCE, batch, layout)
             sweeps += done
             exact = False
