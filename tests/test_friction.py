@@ -137,6 +137,16 @@ def test_the_float32_sweeps_end_on_the_same_certified_solution(monkeypatch):
     assert again.converged and np.abs(again.y - (W @ again.r + q + 0.01)).max() <= 1e-12 * np.abs(q).max()
 
 
+def test_friction_without_numba_says_what_to_install(monkeypatch):
+    import sys
+
+    from fem_impact.errors import SimulationError
+
+    monkeypatch.setitem(sys.modules, "fem_impact.nonsmooth.cone", None)   # (as if Numba could not be imported)
+    with pytest.raises(SimulationError, match="python3-numba"):
+        FrictionProblem(np.eye(2), np.array([0]), np.array([0.3]))
+
+
 def test_an_unsolved_contact_problem_is_reported_not_accepted(monkeypatch):
     """Coupled rows need several sweeps: with one allowed, the solve misses its tolerance and says so."""
     W = np.array([[2.0, 0.9, 0.5, 0.3], [0.9, 2.0, 0.2, 0.4], [0.5, 0.2, 1.0, 0.1], [0.3, 0.4, 0.1, 1.0]])
