@@ -53,6 +53,7 @@ def mumps_inverse_block(factor: PETSc.Mat, dofs: np.ndarray) -> np.ndarray | Non
     indices = np.tile(dofs.astype(PETSc.IntType), m)
     B = PETSc.Mat().createAIJ([n, n], csr=(indptr, indices, np.zeros(m * m)), comm=PETSc.COMM_SELF)
     B.assemble()
+    del indices   # (PETSc keeps its own copy: m^2 entries, 1.5 GB at 19 683 dofs)
     Bt = PETSc.Mat().createTranspose(B)   # MUMPS reads the pattern of the wanted entries from B^T
     blocking = factor.getMumpsIcntl(27)
     factor.setMumpsIcntl(27, INVERSE_BLOCKING)
@@ -62,7 +63,11 @@ def mumps_inverse_block(factor: PETSc.Mat, dofs: np.ndarray) -> np.ndarray | Non
     finally:
         factor.setMumpsIcntl(30, 0)   # back to plain solves with this factor
         factor.setMumpsIcntl(27, blocking)
-    values = B.getValuesCSR()[2].reshape(m, m).copy()
+    # Read by blocks of rows into the result (getValuesCSR would copy the whole pattern too).
+    values = np.empty((m, m))
+    rows = dofs.astype(PETSc.IntType)
+    for i in range(0, m, 512):
+        values[i:i + 512] = B.getValues(rows[i:i + 512], rows)
     Bt.destroy()
     B.destroy()
     return values
