@@ -93,3 +93,29 @@ def test_plate_with_441_contact_rows_is_the_1d_bar(run):
 @pytest.mark.slow
 def test_plate_with_1681_contact_rows_is_the_1d_bar(run):
     _plate_against_bar(run, 8)
+
+
+def test_w_from_inverse_entries_in_place_equals_the_solves():
+    """441 face rows with their tangents (1323 rows, one dof each, each dof once): W from MUMPS'
+    inverse entries, permuted and signed in place, equals P S^-1 P^T from solves."""
+    from mpi4py import MPI
+
+    from fem_impact.app.pipeline import make_integrator
+    from fem_impact.config.build import model_spec
+    from fem_impact.config.case import load_case
+    from fem_impact.fem.mesh import build_mesh
+    from fem_impact.fem.model import build_model
+    from fem_impact.integrators import Operators
+    from fem_impact.nonsmooth.relation import build_constraints
+
+    case = load_case(PLATE, ["contacts.0.friction=0.3", "mesh.cells=4"])
+    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+    cons = build_constraints(case.contacts, model)
+    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
+                    friction=cons.friction, tangents=cons.tangent_local, tangent_of=cons.tangent_of)
+    rows = ops.with_tangents()
+    solve = make_integrator(case, ops).solve_S
+    assert hasattr(solve, "inverse_block") and rows.p == 1323
+    W = rows.delassus(solve)[0]
+    reference = rows.project(rows.solve_columns(solve))
+    assert np.abs(W - reference).max() <= 1e-12 * np.abs(reference).max()

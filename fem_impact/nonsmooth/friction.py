@@ -38,6 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .lcp import permuted_in_place
+
 TINY = np.finfo(float).tiny
 
 
@@ -86,27 +88,6 @@ def _kernels():
     return cone
 
 
-def _permuted_in_place(W: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """``W[order][:, order]`` in W's own memory (one row of scratch): each row's entries, then the rows
-    along the permutation's cycles."""
-    for i in range(W.shape[0]):
-        W[i] = W[i, order]
-    done = order == np.arange(order.size)
-    for start in np.flatnonzero(~done):
-        if done[start]:
-            continue
-        held, j = W[start].copy(), start
-        while True:
-            done[j] = True
-            source = order[j]
-            if source == start:
-                W[j] = held
-                break
-            W[j] = W[source]
-            j = source
-    return W
-
-
 def _symmetric(W: np.ndarray, rows: int = 512) -> bool:
     """W = W^T to 1e-13 of its largest entry, by blocks of rows (no temporary of W's size)."""
     scale = 1e-13 * max((np.abs(W[i:i + rows]).max(initial=0.0) for i in range(0, W.shape[0], rows)), default=0.0)
@@ -141,7 +122,7 @@ class FrictionProblem:
         self.sizes = np.array([b.size for b in self.blocks], dtype=np.int64)
         self.start = np.concatenate([[0], np.cumsum(self.sizes)[:-1]]).astype(np.int64)
         if overwrite and isinstance(W, np.ndarray) and W.dtype == float and W.flags.c_contiguous:
-            self.W = _permuted_in_place(W, self.order)   # (the caller's W, no second copy: the largest array)
+            self.W = permuted_in_place(W, self.order)   # (the caller's W, no second copy: the largest array)
         else:
             self.W = np.ascontiguousarray(np.asarray(W, dtype=float)[np.ix_(self.order, self.order)])
         self.rho = 1.0 / self.W[self.start, self.start]
