@@ -142,7 +142,10 @@ def test_friction_without_numba_says_what_to_install(monkeypatch):
 
     from fem_impact.errors import SimulationError
 
+    import fem_impact.nonsmooth
+
     monkeypatch.setitem(sys.modules, "fem_impact.nonsmooth.cone", None)   # (as if Numba could not be imported)
+    monkeypatch.delattr(fem_impact.nonsmooth, "cone", raising=False)
     with pytest.raises(SimulationError, match="python3-numba"):
         FrictionProblem(np.eye(2), np.array([0]), np.array([0.3]))
 
