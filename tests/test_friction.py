@@ -126,14 +126,17 @@ def test_the_float32_sweeps_end_on_the_same_certified_solution(monkeypatch):
     plain = FrictionProblem(W, tangent_of, mu).solve(q, active)
     monkeypatch.setattr(FrictionProblem, "SINGLE_FROM", 0)
     single = FrictionProblem(W, tangent_of, mu)
-    assert single.upper32 is not None
+    assert single.lower.size and single.upper.dtype == np.float32   # (W as two float32 parts)
     sol = single.solve(q, active)
     assert plain.converged and sol.converged and sol.residual <= FrictionProblem.TOLERANCE
     assert np.abs(sol.y - (W @ sol.r + q)).max() <= 1e-12 * np.abs(q).max()
     assert np.abs(sol.r - plain.r).max() <= 1e-8 * np.abs(plain.r).max()
     again = single.solve(q + 0.01, active, guess=sol.r)   # warm start: the last solution's W r reused
     in_place = FrictionProblem(W.copy(), tangent_of, mu, overwrite=True)   # (W permuted in its own memory)
-    np.testing.assert_array_equal(in_place.W, single.W)
+    np.testing.assert_array_equal(in_place.upper, single.upper)
+    np.testing.assert_array_equal(in_place.lower, single.lower)
+    W_ordered = W[np.ix_(single.order, single.order)]
+    assert np.abs(single.upper.astype(float) + single.lower - W_ordered).max() <= 1e-14 * np.abs(W).max()
     assert again.converged and np.abs(again.y - (W @ again.r + q + 0.01)).max() <= 1e-12 * np.abs(q).max()
 
 

@@ -263,11 +263,12 @@ def residual(r, y, q, rows, start, sizes, mu, rho):
 
 
 @njit(cache=True)
-def blocks_of(W, rows, start, sizes, block=BLOCK):
+def blocks_of(upper, lower, rows, start, sizes, block=BLOCK):
     """The blocks of ``block`` consecutive rows of the sweeps: ``first`` (block c's unknowns are
     ``unknowns[first[c]:first[c + 1]]``), ``unknowns``, ``local`` (each row's first unknown within
-    its block), each block's part of W (``parts[c]``, zero-padded) and its rows (``rows[row_first[c]:
-    row_first[c + 1]]``): built once per set of rows."""
+    its block), each block's part of W = upper + lower (``parts[c]``, float64, zero-padded; lower
+    empty when upper is W) and its rows (``rows[row_first[c]:row_first[c + 1]]``): built once per
+    set of rows."""
     m = rows.size
     blocks = (m + block - 1) // block
     first = np.zeros(blocks + 1, np.int64)
@@ -290,9 +291,13 @@ def blocks_of(W, rows, start, sizes, block=BLOCK):
     for c in range(blocks):
         idx = unknowns[first[c]:first[c + 1]]
         for e in range(idx.size):
-            row = W[idx[e]]
+            row = upper[idx[e]]
             for f in range(idx.size):
                 parts[c, e, f] = row[idx[f]]
+            if lower.shape[0]:
+                row = lower[idx[e]]
+                for f in range(idx.size):
+                    parts[c, e, f] += row[idx[f]]
     row_first = np.minimum(np.arange(blocks + 1) * block, m)
     return first, unknowns, local, parts, row_first
 

@@ -107,7 +107,7 @@ class FrictionProblem:
     NEWTON_AFTER = 100   # sweeps of Gauss-Seidel before Newton's method takes over (coupled rows)
     NEWTON_SIZE = 6000   # unknowns up to which it may (its steps are dense LU solves: 2.3 s at 5043)
     LEAST_SQUARES_SIZE = 600   # ... and least-squares ones where J is singular
-    SINGLE_FROM = 2000   # unknowns from which the sweeps start on a float32 copy of W (memory-bound)
+    SINGLE_FROM = 2000   # unknowns from which W is kept as two float32 parts (the sweeps are memory-bound)
     SINGLE_TARGET = 1e-7  # the first float32 round's (its round-off floor: about 3e-8 on the landing plate)
 
     def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray, overwrite: bool = False):
@@ -122,23 +122,42 @@ class FrictionProblem:
         self.sizes = np.array([b.size for b in self.blocks], dtype=np.int64)
         self.start = np.concatenate([[0], np.cumsum(self.sizes)[:-1]]).astype(np.int64)
         if overwrite and isinstance(W, np.ndarray) and W.dtype == float and W.flags.c_contiguous:
-            self.W = permuted_in_place(W, self.order)   # (the caller's W, no second copy: the largest array)
+            W = permuted_in_place(W, self.order)   # (the caller's W, no second copy: the largest array)
         else:
-            self.W = np.ascontiguousarray(np.asarray(W, dtype=float)[np.ix_(self.order, self.order)])
-        self.rho = 1.0 / self.W[self.start, self.start]
+            W = np.ascontiguousarray(np.asarray(W, dtype=float)[np.ix_(self.order, self.order)])
         # The sweeps update y along rows of W, which are its columns: W = H S^-1 H^T is symmetric.
-        if not _symmetric(self.W):
+        if not _symmetric(W):
             raise ValueError("the frictional contact problem's matrix W must be symmetric")
-        self.upper32 = self.lower32 = None
-        if self.W.shape[0] >= self.SINGLE_FROM:
-            # W = upper32 + lower32 to float32's round-off squared (1e-15): y made exact after a round
-            # of float32 sweeps by the lower part's product alone (half the reading of W's).
-            self.upper32 = self.W.astype(np.float32)
-            self.lower32 = np.empty_like(self.upper32)
-            for i in range(0, self.W.shape[0], 512):   # (by rows: no temporary of W's size)
-                self.lower32[i:i + 512] = self.W[i:i + 512] - self.upper32[i:i + 512]
+        self.rho = 1.0 / W[self.start, self.start]
+        if W.shape[0] >= self.SINGLE_FROM:
+            # Many rows: W kept as upper + lower, both float32, equal to W to float32's round-off
+            # squared (1e-15): the sweeps read the upper part alone (half of W's bytes: the sweeps
+            # stream W from memory), y is made exact by the lower part's product (solve), and the
+            # two take the memory of W alone.
+            self.upper = W.astype(np.float32)
+            self.lower = np.empty_like(self.upper)
+            for i in range(0, W.shape[0], 512):   # (by rows: no temporary of W's size)
+                self.lower[i:i + 512] = W[i:i + 512] - self.upper[i:i + 512]
+        else:
+            self.upper, self.lower = W, np.zeros((0, 0), dtype=np.float32)
         self._last = None   # (r, W r) of the last solution, in row order: the next warm start's y
         self._layout = (None, None)   # (the active rows, the sweeps' blocks of them: cone.blocks_of)
+
+    def product(self, x: np.ndarray) -> np.ndarray:
+        """``W x`` (in row order)."""
+        cone = _kernels()
+        y = np.zeros(x.size)
+        cone.add_product(y, self.upper, x)
+        if self.lower.size:
+            cone.add_product(y, self.lower, x)
+        return y
+
+    def dense(self, idx: np.ndarray) -> np.ndarray:
+        """``W[idx][:, idx]`` in float64."""
+        block = self.upper[np.ix_(idx, idx)].astype(float)
+        if self.lower.size:
+            block += self.lower[np.ix_(idx, idx)]
+        return block
 
     def solve(self, q: np.ndarray, active: np.ndarray, guess: np.ndarray | None = None) -> FrictionSolution:
         """Solve on the ``active`` normal rows (and their tangent rows); the others carry nothing.
@@ -151,7 +170,7 @@ class FrictionProblem:
             return FrictionSolution(np.zeros(n), np.array(q, dtype=float), 0.0, 0, True, -1)
         q = np.ascontiguousarray(np.asarray(q, dtype=float)[self.order])
         if not np.array_equal(self._layout[0], rows):
-            self._layout = (rows, cone.blocks_of(self.W, rows, self.start, self.sizes))
+            self._layout = (rows, cone.blocks_of(self.upper, self.lower, rows, self.start, self.sizes))
         layout = self._layout[1]
         idx = layout[1]   # the active rows' unknowns, row after row
         r = np.zeros(n)
@@ -162,45 +181,48 @@ class FrictionProblem:
         elif self._last is not None and np.array_equal(r, self._last[0]):
             y = self._last[1] + q   # (the last solution again: its W r is known)
         else:
-            y = self.W.dot(r) + q
+            y = self.product(r) + q
+        split = self.lower.size > 0
         residual, worst, sweeps, newton, exact = np.inf, -1, 0, 0, False
-        # Many rows: sweeps on a float32 copy of W first (the sweeps stream W from memory): one round
-        # to 1e-7 (they converge to a problem perturbed at float32's round-off), y made exact, a
-        # second round from there to the tolerance (its changes are small: so is their round-off).
-        # The residual is always judged on y = W r + q exactly (to 1e-15); float64 sweeps finish if need be.
-        for target in ((self.SINGLE_TARGET, self.TOLERANCE) if self.upper32 is not None else ()):
-            before = r.copy()
-            done, residual, worst = cone.gauss_seidel(self.upper32, q, r, y, rows, self.start, self.sizes,
-                                                      self.mu, self.rho, target, self.NEWTON_AFTER, layout, True)
+
+        def sweep(target, most, stall):
+            """Sweeps on the upper part; with W split, y made exact after them by the lower part."""
+            nonlocal residual, worst, sweeps, exact
+            before = r.copy() if split else None
+            done, residual, worst = cone.gauss_seidel(self.upper, q, r, y, rows, self.start, self.sizes,
+                                                      self.mu, self.rho, target, most, layout, stall)
             sweeps += done
-            cone.add_product(y, self.lower32, r - before)   # (y had upper32 (r - before) added: now W's)
-            residual, worst = cone.residual(r, y, q, rows, self.start, self.sizes, self.mu, self.rho)
-            exact = True
+            exact = split
+            if split:
+                cone.add_product(y, self.lower, r - before)
+                residual, worst = cone.residual(r, y, q, rows, self.start, self.sizes, self.mu, self.rho)
+
+        # With W split (float32 parts), the sweeps converge to a problem perturbed at float32's
+        # round-off: a first round to 1e-7, y made exact, a second from there to the tolerance (its
+        # changes are small: so is their round-off). The residual is always judged on y = W r + q.
+        for target in ((self.SINGLE_TARGET, self.TOLERANCE) if split else ()):
+            sweep(target, self.NEWTON_AFTER, True)
             if residual <= self.TOLERANCE:
                 break
         while sweeps < self.MAX_SWEEPS and residual > self.TOLERANCE:
-            batch = min(self.NEWTON_AFTER, self.MAX_SWEEPS - sweeps)
-            done, residual, worst = cone.gauss_seidel(self.W, q, r, y, rows, self.start, self.sizes,
-                                                      self.mu, self.rho, self.TOLERANCE, batch, layout)
-            sweeps += done
-            exact = False
+            sweep(self.TOLERANCE, min(self.NEWTON_AFTER, self.MAX_SWEEPS - sweeps), False)
             if residual <= self.TOLERANCE or sweeps >= self.MAX_SWEEPS:
                 break
             if 1 < idx.size <= self.NEWTON_SIZE:
                 # Gauss-Seidel crawls where the rows are strongly coupled (a stiff body on many rows at a
                 # large step: W nearly singular): Newton's method from where it got to.
                 newton += 1
-                ra_n = self._newton(self.W[np.ix_(idx, idx)], q[idx], r[idx], rows, self._where(rows))
+                ra_n = self._newton(self.dense(idx), q[idx], r[idx], rows, self._where(rows))
                 trial = np.zeros(n)
                 trial[idx] = ra_n
-                y_n = self.W.dot(trial) + q
+                y_n = self.product(trial) + q
                 res_n, worst_n = cone.residual(trial, y_n, q, rows, self.start, self.sizes, self.mu, self.rho)
                 if res_n < residual:
-                    r, y, residual, worst, exact = trial, y_n, res_n, worst_n, True
+                    r[:], y[:], residual, worst, exact = trial, y_n, res_n, worst_n, True
                     if residual <= self.TOLERANCE:
                         break
         if not exact:   # y exactly (the sweeps updated it row by row): the residual the solution is judged by
-            y = self.W.dot(r) + q
+            y = self.product(r) + q
             residual, worst = cone.residual(r, y, q, rows, self.start, self.sizes, self.mu, self.rho)
         self._last = (r, y - q)
         out_r, out_y = np.empty(n), np.empty(n)
