@@ -40,8 +40,6 @@ import numpy as np
 
 from .lcp import permuted_in_place
 
-TINY = np.finfo(float).tiny
-
 
 @dataclass
 class FrictionSolution:
@@ -111,8 +109,7 @@ class FrictionProblem:
     SINGLE_TARGET = 1e-7  # the first float32 round's (its round-off floor: about 3e-8 on the landing plate)
 
     def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray, overwrite: bool = False):
-        cone = _kernels()
-
+        _kernels()   # (fails here, and clearly, without Numba)
         self.p, self.mu = mu.size, np.asarray(mu, dtype=float)
         self.blocks = [np.array([i] + [self.p + k for k in np.flatnonzero(tangent_of == i)])
                        for i in range(self.p)]
