@@ -18,6 +18,8 @@ _LIBRARIES = ("libpetsc_real.so.3.18", "libpetsc_real.so", "libpetsc.so")
 # MUMPS' blocking of the right-hand sides (ICNTL(27)) while it computes inverse entries: the face
 # of the 1681-row plate took 11.1 s with its default (-32), 5.7 s with -128, 6.0 s with -512.
 INVERSE_BLOCKING = -128
+# Entries of A^-1 asked for in one call (the pattern: 12 bytes an entry, 400 MB).
+INVERSE_ENTRIES = 1 << 25
 
 
 @functools.lru_cache(maxsize=1)
@@ -35,39 +37,48 @@ def _library():
     return None
 
 
-def mumps_inverse_block(factor: PETSc.Mat, dofs: np.ndarray) -> np.ndarray | None:
-    """``(A^-1)[dofs][:, dofs]`` (dense, m x m) from a serial MUMPS factor of ``A``.
+def mumps_inverse_block(factor: PETSc.Mat, dofs: np.ndarray, out: np.ndarray | None = None) -> np.ndarray | None:
+    """``(A^-1)[dofs][:, dofs]`` (dense, m x m) from a serial MUMPS factor of ``A`` (symmetric).
 
     MUMPS computes selected entries of the inverse (ICNTL(30)) with the sparsity of the right-
     hand sides: on the face of a 45 000-unknown plate (1681 dofs) several times faster than 1681
-    solves. ``dofs`` sorted. None when the factor is not a serial MUMPS factor.
+    solves. The entries are asked for by blocks of columns, so that the pattern PETSc and MUMPS
+    hold (12 bytes an entry) stays near INVERSE_ENTRIES whatever m (at 19 683 dofs the whole
+    pattern took 4.6 GB beside the result). ``dofs`` sorted; ``out`` (m x m, float64) is filled if
+    given. None when the factor is not a serial MUMPS factor.
     """
     lib = _library()
     if lib is None or factor.getComm().getSize() > 1 or factor.getType() != "mumps":
         return None
     n, m = factor.getSize()[0], dofs.size
-    counts = np.zeros(n, dtype=PETSc.IntType)
-    counts[dofs] = m
-    indptr = np.zeros(n + 1, dtype=PETSc.IntType)
-    np.cumsum(counts, out=indptr[1:])
-    indices = np.tile(dofs.astype(PETSc.IntType), m)
-    B = PETSc.Mat().createAIJ([n, n], csr=(indptr, indices, np.zeros(m * m)), comm=PETSc.COMM_SELF)
-    B.assemble()
-    del indices   # (PETSc keeps its own copy: m^2 entries, 1.5 GB at 19 683 dofs)
-    Bt = PETSc.Mat().createTranspose(B)   # MUMPS reads the pattern of the wanted entries from B^T
+    values = np.empty((m, m)) if out is None else out
+    rows = dofs.astype(PETSc.IntType)
+    width = max(1, min(m, INVERSE_ENTRIES // max(m, 1)))
     blocking = factor.getMumpsIcntl(27)
     factor.setMumpsIcntl(27, INVERSE_BLOCKING)
     try:
-        if lib.MatMumpsGetInverse(ctypes.c_void_p(factor.handle), ctypes.c_void_p(Bt.handle)):
-            return None
+        for j0 in range(0, m, width):
+            block = rows[j0:j0 + width]
+            # B's row j lists the wanted rows of column j of A^-1 (MUMPS reads the pattern from B^T).
+            counts = np.zeros(n, dtype=PETSc.IntType)
+            counts[block] = m
+            indptr = np.zeros(n + 1, dtype=PETSc.IntType)
+            np.cumsum(counts, out=indptr[1:])
+            B = PETSc.Mat().createAIJ([n, n], csr=(indptr, np.tile(rows, block.size), np.zeros(block.size * m)),
+                                      comm=PETSc.COMM_SELF)
+            B.assemble()
+            Bt = PETSc.Mat().createTranspose(B)
+            try:
+                if lib.MatMumpsGetInverse(ctypes.c_void_p(factor.handle), ctypes.c_void_p(Bt.handle)):
+                    return None
+                # (A^-1 symmetric: the block's columns are the result's rows j0 ...; read in slices,
+                # getValuesCSR would copy the whole pattern)
+                for i in range(0, block.size, 512):
+                    values[j0 + i:j0 + min(i + 512, block.size)] = B.getValues(block[i:i + 512], rows)
+            finally:
+                Bt.destroy()
+                B.destroy()
     finally:
         factor.setMumpsIcntl(30, 0)   # back to plain solves with this factor
         factor.setMumpsIcntl(27, blocking)
-    # Read by blocks of rows into the result (getValuesCSR would copy the whole pattern too).
-    values = np.empty((m, m))
-    rows = dofs.astype(PETSc.IntType)
-    for i in range(0, m, 512):
-        values[i:i + 512] = B.getValues(rows[i:i + 512], rows)
-    Bt.destroy()
-    B.destroy()
     return values

@@ -363,6 +363,13 @@ class Operators:
         rows.algebra = self.algebra   # one algebra: its vectors are the ones the factors solve with
         return rows
 
+    def tangent_rows(self) -> Operators:
+        """The same system with the tangent rows ``P_T`` alone (the stick correction's)."""
+        rows = Operators(self.M, self.K, self.C, self.load, sparse.csr_matrix(self.tangents),
+                         np.zeros(self.pt), np.zeros(self.pt), massless=self.massless)
+        rows.algebra = self.algebra
+        return rows
+
     def project(self, local: np.ndarray) -> np.ndarray:
         """``P x`` (or ``P X`` for a block of columns) from owned entries: one global sum."""
         return self.algebra.allsum(np.ascontiguousarray(self._P @ local))

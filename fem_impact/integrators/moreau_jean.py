@@ -136,7 +136,7 @@ class MoreauJean(ContactScheme):
         self.friction = FrictionProblem(shifted, ops.tangent_of, ops.friction, overwrite=True)
         self.r_prev = np.zeros(ops.p + ops.pt)
         self._persists, self._r_t = None, np.zeros(ops.pt)
-        self._stick_D = self._stick_H = None   # H M^-1 H^T and M^-1 H^T, built on the first stick
+        self._stick_D = self._stick_H = None   # P_T M^-1 P_T^T and M^-1 P_T^T, built on the first stick
         self.friction_residual, self.friction_sweeps, self.friction_retries = 0.0, 0, 0
 
     @classmethod
@@ -324,7 +324,7 @@ class MoreauJean(ContactScheme):
         theta = 1/2 leaves ``P_T V1 = -P_T V0``: a row that stops sliding would go on alternating
         its tangential velocity at a fixed position. The smallest velocity change in the norm of
         M that brings those rows' ``P_T V`` to zero, ``dV = -M^-1 P_T^T lam``, ``lam = D_ss^-1
-        P_T V`` (``D = H M^-1 H^T`` on them), removes it and loses ``1/2 x . D_ss^-1 x >= 0``; it is
+        P_T V`` (``D = P_T M^-1 P_T^T`` on them), removes it and loses ``1/2 x . D_ss^-1 x >= 0``; it is
         kept where the step's total tangential impulse stays in the cone (a row where it would not
         is left as it is). Returns (P V, P_T V, the tangential impulses, the loss).
         """
@@ -335,12 +335,13 @@ class MoreauJean(ContactScheme):
         stuck &= np.abs(pt) > ROUND_OFF * max(jump, float(np.abs(pt).max()))
         if not np.count_nonzero(stuck):
             return pv, pt, r_t, 0.0
-        if self._stick_D is None:
-            self._stick_D, self._stick_H = self.rows.delassus(self.solve_M)
+        if self._stick_D is None:   # (on the tangent rows only: at 6561 rows 1.4 GB, not 3.1)
+            self._stick_D, self._stick_H = self.ops.tangent_rows().delassus(self.solve_M)
         D = self._stick_D
         for _ in range(2):   # (once more without the rows whose total would leave the cone)
             s = np.flatnonzero(stuck)
-            lam = np.linalg.solve(D[np.ix_(p + s, p + s)], pt[s])
+            D_ss = D[np.ix_(s, s)]
+            lam = np.linalg.solve(D_ss, pt[s])
             total = r_t.copy()
             total[s] += lam
             size = np.sqrt(np.bincount(ops.tangent_of, weights=total * total, minlength=p))[ops.tangent_of]
@@ -352,12 +353,12 @@ class MoreauJean(ContactScheme):
                 return pv, pt, r_t, 0.0
         else:
             return pv, pt, r_t, 0.0
-        c = np.zeros(p + ops.pt)
-        c[p + s] = lam
+        c = np.zeros(ops.pt)
+        c[s] = lam
         self._stick_H.subtract_from(self.V, c)
-        change = lam.dot(D[p + s])   # (D symmetric: its rows, contiguous)
-        loss = float(lam.dot(pt[s]) - 0.5 * lam.dot(change[p + s]))
-        return pv - change[:p], pt - change[p:], total, loss
+        loss = float(lam.dot(pt[s]) - 0.5 * lam.dot(D_ss.dot(lam)))
+        new = self.rows.project_many(self.V)[0]   # (the normal rows move too: a sparse product)
+        return new[:p], new[p:], total, loss
 
     def _degenerate_hint(self) -> str:
         """Why a reduced model's frictional problem may not be solved, and what to do."""
