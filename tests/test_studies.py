@@ -151,7 +151,7 @@ def test_reference_key_is_validated_and_resolved(tmp_path):
 def test_every_method_is_available_or_says_why():
     for method in registry.METHODS.values():
         why = registry.availability(method, load_case(BAR))
-        assert why is None or why.startswith("not available in this version"), (method.name, why)
+        assert why is None or why.startswith("does not run on this case"), (method.name, why)
         assert method.description and method.stability and method.knob in ("mesh", "modes")
     for name in ("trapezoidal", "damped-newmark", "modal-static", "modal-truncated"):
         assert registry.available(name, load_case(BAR)), name
@@ -159,6 +159,24 @@ def test_every_method_is_available_or_says_why():
     with pytest.raises(registry.UnknownMethod, match="unknown method 'verlet'"):
         registry.parse_methods("trapezoidal,verlet")
     assert [m.name for m in registry.parse_methods(None)] == list(registry.METHODS)
+
+
+def test_friction_case_methods_refuse_with_the_reason_or_run_when_a_given_change_mends_them():
+    """On a case with friction the methods whose contact step is an LCP refuse with the reason; the
+    modal methods refuse the static correction, and run when the study is given
+    ``solver.static_correction=false`` (the method's changes and the given ones in one change)."""
+    case = load_case(CASES / "sliding_block.yaml")
+    assert registry.availability("moreau-jean", case) is None
+    why = registry.availability("trapezoidal", case)
+    assert why.startswith("does not run on this case (contacts[0].friction: ") and "moreau_jean" in why
+    assert "static correction" in registry.availability("modal-moreau-jean", case)
+    given = ["solver.static_correction=false", "solver.modes=40"]
+    assert registry.availability("modal-moreau-jean", case, given) is None
+    mended = registry.apply("modal-moreau-jean", case, given)
+    assert (mended.solver.method, mended.solver.static_correction, mended.solver.modes) == ("modal", False, 40)
+    assert registry.changes_for("modal-moreau-jean", case, {"solver.static_correction": False})[
+        "solver.static_correction"] is False
+    assert registry.availability("modal-truncated", case, given).startswith("does not run on this case")
 
 
 def test_a_method_is_applied_as_changes_and_the_given_changes_win():
@@ -173,7 +191,7 @@ def test_a_method_is_applied_as_changes_and_the_given_changes_win():
     # a solver key goes to the methods that take it; any other bad change is refused, named as given
     assert registry.availability("central-difference", load_case(BAR), ["solver.beta=0.1"]) is None
     why = registry.availability("central-difference", load_case(BAR), ["contacts.0.restitution=2"])
-    assert why.startswith("not available in this version (contacts[0].restitution: ") \
+    assert why.startswith("does not run on this case (contacts[0].restitution: ") \
         and "(from --set contacts.0.restitution=2)" in why
     with pytest.raises(CaseError, match="does not use 'modes'"):   # a convergence study's one method: refused
         convergence.plan(load_case(BAR), [("solver.dt", ["0.004", "0.002"])], method="trapezoidal",
@@ -380,7 +398,7 @@ def test_pareto_command(tmp_path):
     if registry.available("position-only", load_case(BAR)):
         assert ("position-only", "10") in got
     else:
-        assert "note: position-only skipped: not available in this version" in proc.stderr
+        assert "note: position-only skipped: does not run on this case" in proc.stderr
     assert "Pareto front, displacement" in proc.stdout
     assert (out / "pareto.png").stat().st_size > 20_000
 
@@ -560,3 +578,12 @@ def test_a_stability_study_takes_a_list_valued_change(tmp_path):
                                       "loads=[{body: all, acceleration: [-0.5]}]"],
                              outdir=tmp_path / "s", quiet=True)
     assert [row["outcome"] for row in result["rows"]] and all(r["method"] == "moreau-jean" for r in result["rows"])
+
+
+def test_a_pareto_ladder_runs_each_mesh_once():
+    """A coarse case (8 cells): the lowest rungs all clamp to 2 cells, which runs once."""
+    from fem_impact.app.studies.pareto import ladder
+
+    case = load_case(CASES / "sliding_block.yaml")
+    levels, _ = ladder(registry.get("moreau-jean"), case, {}, None, 5)
+    assert [level.info["resolution"] for level in levels] == [2, 4, 8, 16]

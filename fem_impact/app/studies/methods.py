@@ -131,7 +131,17 @@ def apply(method: Method | str, case: Case, changes=()) -> Case:
     A solver key of ``changes`` goes to the methods that take it only (:func:`taken`).
     """
     method = get(method) if isinstance(method, str) else method
-    selected = case.with_changes(method.changes)
+    try:
+        selected = case.with_changes(method.changes)
+    except CaseError as refused:
+        # The method alone may be refused where the given changes mend it (a modal method on a case
+        # with friction, given ``solver.static_correction=false``): both then in one change.
+        from .common import given_changes
+
+        try:
+            return case.with_changes({**method.changes, **given_changes(changes)})
+        except CaseError:
+            raise refused from None
     changes = taken(selected, changes)
     return selected.with_changes(changes) if changes else selected
 
@@ -154,7 +164,10 @@ def taken(selected: Case, changes):
 def changes_for(method: Method | str, case: Case, given: dict) -> dict:
     """A level's changes for ``method``: its own, then the ``given`` ones it takes (a mapping)."""
     method = get(method) if isinstance(method, str) else method
-    return {**method.changes, **taken(case.with_changes(method.changes), given)}
+    try:
+        return {**method.changes, **taken(case.with_changes(method.changes), given)}
+    except CaseError:   # (the method alone refused, the given changes mending it: see apply)
+        return {**method.changes, **given}
 
 
 def availability(method: Method | str, case: Case, changes=()) -> str | None:
@@ -162,7 +175,7 @@ def availability(method: Method | str, case: Case, changes=()) -> str | None:
     try:
         apply(method, case, changes)
     except CaseError as err:
-        return f"not available in this version ({err.key}: {err.message})" if err.key else str(err)
+        return f"does not run on this case ({err.key}: {err.message})" if err.key else str(err)
     return None
 
 
