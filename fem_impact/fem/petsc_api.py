@@ -38,14 +38,15 @@ def _library():
 
 
 def mumps_inverse_block(factor: PETSc.Mat, dofs: np.ndarray, out: np.ndarray | None = None) -> np.ndarray | None:
-    """``(A^-1)[dofs][:, dofs]`` (dense, m x m) from a serial MUMPS factor of ``A`` (symmetric).
+    """``(A^-1)[dofs][:, dofs]`` (dense, m x m) from a serial MUMPS factor of a symmetric ``A``.
 
     MUMPS computes selected entries of the inverse (ICNTL(30)) with the sparsity of the right-
     hand sides: on the face of a 45 000-unknown plate (1681 dofs) several times faster than 1681
-    solves. The entries are asked for by blocks of columns, so that the pattern PETSc and MUMPS
-    hold (12 bytes an entry) stays near INVERSE_ENTRIES whatever m (at 19 683 dofs the whole
-    pattern took 4.6 GB beside the result). ``dofs`` sorted; ``out`` (m x m, float64) is filled if
-    given. None when the factor is not a serial MUMPS factor.
+    solves. The entries are asked for by blocks of columns, each from its diagonal down (the
+    rest by symmetry: half the entries), so that the pattern PETSc and MUMPS hold (12 bytes an
+    entry) stays near INVERSE_ENTRIES whatever m (at 19 683 dofs the whole pattern took 4.6 GB
+    beside the result). ``dofs`` sorted; ``out`` (m x m, float64) is filled if given. None when
+    the factor is not a serial MUMPS factor.
     """
     lib = _library()
     if lib is None or factor.getComm().getSize() > 1 or factor.getType() != "mumps":
@@ -53,31 +54,35 @@ def mumps_inverse_block(factor: PETSc.Mat, dofs: np.ndarray, out: np.ndarray | N
     n, m = factor.getSize()[0], dofs.size
     values = np.empty((m, m)) if out is None else out
     rows = dofs.astype(PETSc.IntType)
-    width = max(1, min(m, INVERSE_ENTRIES // max(m, 1)))
     blocking = factor.getMumpsIcntl(27)
     factor.setMumpsIcntl(27, INVERSE_BLOCKING)
     try:
-        for j0 in range(0, m, width):
+        j0 = 0
+        while j0 < m:
+            wanted = rows[j0:]   # rows j0.. of the block's columns (those above: from earlier blocks)
+            width = max(1, min(m - j0, INVERSE_ENTRIES // wanted.size))
             block = rows[j0:j0 + width]
             # B's row j lists the wanted rows of column j of A^-1 (MUMPS reads the pattern from B^T).
             counts = np.zeros(n, dtype=PETSc.IntType)
-            counts[block] = m
+            counts[block] = wanted.size
             indptr = np.zeros(n + 1, dtype=PETSc.IntType)
             np.cumsum(counts, out=indptr[1:])
-            B = PETSc.Mat().createAIJ([n, n], csr=(indptr, np.tile(rows, block.size), np.zeros(block.size * m)),
+            B = PETSc.Mat().createAIJ([n, n], csr=(indptr, np.tile(wanted, width), np.zeros(width * wanted.size)),
                                       comm=PETSc.COMM_SELF)
             B.assemble()
             Bt = PETSc.Mat().createTranspose(B)
             try:
                 if lib.MatMumpsGetInverse(ctypes.c_void_p(factor.handle), ctypes.c_void_p(Bt.handle)):
                     return None
-                # (A^-1 symmetric: the block's columns are the result's rows j0 ...; read in slices,
-                # getValuesCSR would copy the whole pattern)
-                for i in range(0, block.size, 512):
-                    values[j0 + i:j0 + min(i + 512, block.size)] = B.getValues(block[i:i + 512], rows)
+                # (read in slices: getValuesCSR would copy the whole pattern)
+                for i in range(0, width, 512):
+                    part = B.getValues(block[i:i + 512], wanted)
+                    values[j0 + i:j0 + i + part.shape[0], j0:] = part
+                    values[j0:, j0 + i:j0 + i + part.shape[0]] = part.T
             finally:
                 Bt.destroy()
                 B.destroy()
+            j0 += width
     finally:
         factor.setMumpsIcntl(30, 0)   # back to plain solves with this factor
         factor.setMumpsIcntl(27, blocking)
