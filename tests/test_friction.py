@@ -289,7 +289,8 @@ def test_a_disk_thrown_onto_a_floor_slips_then_rolls_at_two_thirds_of_its_speed(
     thrown at v0 = 0.5 without spin onto a floor through a point (each rim node its own gap; the mesh
     graded from 3 mm at the contact point). Friction slows it at mu g and spins it up at 2 mu g / R
     until v0 / (3 mu g), when it rolls at 2 v0 / 3. The model is linear (small rotations): at the
-    end of the slip the disk has turned by 0.0094 rad, three rim nodes' spacing."""
+    end of the slip the disk has turned by 0.0094 rad, three rim nodes' spacing, and by 0.0172 rad
+    at the end, when the contact (one or two rows at a time) has moved 17 mm ahead."""
     import gmsh
 
     R, v0, mu = 1.0, 0.5, 0.3
@@ -318,16 +319,27 @@ def test_a_disk_thrown_onto_a_floor_slips_then_rolls_at_two_thirds_of_its_speed(
             "contacts": [{"name": "floor", "type": "obstacle", "nodes": "rim", "normal": [0.0, -1.0],
                           "point": [0.0, 0.0], "friction": mu}],
             "solver": {"dt": 1e-4, "t_end": 0.08}, "output": {"vtk": False}}
+    # The rim node in contact at the end: where s^2 / (2 R) - theta s is least, s = theta R ahead
+    # (theta: mu g stop^2 while slipping, then 2 v0 / (3 R) a second).
+    stop = v0 / (3 * mu * G)
+    theta_end = mu * G * stop**2 + 2 * v0 / (3 * R) * (0.08 - stop)
+    data["output"]["probes"] = {"first": [0.0, 0.0], "ahead": [theta_end * R, 0.5 * theta_end**2 * R]}
     result = fi.run(fi.Case.from_dict(data))
     h = result.history
     t, v = h["t"], h["disk.px"] / result.summary["body_mass"]["disk"]
-    stop = v0 / (3 * mu * G)
     sliding = (t > 0.1 * stop) & (t < 0.9 * stop)
     assert np.polyfit(t[sliding], v[sliding], 1)[0] == pytest.approx(-mu * G, rel=0.01)
     slipping = np.flatnonzero(h["floor.slip"] > 1e-3 * v0)
     assert t[slipping[-1]] == pytest.approx(stop, rel=0.01)                     # then it rolls
     assert np.interp(1.1 * stop, t, v) == pytest.approx(2 * v0 / 3, rel=0.01)
     assert np.all(h["floor.sticking"][t > 1.05 * stop] >= 1)
+    # The contact leaves its first node: one rim node at the start, the nodes ahead of it once the
+    # disk has turned (linear kinematics: the rim ahead dips by theta s, so the patch grows forward).
+    # The contact has moved on: the first node left the floor and the node ahead came down to it, each
+    # by about theta^2 R / 2 (a rigid roll; measured -14 % and +9 %: the disk's flattening).
+    lift = 0.5 * theta_end**2 * R
+    assert h["first.uy"][-1] == pytest.approx(lift, rel=0.25)
+    assert h["ahead.uy"][-1] == pytest.approx(-lift, rel=0.25)
     # (The same disk without friction closes its balance to 6.5e-9 of the energy: round-off that
     # accumulates over 800 steps of a model this stiff, E = 1e11 with 3 mm cells.)
     check_energy(h, balance=1e-8)
