@@ -10,7 +10,7 @@ def model_spec(case: Case) -> ModelSpec:
     """What builds the finite-element model (fem_impact.fem.model.build_model)."""
     groups = [(("contacts", i, "nodes"), group) for i, contact in enumerate(case.contacts) for group in contact.nodes]
     return ModelSpec(case.material, dict(case.materials or {}), case.damping, case.initial, list(case.supports),
-                     list(case.loads), case.solver.mass, groups)
+                     list(case.loads), case.solver.mass, case.mesh.hypothesis, case.mesh.axis or "y", groups)
 
 
 def reduction_spec(case: Case) -> ReductionSpec:

@@ -31,6 +31,7 @@ from ..integrators.parameters import tag as _schema_tag
 
 SHAPES = ("bar",)
 BAR_ELEMENTS = ("simplex", "hex")   # triangles/tetrahedra, or quadrilaterals/hexahedra (2D/3D bar)
+HYPOTHESES = ("plane_stress", "plane_strain", "axisymmetric")   # 2D: the third direction (mesh.hypothesis)
 CONTACT_TYPES = ("obstacle", "pair")
 CONTACT_COUPLINGS = ("each", "mean")
 COMPONENTS = ("x", "y", "z")
@@ -709,7 +710,8 @@ def _mesh(value, path, folder):
     f = _fields(value, path, {
         "shape": _choice(*SHAPES), "file": _string, "dim": _integer(1, 3),
         "length": _real(gt=0), "cells": _integer(1, 2**31 - 1),   # (PETSc's 32-bit indices)
-        "height": _real(gt=0), "width": _real(gt=0), "elements": _choice(*BAR_ELEMENTS)}, MeshSpec)
+        "height": _real(gt=0), "width": _real(gt=0), "elements": _choice(*BAR_ELEMENTS),
+        "hypothesis": _choice(*HYPOTHESES), "axis": _choice("x", "y")}, MeshSpec)
     if f["shape"] is None and f["file"] is None:
         raise _Invalid(path, f"give 'shape' (a built-in shape: {', '.join(SHAPES)}) or 'file' (a Gmsh file)")
     if f["shape"] is not None and f["file"] is not None:
@@ -719,6 +721,12 @@ def _mesh(value, path, folder):
             where = "a mesh file" if f["file"] is not None else f"{f['dim'] or 1}D"
             raise _Invalid(path + (key,), f"applies to the built-in bar in {' and '.join(f'{d}D' for d in dims)} "
                                           f"only; it has no effect in {where}: remove it")
+    if f["hypothesis"] != "plane_stress" and f["file"] is None and (f["dim"] or 1) != 2:
+        raise _Invalid(path + ("hypothesis",), f"applies to 2D models only (this bar is {f['dim'] or 1}D): remove it")
+    if f["axis"] is not None and f["hypothesis"] != "axisymmetric":
+        raise _Invalid(path + ("axis",), "applies to hypothesis: axisymmetric only (the symmetry axis): remove it")
+    if f["hypothesis"] == "axisymmetric" and f["axis"] is None:
+        f["axis"] = "y"
     if f["file"] is not None:
         f["file"] = Path(os.path.abspath(folder / f["file"]))
         if not f["file"].is_file():
@@ -1119,6 +1127,7 @@ def _validated(data: dict, case_path: Path | None, folder: Path, lines, override
     from .numbers import check_numbers   # (it reads the case's sections: imported once they exist)
 
     check_numbers(case)
+    _check_section(case)
     _check_friction(case)
     _check_set_parameters(case, changed)
     _check_reference(case, changed)
@@ -1145,6 +1154,20 @@ def _check_reference(case: Case, changed) -> None:
             raise
         log.info("%s: the changes took the case out of its reference, which is left behind", misfit)
         case.reference = None
+
+
+def _check_section(case: Case) -> None:
+    """An axisymmetric model's section is the circle, 2 pi r: a given ``area`` would be ignored."""
+    if case.mesh.hypothesis != "axisymmetric":
+        return
+    source = case.source if isinstance(case.source, dict) else {}
+    where = [("material", "area")] if isinstance(source.get("material"), dict) and "area" in source["material"] else []
+    for body, values in (source.get("materials") or {}).items():
+        if isinstance(values, dict) and "area" in values:
+            where.append(("materials", body, "area"))
+    if where:
+        raise case.error(where[0], "an axisymmetric model's section is the whole circle, 2 pi r (forces are totals "
+                                   "over it): remove area")
 
 
 def _check_friction(case: Case) -> None:

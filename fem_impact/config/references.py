@@ -139,6 +139,10 @@ def _bar(case: Case) -> _Bar:
         raise _refuse(case, "has no loads: remove 'loads'")
     height, width = mesh.bar_dimensions()
     section = {1: mat.area, 2: height * mat.area, 3: height * width}[dim]
+    if dim == 2 and mesh.hypothesis == "axisymmetric":   # the strip turned about x: a cylinder of radius height
+        if mesh.axis != "x":
+            raise _refuse(case, "an axisymmetric bar is the cylinder about its own axis: mesh.axis: x")
+        section = np.pi * height**2
     probes = {name: float(point[0]) for name, point in case.output.probes.items()}
     return _Bar(mesh.length, mat.E, mat.rho, section, probes)
 

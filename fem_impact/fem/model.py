@@ -156,13 +156,14 @@ def build_model(spec: ModelSpec, meshdata: MeshData) -> Model:
 
     u, w = ufl.TrialFunction(V), ufl.TestFunction(V)
     dxm = dx.body_measure(msh, meshdata.cell_tags)
+    hypothesis = _hypothesis(spec, dim)
     mass_form = stiff_form = None
     for body, tag in meshdata.bodies.items():
         mat = materials[body]
         measure = dxm if meshdata.cell_tags is None else dxm(tag)
-        section = mat.area if dim < 3 else 1.0
+        section = _section(mat, dim, hypothesis, msh)
         m_b = mat.rho * section * ufl.inner(u, w) * measure
-        k_b = section * ufl.inner(_stress(u, mat, dim), ufl.sym(ufl.grad(w))) * measure
+        k_b = _strain_work(u, w, mat, dim, hypothesis, msh) * measure
         mass_form = m_b if mass_form is None else mass_form + m_b
         stiff_form = k_b if stiff_form is None else stiff_form + k_b
     M = dx.assemble_matrix(mass_form)
@@ -171,6 +172,8 @@ def build_model(spec: ModelSpec, meshdata: MeshData) -> Model:
         M = _lumped(M)
 
     fixed = _fixed_dofs(spec, meshdata, V, bs)
+    if hypothesis[0] == "axisymmetric":
+        fixed = np.union1d(fixed, _axis_dofs(meshdata, coords[:n_owned], bs, hypothesis[1]))
     massless = np.zeros(0, dtype=np.int64)
     if spec.mass == "redistributed":
         massless = np.setdiff1d(_contact_dofs(spec, meshdata, V, bs), fixed)
@@ -186,20 +189,20 @@ def build_model(spec: ModelSpec, meshdata: MeshData) -> Model:
         C.scale(spec.damping.beta)
         C.axpy(spec.damping.alpha, M, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
 
-    load = _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed)
+    load = _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed, hypothesis)
     U0, V0 = M.createVecs()
     _initial_field(spec, "displacement", meshdata, V, bs, coords[:n_owned], U0)
     _initial_field(spec, "velocity", meshdata, V, bs, coords[:n_owned], V0)
     for vec in (U0, V0):
         vec.array[fixed] = 0.0
-    momentum = _momentum_rows(meshdata, V, materials, dim, dxm)
+    momentum = _momentum_rows(meshdata, V, materials, dim, dxm, hypothesis)
     log.info("model: %d dofs, %s mass", K.getSize()[0], spec.mass)
     if spec.mass == "redistributed":
         momentum = _redistributed_momentum_rows(momentum, M, fixed)
     return Model(meshdata, V, bs, M, K, C, fixed, load, U0, V0, coords, n_owned, first, momentum, massless)
 
 
-def _momentum_rows(meshdata: MeshData, V, materials, dim: int, dxm) -> dict[str, np.ndarray]:
+def _momentum_rows(meshdata: MeshData, V, materials, dim: int, dxm, hypothesis) -> dict[str, np.ndarray]:
     """Per body the rows m_b = 1_b^T M of its material alone, assembled once (``int rho phi_j``).
 
     Assembled over the body's cells, so that a node shared with another body counts its share of
@@ -210,13 +213,15 @@ def _momentum_rows(meshdata: MeshData, V, materials, dim: int, dxm) -> dict[str,
     for body, tag in meshdata.bodies.items():
         mat = materials[body]
         measure = dxm if meshdata.cell_tags is None else dxm(tag)
-        section = mat.area if dim < 3 else 1.0
-        # rho and the section scale the assembled vector, so that the form (and its compiled
-        # kernel, cached on disk) does not depend on the material.
+        # rho and a constant section scale the assembled vector, so that the form (and its compiled
+        # kernel, cached on disk) does not depend on the material; 2 pi r stays in the form.
+        axisymmetric = hypothesis[0] == "axisymmetric"
+        scale = mat.rho * (1.0 if axisymmetric or dim == 3 else mat.area)
+        weight = _section(mat, dim, hypothesis, meshdata.mesh) if axisymmetric else 1.0
         columns = []
         for comp in range(dim):
             unit = ufl.as_vector([1.0 if j == comp else 0.0 for j in range(dim)])
-            columns.append(mat.rho * section * dx.assemble_vector(ufl.inner(unit, w) * measure).array_r)
+            columns.append(scale * dx.assemble_vector(weight * ufl.inner(unit, w) * measure).array_r)
         rows[body] = np.column_stack(columns)
     return rows
 
@@ -253,16 +258,58 @@ def _materials(spec: ModelSpec, meshdata: MeshData) -> dict[str, Material]:
     return dict(spec.materials)
 
 
-def _stress(u, mat: Material, dim: int):
-    eps = ufl.sym(ufl.grad(u))
+def _hypothesis(spec: ModelSpec, dim: int) -> tuple[str, int]:
+    """(the 2D hypothesis, the index of the radial coordinate: 0 about the y axis, 1 about x)."""
+    if spec.hypothesis != "plane_stress" and dim != 2:
+        raise ModelInputError(("mesh", "hypothesis"), f"applies to 2D models only (this mesh is {dim}D): remove it")
+    return spec.hypothesis, 0 if spec.axis == "y" else 1
+
+
+def _section(mat: Material, dim: int, hypothesis: tuple[str, int], msh):
+    """What a 2D integral is multiplied by: the thickness (area), or the circle 2 pi r (axisymmetric)."""
+    if dim == 3:
+        return 1.0
+    if hypothesis[0] == "axisymmetric":
+        return 2.0 * np.pi * ufl.SpatialCoordinate(msh)[hypothesis[1]]
+    return mat.area
+
+
+def _strain_work(u, w, mat: Material, dim: int, hypothesis: tuple[str, int], msh):
+    """The stiffness form's integrand ``sigma(u) : eps(w)`` times the section (docs/theory.md s. 2).
+
+    2D: plane stress (sigma_zz = 0: lambda = E nu / (1 - nu^2)), plane strain (eps_zz = 0: the 3D
+    lambda) or axisymmetric: on the meridian plane, with the hoop strain ``u_r / r`` and its stress.
+    """
+    eps, eps_w = ufl.sym(ufl.grad(u)), ufl.sym(ufl.grad(w))
     if dim == 1:
-        return mat.E * eps
+        return mat.area * mat.E * ufl.inner(eps, eps_w)
     mu = mat.E / (2.0 * (1.0 + mat.nu))
-    if dim == 2:  # plane stress
+    lmbda = mat.E * mat.nu / ((1.0 + mat.nu) * (1.0 - 2.0 * mat.nu))   # 3D, plane strain, axisymmetric
+    if dim == 2 and hypothesis[0] == "plane_stress":
         lmbda = mat.E * mat.nu / (1.0 - mat.nu**2)
-    else:
-        lmbda = mat.E * mat.nu / ((1.0 + mat.nu) * (1.0 - 2.0 * mat.nu))
-    return 2.0 * mu * eps + lmbda * ufl.tr(eps) * ufl.Identity(dim)
+    if dim == 2 and hypothesis[0] == "axisymmetric":
+        radial = hypothesis[1]
+        r = ufl.SpatialCoordinate(msh)[radial]
+        hoop, hoop_w = u[radial] / r, w[radial] / r
+        trace = ufl.tr(eps) + hoop
+        sigma = 2.0 * mu * eps + lmbda * trace * ufl.Identity(2)
+        sigma_hoop = 2.0 * mu * hoop + lmbda * trace
+        return 2.0 * np.pi * r * (ufl.inner(sigma, eps_w) + sigma_hoop * hoop_w)
+    sigma = 2.0 * mu * eps + lmbda * ufl.tr(eps) * ufl.Identity(dim)
+    return (mat.area if dim == 2 else 1.0) * ufl.inner(sigma, eps_w)
+
+
+def _axis_dofs(meshdata: MeshData, coords: np.ndarray, bs: int, radial: int) -> np.ndarray:
+    """The radial dofs of the owned nodes on the symmetry axis (a ring of radius 0 cannot open);
+    a node at a negative radius is bad input."""
+    r = coords[:, radial]
+    tolerance = 1e-9 * meshdata.extent
+    lowest = meshdata.comm.allreduce(float(r.min(initial=np.inf)), op=MPI.MIN)
+    if lowest < -tolerance:
+        name = "xy"[radial]
+        raise ModelInputError(("mesh", "axis"), f"an axisymmetric mesh lies in the half plane {name} >= 0 (the "
+                                                f"radius), but it has a node at {name} = {lowest:.6g}")
+    return np.flatnonzero(np.abs(r) <= tolerance) * bs + radial
 
 
 def _lumped(M: PETSc.Mat) -> PETSc.Mat:
@@ -343,7 +390,7 @@ def _fixed_dofs(spec: ModelSpec, meshdata: MeshData, V, bs: int) -> np.ndarray:
     return np.unique(np.concatenate(fixed)).astype(np.int64) if fixed else np.zeros(0, dtype=np.int64)
 
 
-def _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed) -> LoadVector:
+def _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed, hypothesis) -> LoadVector:
     constant = dx.function(V, "R").vector.copy()
     constant.set(0.0)
     varying = []
@@ -388,7 +435,7 @@ def _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed) -> LoadVector:
                 for body, tag in bodies.items():
                     mat = materials[body]
                     measure = dxm if meshdata.cell_tags is None else dxm(tag)
-                    section = mat.area if dim < 3 else 1.0
+                    section = _section(mat, dim, hypothesis, meshdata.mesh)
                     term = mat.rho * section * ufl.inner(unit, w) * measure
                     form = term if form is None else form + term
                 add(expr, dx.assemble_vector(form), key)

@@ -20,6 +20,8 @@ class MeshSpec:
     height: float | None = None
     width: float | None = None
     elements: str = "simplex"
+    hypothesis: str = "plane_stress"   # 2D: plane_stress | plane_strain | axisymmetric
+    axis: str | None = None            # axisymmetric: the symmetry axis, "y" (radius x) or "x" (radius y)
 
     # The built-in bar's documented defaults, defined here only: the mesh, the size estimate
     # (limits) and the exact solutions (references) read them from the case.
@@ -86,6 +88,8 @@ class ModelSpec:
     supports: list[Support]
     loads: list[Load]
     mass: str = "consistent"                # consistent | lumped | redistributed
+    hypothesis: str = "plane_stress"        # 2D: plane_stress | plane_strain | axisymmetric (mesh.hypothesis)
+    axis: str = "y"                         # axisymmetric: the symmetry axis (mesh.axis)
     # redistributed: the node groups the contacts act on, with their key path for errors
     contact_groups: list[tuple[tuple, str]] = field(default_factory=list)
 
