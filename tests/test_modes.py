@@ -257,3 +257,47 @@ def test_failed_computation_leaves_no_output(tmp_path, monkeypatch, capsys):
     assert "the modal analysis failed: mode 1 has a relative residual" in err
     assert "0 of the 3 modes are within it" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_modal_mass_at_the_tip_of_the_clamped_free_rod(tmp_path):
+    """``modes --at right --direction x``: for the clamped-free rod (rho = 1.5, A = 0.5, L = 2) mode i is
+    y = sqrt(2 / (rho A L)) sin((2i - 1) pi x / (2 L)), so each mode's modal mass at the tip is rho A L / 2
+    (0.75), its stiffness w_i^2 rho A L / 2, and its participation factor Gamma_i = +-sqrt(2 rho A L) 2 /
+    ((2i - 1) pi); the description says it is longitudinal."""
+    case = tmp_path / "rod.yaml"
+    case.write_text("name: rod\nmesh: {shape: bar, dim: 1, length: 2.0, cells: 400}\n"
+                    "material: {E: 3.0, rho: 1.5, area: 0.5}\nsupports: [{nodes: left, fix: [x]}]\n"
+                    "solver: {dt: 0.01, t_end: 0.1}\n")
+    result = run_cli("modes", str(case), "--at", "right", "--direction", "x", "-n", "3", "-o", str(tmp_path / "m"))
+    assert result.returncode == 0, result.stderr
+    rows = list(csv.DictReader(open(tmp_path / "m" / "modes.csv")))
+    c, L, mass = np.sqrt(3.0 / 1.5), 2.0, 1.5 * 0.5 * 2.0
+    for i, row in enumerate(rows, start=1):
+        w = (2 * i - 1) * np.pi * c / (2 * L)
+        assert float(row["right.x.modal_mass"]) == pytest.approx(mass / 2, rel=1e-3)
+        assert float(row["right.x.modal_stiffness"]) == pytest.approx(w**2 * mass / 2, rel=2e-3 * i)
+        assert abs(float(row["participation_x"])) == pytest.approx(np.sqrt(2 * mass) * 2 / ((2 * i - 1) * np.pi),
+                                                                    rel=1e-3)
+        assert row["moves"].startswith("longitudinal: bar 100 %")
+    assert "modal mass" in result.stdout
+    bad = run_cli("modes", str(case), "--at", "tip", "-o", str(tmp_path / "bad"))
+    assert bad.returncode != 0 and "no node group 'tip'" in bad.stderr and "Traceback" not in bad.stderr
+    bad = run_cli("modes", str(case), "--at", "right", "--direction", "y", "-o", str(tmp_path / "bad"))
+    assert bad.returncode != 0 and "--direction: y: the model is 1D" in bad.stderr
+
+
+def test_the_modes_of_a_2d_cantilever_are_described():
+    """A 2D strip clamped at one end: its first modes bend (transverse, y), the first along x is longitudinal."""
+    from fem_impact.config.build import model_spec
+    from fem_impact.fem.mesh import build_mesh
+    from fem_impact.fem.model import build_model
+    from fem_impact.fem.modes import compute_modes, describe
+    import fem_impact as fi
+
+    case = fi.Case.from_dict({"name": "strip", "material": {"E": 1.0, "rho": 1.0}, "solver": {"dt": 0.1, "t_end": 1},
+                              "mesh": {"shape": "bar", "dim": 2, "length": 1.0, "height": 0.05, "cells": 100},
+                              "supports": [{"nodes": "left", "fix": "all"}]})
+    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+    words = describe(compute_modes(model, 6), model)
+    assert words[0].startswith("transverse (y): bar 100 %; y ")
+    assert any(w.startswith("longitudinal: bar 100 %; x ") for w in words)

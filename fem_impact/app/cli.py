@@ -89,7 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Compute the lowest natural modes (K y = w^2 M y; supports held, contacts ignored) and\n"
                     "write into OUTDIR:\n"
                     "  modes.csv           per mode: frequency, rigid/elastic, effective mass per direction\n"
-                    "                      (% of the free mass), residual\n"
+                    "                      (% of the free mass), residual, what moves; with --at GROUP its\n"
+                    "                      modal mass and stiffness there and its participation factor\n"
                     "  modes.pvd           the mass-normalized shapes, one frame per mode (t = mode number)\n"
                     "  case.resolved.yaml  the case with every default filled in",
         epilog=MODES_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -102,6 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "replaced only when the computation completes")
     modes.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
                        help="override a case-file key, value typed as in YAML (repeatable)")
+    modes.add_argument("--at", metavar="GROUP", help="a node group: add each mode's modal mass and stiffness there "
+                       "(along --direction) and its participation factor")
+    modes.add_argument("--direction", choices=("x", "y", "z"), default="x", help="the direction for --at (default x)")
     modes.add_argument("-q", "--quiet", action="store_true", help="do not print the table")
     modes.add_argument("-v", "--verbose", action="store_true", help="log the stages of the computation")
 
@@ -344,7 +348,8 @@ def _modes(args) -> int:
 
     def modes():
         try:
-            summary = run_modes(args.case, args.output, args.overrides, args.count, comm=_comm())
+            summary = run_modes(args.case, args.output, args.overrides, args.count, comm=_comm(), at=args.at,
+                                direction=args.direction)
         except ModeCountError as err:
             raise _UsageError(f"-n {args.count}: {err}") from None
         if _comm().rank == 0 and not args.quiet:

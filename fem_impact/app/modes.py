@@ -18,13 +18,16 @@ def default_outdir(case) -> Path:
     return Path.cwd() / "results" / f"{case.name}-modes"
 
 
-def run_modes(path, outdir=None, overrides=(), n: int | None = None, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
+def run_modes(path, outdir=None, overrides=(), n: int | None = None, comm: MPI.Comm = MPI.COMM_WORLD,
+              at: str | None = None, direction: str = "x") -> dict:
     """Modal analysis of a case file, written atomically into ``outdir``.
 
     ``n`` is the number of modes; None takes ``solver.modes`` of the case when it is a
     number, else :data:`DEFAULT_COUNT` (at most the free dofs less one). An explicit ``n``
     that does not fit the model raises :class:`ModeCountError`; a bad ``solver.modes``, a
-    ``CaseError``. Returns a summary with the table (``columns``, ``rows``).
+    ``CaseError``. ``at`` (a node group) and ``direction`` (x, y or z) add each mode's modal
+    mass and stiffness there and its participation factor along that direction
+    (:func:`fem_impact.fem.modes.at_point`). Returns a summary with the table (``columns``, ``rows``).
     """
     from ..config.case import load_case
 
@@ -32,15 +35,15 @@ def run_modes(path, outdir=None, overrides=(), n: int | None = None, comm: MPI.C
     case = load_case(path, overrides)
     outdir = Path(outdir) if outdir is not None else default_outdir(case)
     with claim(outdir, comm, "modes", protect=case_inputs(case), source=case.path) as out, case.errors_at_keys():
-        return _run_modes(case, out, n, comm, t_start)
+        return _run_modes(case, out, n, comm, t_start, at, direction)
 
 
-def _run_modes(case, out, n, comm, t_start) -> dict:
+def _run_modes(case, out, n, comm, t_start, at=None, direction="x") -> dict:
     from ..config.build import model_spec
     from ..fem.dolfinx_api import VTKSeries
     from ..fem.mesh import build_mesh
     from ..fem.model import build_model
-    from ..fem.modes import AXES, ModeCountError, compute_modes, free_dof_count, participation
+    from ..fem.modes import AXES, ModeCountError, at_point, compute_modes, describe, free_dof_count, participation
 
     outdir = out.path
     meshdata = build_mesh(case.mesh, comm)
@@ -54,14 +57,27 @@ def _run_modes(case, out, n, comm, t_start) -> dict:
                 raise ModelInputError(("solver", "modes"), str(ModeCountError(n, available)))
         else:
             n = min(DEFAULT_COUNT, available - 1)
+    if at is not None:
+        d = AXES.index(direction)
+        if d >= model.bs:
+            raise ModelInputError(("--direction",), f"{direction}: the model is {model.bs}D (directions: "
+                                                     f"{', '.join(AXES[:model.bs])})")
+        model.node_set(at, ("--at",))   # (an unknown group: a clear error before the eigensolve)
     modes = compute_modes(model, n)
     fractions = participation(modes, model)
+    described = describe(modes, model)
+    point = at_point(modes, model, at, AXES.index(direction)) if at is not None else None
     solve_time = time.perf_counter() - t_start
 
     columns = (["mode", "frequency_hz", "type"] + [f"mass_{AXES[d]}_percent" for d in range(model.bs)]
-               + ["residual"])
+               + ["residual", "moves"])
+    if point is not None:
+        columns += [f"{at}.{direction}.modal_mass", f"{at}.{direction}.modal_stiffness", f"{at}.{direction}.shape",
+                    f"participation_{direction}"]
     rows = [[i + 1, float(modes.frequency_hz[i]), "rigid" if modes.rigid[i] else "elastic",
-             *(100.0 * fractions[i]).tolist(), float(modes.residual[i])] for i in range(n)]
+             *(100.0 * fractions[i]).tolist(), float(modes.residual[i]), described[i]]
+            + ([float(point[k][i]) for k in ("mass", "stiffness", "phi", "participation")] if point else [])
+            for i in range(n)]
     with out.staged() as stage:
         series = VTKSeries(comm, stage / "modes.pvd", model.V, ["mode"])
         try:
@@ -81,6 +97,7 @@ def _run_modes(case, out, n, comm, t_start) -> dict:
             with writing(stage / "case.resolved.yaml"):
                 case.write_resolved(stage / "case.resolved.yaml")
     return {
+        "at": at, "direction": direction if at is not None else None,
         "case": case.name, "dofs": model.dofs, "free_dofs": available, "modes": n, "rigid": modes.n_rigid,
         "dim": model.bs, "columns": columns, "rows": rows, "mass_total_percent": (100.0 * fractions.sum(0)).tolist(),
         "wall_time_s": time.perf_counter() - t_start, "solve_time_s": solve_time, "mpi_ranks": comm.size,
@@ -95,13 +112,25 @@ def format_table(summary: dict) -> str:
     axes = AXES[: summary["dim"]]
     header = f"{'mode':>5}  {'frequency [Hz]':>15}  {'type':<7}" + "".join(f"  {'mass ' + a + ' [%]':>10}"
                                                                           for a in axes) + f"  {'residual':>9}"
+    at = summary.get("at")
+    if at:
+        header += f"  {'modal mass':>11}  {'stiffness':>11}  {'Gamma':>10}"
+    header += "  moves (kinetic energy)"
     lines = [f"{summary['case']}: {summary['modes']} modes of {summary['dofs']} dofs "
              f"({summary['free_dofs']} free), {summary['rigid']} rigid-body", header]
-    for mode, freq, kind, *rest in summary["rows"]:
-        *mass, residual = rest
-        lines.append(f"{mode:>5}  {freq:>15.8g}  {kind:<7}" + "".join(f"  {m:>10.3f}" for m in mass)
-                     + f"  {residual:>9.2g}")
+    for row in summary["rows"]:
+        mode, freq, kind = row[:3]
+        mass, (residual, moves) = row[3:3 + len(axes)], row[3 + len(axes):5 + len(axes)]
+        line = f"{mode:>5}  {freq:>15.8g}  {kind:<7}" + "".join(f"  {m:>10.3f}" for m in mass) + f"  {residual:>9.2g}"
+        if at:
+            modal_mass, stiffness, _, gamma = row[5 + len(axes):]
+            line += f"  {modal_mass:>11.5g}  {stiffness:>11.5g}  {gamma:>10.4g}"
+        lines.append(line + f"  {moves}")
     lines.append(f"{'sum':>5}  {'':>15}  {'':<7}" + "".join(f"  {m:>10.3f}" for m in summary["mass_total_percent"]))
+    if at:
+        lines.append(f"Modal mass and stiffness at {at} along {summary['direction']}: 1 / phi^2 and w^2 / phi^2, phi "
+                     f"the mass-normalized mode's mean displacement there (units of the case: mass, force/length); "
+                     f"Gamma = y^T M r, the participation factor along {summary['direction']}.")
     lines.append(f"Effective mass: share of the free mass that each mode carries in a translation. "
                  f"Wall time {summary['wall_time_s']:.2f} s on {summary['mpi_ranks']} rank(s). "
                  f"Results in {summary['outdir']} (modes.csv, modes.pvd: mass-normalized shapes, "

@@ -250,6 +250,57 @@ def participation(modes: Modes, model) -> np.ndarray:
     return out
 
 
+def at_point(modes: Modes, model, group: str, direction: int, key: tuple = ("--at",)) -> dict[str, np.ndarray]:
+    """Each mode seen from a node group along one direction (a single-dof oscillator per mode).
+
+    With mass-normalized shapes, the group's mean displacement along ``direction`` is ``phi_i``;
+    the modal mass at the group is ``1 / phi_i^2`` (a unit force there excites mode i as a mass
+    ``1 / phi_i^2`` on a spring ``w_i^2 / phi_i^2``), inf where the mode does not move it. The
+    participation factor is ``Gamma_i = y_i^T M r`` (r the unit translation along the direction;
+    its square is the effective mass). Returns ``mass``, ``stiffness``, ``phi``, ``participation``.
+    """
+    nodes = model.node_set(group, key)
+    owned = nodes.local_node[nodes.local_node >= 0]
+    phi = modes.comm.allreduce(modes.Y_local[owned * model.bs + direction].sum(axis=0), op=MPI.SUM) / len(nodes)
+    with np.errstate(divide="ignore"):
+        mass = np.where(np.abs(phi) > 0.0, 1.0 / np.where(phi != 0.0, phi * phi, 1.0), np.inf)
+    r = np.zeros(modes.Y_local.shape[0])
+    r.reshape(-1, model.bs)[:, direction] = 1.0
+    r[model.fixed] = 0.0
+    Mr = _apply(model.M, r[:, None])[:, 0]
+    gamma = modes.comm.allreduce(modes.Y_local.T @ Mr, op=MPI.SUM)
+    return {"mass": mass, "stiffness": modes.omega2 * mass, "phi": phi, "participation": gamma}
+
+
+def describe(modes: Modes, model) -> list[str]:
+    """Per mode, which bodies move and along which axis: the shares of its kinetic energy (lumped
+    masses: the momentum rows), e.g. ``horn_small 81 %, horn_large 19 %; x 100 %``."""
+    out = []
+    shares_b, shares_d = [], []
+    for body, rows in model.momentum_rows.items():   # (owned dofs x directions: rho int phi_j on its direction)
+        energy = rows.sum(axis=1)[:, None] * modes.Y_local**2
+        shares_b.append((body, modes.comm.allreduce(energy.sum(axis=0), op=MPI.SUM)))
+        shares_d.append(np.stack([modes.comm.allreduce(energy[d::model.bs].sum(axis=0), op=MPI.SUM)
+                                  for d in range(model.bs)]))
+    per_direction = np.sum(shares_d, axis=0)   # (dim, n)
+    total = per_direction.sum(axis=0)
+    long_axis = int(np.argmax(np.ptp(model.meshdata.mesh.geometry.x[:, :model.bs], axis=0))) if model.bs > 1 else 0
+    long_axis = modes.comm.allreduce(long_axis, op=MPI.MAX)   # (a rank's part: the same long axis, mostly)
+    for i in range(modes.n):
+        if total[i] <= 0.0:
+            out.append("")
+            continue
+        bodies = sorted(((share[i] / total[i], body) for body, share in shares_b), reverse=True)
+        moving = ", ".join(f"{body} {100 * f:.0f} %" for f, body in bodies if f >= 0.05)
+        axes = ", ".join(f"{AXES[d]} {100 * per_direction[d, i] / total[i]:.0f} %" for d in
+                         np.argsort(-per_direction[:, i]) if per_direction[d, i] >= 0.05 * total[i])
+        main = int(np.argmax(per_direction[:, i]))
+        kind = ("mixed" if per_direction[main, i] < 0.5 * total[i] else
+                "longitudinal" if main == long_axis else f"transverse ({AXES[main]})")
+        out.append(f"{kind}: {moving}; {axes}")
+    return out
+
+
 def _stiffness_scale(K: PETSc.Mat, M: PETSc.Mat, comm: MPI.Comm) -> float:
     k, m = K.getDiagonal().array_r, M.getDiagonal().array_r
     ratio = np.abs(k[m > 0]) / m[m > 0]
