@@ -89,3 +89,54 @@ def test_resolved_case_runs_again_the_same(bar_run, tmp_path):
     resolved = load_case(out / "case.resolved.yaml")
     assert resolved.mesh.cells == 20 and resolved.solver.dt == 0.025 and resolved.solver.beta == 0.25
     assert resolved.resolved() == load_case(out / "case.resolved.yaml").resolved()
+
+
+def test_binary_fields_are_read_by_meshio_pyvista_and_the_api(tmp_path):
+    """output.format: xdmf writes results.xdmf + results.h5 (one temporal collection, every field per
+    frame): Debian's meshio and pyvista read it; fem_impact.Result.load(folder).fields() gives the
+    frames, the nodes and u, v, a, contact_force, equal to the initial field at t = 0 and to the
+    history's probe at every frame."""
+    import meshio
+    import pyvista
+
+    import fem_impact as fi
+
+    case = fi.load_case(CASES / "impacting_bar.yaml").with_changes({
+        "mesh.dim": 2, "mesh.cells": 20, "output.format": "xdmf", "solver.dt": 0.02, "solver.t_end": 0.4,
+        "output.every": 2, "initial.displacement": ["0.01*(1 - x)", "0.002*y"]})
+    result = fi.run(case, outdir=tmp_path / "run")
+    assert (tmp_path / "run" / "results.h5").is_file() and not (tmp_path / "run" / "results.pvd").exists()
+    fields = fi.Result.load(tmp_path / "run").fields()
+    assert len(fields.t) == result.summary["vtk_frames"] == 11
+    x, y = fields.points[:, 0], fields.points[:, 1]
+    assert np.abs(fields.values["u"][0][:, 0] - 0.01 * (1 - x)).max() < 1e-15
+    assert np.abs(fields.values["u"][0][:, 1] - 0.002 * y).max() < 1e-15
+    h = result.history
+    right = np.flatnonzero((np.abs(x - 1.0) < 1e-12) & (np.abs(y) < 1e-12))[0]
+    for t, u in zip(fields.t, fields.values["u"]):
+        row = int(np.argmin(abs(h["t"] - t)))
+        assert u[right, 0] == pytest.approx(h["right.ux"][row], rel=1e-11, abs=1e-15)   # (history: 12 digits)
+    with meshio.xdmf.TimeSeriesReader(str(tmp_path / "run" / "results.xdmf")) as reader:
+        points, _ = reader.read_points_cells()
+        assert reader.num_steps == 11
+        t, data, _ = reader.read_data(3)
+    assert t == pytest.approx(fields.t[3]) and set(data) == {"u", "v", "a", "contact_force"}
+    assert np.array_equal(data["v"], fields.values["v"][3]) and np.array_equal(points, fields.points)
+    reader = pyvista.get_reader(str(tmp_path / "run" / "results.xdmf"))
+    assert np.allclose(reader.time_values, fields.t)
+    reader.set_active_time_value(reader.time_values[5])
+    mesh = reader.read()
+    block = next(b for b in mesh if b is not None and "u" in b.point_data)
+    assert np.array_equal(np.asarray(block.point_data["u"]), fields.values["u"][5])
+
+
+def test_fields_of_a_run_without_the_binary_series_say_why(tmp_path):
+    import fem_impact as fi
+
+    case = fi.load_case(CASES / "impacting_bar.yaml").with_changes({"solver.t_end": 0.1, "mesh.cells": 20,
+                                                                     "solver.dt": 0.02})
+    fi.run(case, outdir=tmp_path / "vtu")
+    with pytest.raises(fi.SimulationError, match="ASCII VTU .* output.format: xdmf"):
+        fi.Result.load(tmp_path / "vtu").fields()
+    with pytest.raises(fi.SimulationError, match="not a run's output folder"):
+        fi.Result.load(tmp_path / "nothing")

@@ -139,3 +139,40 @@ def test_view_script_renders_a_screenshot(runs, tmp_path, dim):
     assert len(colours) > 20, "a blank picture"
     red = np.sum((img[..., 0] > 150) & (img[..., 1] < 80) & (img[..., 2] < 80))
     assert red > 20, "no contact-force arrows (the bar is on the wall at t = 0.3)"
+
+
+XDMF_PROBE = """
+import json, sys
+from paraview.simple import OpenDataFile
+from paraview import servermanager
+from vtkmodules.util.numpy_support import vtk_to_numpy
+reader = OpenDataFile(sys.argv[1])
+reader.UpdatePipelineInformation()
+times = list(reader.TimestepValues)
+reader.UpdatePipeline(times[-1])
+data = servermanager.Fetch(reader)
+block = data.GetBlock(0) if data.IsA("vtkMultiBlockDataSet") else data
+print("JSON" + json.dumps({"times": times, "arrays": sorted(reader.PointData.keys()),
+                           "points": block.GetNumberOfPoints(),
+                           "u": vtk_to_numpy(block.GetPointData().GetArray("u")).tolist()}))
+"""
+
+
+@needs_pvpython
+def test_paraview_opens_the_binary_series(tmp_path):
+    """output.format: xdmf (results.xdmf + results.h5): pvpython opens it with every field and frame,
+    and the last frame's u is the one fem_impact's reader gives."""
+    import fem_impact as fi
+
+    folder = tmp_path / "xdmf"
+    run_case_file(CASES / "impacting_bar.yaml", folder, "mesh.dim=2", "mesh.cells=20", "output.format=xdmf", *SHORT)
+    script = tmp_path / "probe.py"
+    script.write_text(XDMF_PROBE)
+    proc = pvpython(str(script), str(folder / "results.xdmf"))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    info = json.loads(proc.stdout.split("JSON", 1)[1])
+    fields = fi.Result.load(folder).fields()
+    assert info["arrays"] == ["a", "contact_force", "u", "v"]
+    assert np.allclose(info["times"], fields.t, rtol=0, atol=1e-12) and len(fields.t) == 11
+    assert info["points"] == fields.points.shape[0]
+    assert np.abs(np.asarray(info["u"]) - fields.values["u"][-1]).max() == 0.0

@@ -279,11 +279,15 @@ class HistoryWriter:
 
 
 class VTKWriter:
-    """``results.pvd``: u, v, a and the contact force on the structure (-P^T F_N) every N steps."""
+    """u, v, a and the contact force on the structure (-P^T F_N) every N steps: ``results.pvd``
+    (ASCII VTU pieces, the default), or ``results.xdmf`` + ``results.h5`` (binary, ``xdmf``)."""
 
-    def __init__(self, path: Path, model: Model, fields, every: int, last_step: int):
+    FILES = {"vtu": "results.pvd", "xdmf": "results.xdmf"}
+
+    def __init__(self, folder: Path, model: Model, fields, every: int, last_step: int, form: str = "vtu"):
         self.fields, self.every, self.last_step = fields, every, last_step
-        self.series = dx.VTKSeries(model.comm, path, model.V, ("u", "v", "a", "contact_force"))
+        series = dx.XDMFSeries if form == "xdmf" else dx.VTKSeries
+        self.series = series(model.comm, folder / self.FILES[form], model.V, ("u", "v", "a", "contact_force"))
         self.frames = 0
 
     def write(self, state: StepState) -> None:

@@ -15,7 +15,7 @@ from mpi4py import MPI
 
 from .._version import __version__
 from ..config.case import Case, load_case
-from ..errors import wrong_type
+from ..errors import SimulationError, wrong_type
 from .limits import check_limits
 from .outdir import case_inputs, claim, writing
 
@@ -110,6 +110,56 @@ class Result:
 
             self._history = history_columns(self.outdir)
         return self._history
+
+    @classmethod
+    def load(cls, outdir) -> Result:
+        """The result a run wrote into ``outdir`` (its summary.json; history and fields read on use)."""
+        path = Path(outdir)
+        try:
+            summary = json.loads((path / "summary.json").read_text())
+        except (OSError, ValueError) as exc:
+            raise SimulationError(f"{outdir}: not a run's output folder (summary.json: {exc})") from None
+        return cls(summary, path.resolve())
+
+    def fields(self) -> Fields:
+        """The fields the run wrote with ``output.format: xdmf`` (:func:`read_fields`)."""
+        if self.outdir is None:
+            raise SimulationError("this run wrote no files (fem_impact.run without outdir): nothing to read")
+        return read_fields(self.outdir)
+
+
+@dataclass
+class Fields:
+    """A run's nodal fields: ``t`` (frames,), ``points`` (nodes, 3) and ``values[name]`` (frames, nodes, 3)
+    for u, v, a and contact_force (1D and 2D fields padded to 3 components, zeros)."""
+
+    t: np.ndarray
+    points: np.ndarray
+    values: dict
+
+
+def read_fields(outdir) -> Fields:
+    """Read ``results.xdmf`` of a run's folder with meshio (Debian's python3-meshio), frame by frame."""
+    import meshio
+    import meshio.xdmf.common
+
+    # dolfinx writes a 1D mesh's intervals as XDMF "PolyLine", meshio 1.x knows "Polyline" only
+    meshio.xdmf.common.xdmf_to_meshio_type.setdefault("PolyLine", "line")
+    path = Path(outdir) / "results.xdmf"
+    if not path.is_file():
+        pvd = Path(outdir) / "results.pvd"
+        why = ("its fields are ASCII VTU (results.pvd), which meshio cannot read: run it with output.format: xdmf"
+               if pvd.is_file() else "it holds no fields (output.vtk: false?)")
+        raise SimulationError(f"{outdir}: no results.xdmf: {why}")
+    times, values = [], {}
+    with meshio.xdmf.TimeSeriesReader(str(path)) as reader:
+        points, _ = reader.read_points_cells()
+        for k in range(reader.num_steps):
+            t, point_data, _ = reader.read_data(k)
+            times.append(float(t))
+            for name, array in point_data.items():
+                values.setdefault(name, []).append(np.asarray(array))
+    return Fields(np.array(times), np.asarray(points), {name: np.stack(a) for name, a in values.items()})
 
 
 def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
@@ -222,7 +272,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         observers = [history, stats]
         vtk = None
         if case.output.vtk and stage is not None:
-            vtk = VTKWriter(stage / "results.pvd", model, fields, case.output.every, n_steps)
+            vtk = VTKWriter(stage, model, fields, case.output.every, n_steps, case.output.format)
             observers.append(vtk)
         t_loop = time.perf_counter()
         try:
@@ -276,7 +326,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "contact_loss": final.energy.contact_loss,
             "total_impulse": stats.total_impulse,
             "body_mass": momenta.mass,
-            "vtk_frames": vtk.frames if vtk else 0,
+            "vtk_frames": vtk.frames if vtk else 0, "fields_file": VTKWriter.FILES[case.output.format] if vtk else None,
             "fem_impact_version": __version__,
         }
         if getattr(integrator, "friction", None) is not None:   # (keys added only where friction is)
@@ -289,7 +339,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                 (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
             with writing(stage / "case.resolved.yaml"):
                 case.write_resolved(stage / "case.resolved.yaml")
-            if vtk is not None:
+            if vtk is not None and case.output.format == "vtu":   # (view.py loads results.pvd)
                 from .paraview_view import write_view_script
 
                 with writing(stage / "view.py"):
@@ -344,7 +394,8 @@ def describe(summary: dict) -> str:
 
 def _files_written(summary: dict) -> list[str]:
     """The main files of a run's folder (the VTK series only when it wrote frames: output.vtk)."""
-    return (["results.pvd"] if summary.get("vtk_frames") else []) + ["history.csv", "summary.json",
+    fields = summary.get("fields_file") or "results.pvd"
+    return ([fields] if summary.get("vtk_frames") else []) + ["history.csv", "summary.json",
                                                                      "case.resolved.yaml"]
 
 

@@ -46,6 +46,7 @@ class Output:
     every: int = 10
     probes: dict[str, list[float]] = field(default_factory=dict)
     vtk: bool = True
+    format: str = "vtu"   # the fields' files: vtu (results.pvd, ASCII) | xdmf (results.xdmf + .h5, binary)
 
 
 @dataclass
@@ -1014,7 +1015,8 @@ def _follow_kind_changes(data, before: str | None, changed) -> None:
 
 def _output(value, path):
     return Output(**_fields(value, path, {
-        "every": _integer(1), "probes": _mapping_of(_vector(_number), _csv_name), "vtk": _boolean}, Output))
+        "every": _integer(1), "probes": _mapping_of(_vector(_number), _csv_name), "vtk": _boolean,
+        "format": _choice("vtu", "xdmf")}, Output))
 
 
 def _parameters(value, path):

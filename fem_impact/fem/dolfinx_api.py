@@ -206,6 +206,75 @@ class VTKSeries:
             _drop_repeated_pieces(self._path)
 
 
+class XDMFSeries:
+    """A binary time series of nodal vector fields: ``NAME.xdmf`` (XML) and ``NAME.h5`` (HDF5), as
+    dolfinx's XDMFFile writes them; meshio (``meshio.xdmf.TimeSeriesReader``), pyvista and
+    ParaView read it. The same fields and the same 1D rule as :class:`VTKSeries`."""
+
+    def __init__(self, comm: MPI.Comm, path, V, names):
+        self.bs = V.dofmap.index_map_bs
+        W = V if self.bs > 1 else fem.VectorFunctionSpace(V.mesh, ("CG", 1), dim=3)
+        self.out_bs = W.dofmap.index_map_bs
+        self.functions = {name: function(W, name) for name in names}
+        self._path, self._comm = Path(path), comm
+        self._file = io.XDMFFile(comm, str(self._path), "w")
+        self._file.write_mesh(V.mesh)
+
+    def write(self, t: float, owned_values: dict) -> None:
+        """Write one frame; ``owned_values`` maps a field name to its owned dof values."""
+        for name, values in owned_values.items():
+            f = self.functions[name]
+            blocks = values.reshape(-1, self.bs)
+            f.x.array.reshape(-1, self.out_bs)[: blocks.shape[0], : self.bs] = blocks
+            f.x.scatter_forward()
+            try:
+                self._file.write_function(f, t)
+            except RuntimeError as exc:   # (HDF5's failed write, e.g. a full disk)
+                raise OSError(errno.EIO, f"could not write {self._path.with_suffix('.h5')}: {exc}") from None
+
+    def close(self) -> None:
+        file, self._file = self._file, None
+        if file is not None:
+            file.close()
+            if self._comm.rank == 0:
+                _one_collection(self._path)
+
+
+def _one_collection(path: Path) -> None:
+    """Rewrite dolfinx's XDMF (one temporal collection per field) as one collection whose grids hold
+    every field of their time: meshio's TimeSeriesReader and pyvista read a single collection. Only
+    the XML changes; the data stay in the .h5 where dolfinx wrote them."""
+    import xml.etree.ElementTree as ET
+
+    domain = ET.parse(path).getroot().find("Domain")
+    # (dolfinx leaves the floats' precision out, which XDMF reads as 4 bytes: VTK and ParaView
+    # then read the float64 data as float32; say 8)
+    for item in domain.iter("DataItem"):
+        if item.get("NumberType") is None:
+            item.set("NumberType", "Float")
+            item.set("Precision", "8")
+    grids = domain.findall("Grid")
+    mesh = next(g for g in grids if g.get("GridType") == "Uniform")
+    frames: dict[str, list[str]] = {}
+    for collection in (g for g in grids if g.get("CollectionType") == "Temporal"):
+        for grid in collection.findall("Grid"):
+            time, attribute = grid.find("Time").get("Value"), grid.find("Attribute")
+            frames.setdefault(time, []).append("        " + ET.tostring(attribute, encoding="unicode").strip())
+    include = ("        <xi:include xpointer=\"xpointer(/Xdmf/Domain/Grid[@GridType='Uniform'][1]/*[self::Topology or "
+               "self::Geometry])\" />")
+    lines = ['<?xml version="1.0"?>', '<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>',
+             '<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">', "  <Domain>",
+             "    " + ET.tostring(mesh, encoding="unicode").strip(),
+             '    <Grid Name="fields" GridType="Collection" CollectionType="Temporal">']
+    for time, attributes in frames.items():
+        lines += ['      <Grid Name="fields" GridType="Uniform">', include, f'        <Time Value="{time}" />',
+                  *attributes, "      </Grid>"]
+    lines += ["    </Grid>", "  </Domain>", "</Xdmf>", ""]
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text("\n".join(lines))
+    os.replace(temporary, path)
+
+
 def _complete_xml(path: Path) -> bool:
     """Whether an XML file dolfinx wrote is there to its last line (``</VTKFile>``)."""
     try:
