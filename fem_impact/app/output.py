@@ -304,6 +304,60 @@ class VTKWriter:
             series.close()
 
 
+class ImpactLog:
+    """``impacts.csv``: one row per impact of a contact, from the step where its rows start to carry an
+    impulse to the last step before none does (README.md, "What a run writes").
+
+    ``t`` is the end of the impact's first step (history.csv's time of it), ``impulse`` the contact's
+    impulses summed over the impact, ``speed`` the largest normal approach speed (P V) among its rows
+    at the step before, ``rows`` how many of its rows carried an impulse.
+    """
+
+    COLUMNS = ("t", "contact", "impulse", "speed", "rows")
+
+    def __init__(self, cons: Constraints):
+        self.cons = cons
+        self.events: list[list] = []
+        self._open: dict[str, list] = {}
+        self._rows: dict[str, np.ndarray] = {}
+        self._approach: np.ndarray | None = None
+
+    def write(self, state: StepState) -> None:
+        for c in self.cons.contacts:
+            impulse = state.impulse[c.rows]
+            carrying = impulse > 0.0
+            event = self._open.get(c.name)
+            if np.count_nonzero(carrying):
+                if event is None:
+                    before = self._approach[c.rows] if self._approach is not None else np.zeros(0)
+                    event = self._open[c.name] = [state.t, c.name, 0.0, float(max(before.max(initial=0.0), 0.0)), 0]
+                    self._rows[c.name] = np.zeros(impulse.size, dtype=bool)
+                event[2] += float(impulse.sum())
+                self._rows[c.name] |= carrying
+            elif event is not None:
+                self._finish(c.name)
+        self._approach = np.array(state.normal_velocity, copy=True)
+
+    def _finish(self, name: str) -> None:
+        event = self._open.pop(name)
+        event[4] = int(np.count_nonzero(self._rows.pop(name)))
+        self.events.append(event)
+
+    def close(self) -> list[list]:
+        """Finish the impacts still open at the end of the run; the rows in time order."""
+        for name in list(self._open):
+            self._finish(name)
+        self.events.sort(key=lambda e: e[0])
+        return self.events
+
+    def save(self, path: Path) -> None:
+        with open(path, "w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(self.COLUMNS)
+            for t, name, impulse, speed, rows in self.close():
+                writer.writerow([f"{t:.12g}", name, f"{impulse:.12g}", f"{speed:.12g}", rows])
+
+
 class RunStatistics:
     """Extremes and totals over the run for the summary: penetration (rigid rows), compression
     of the elastic stops, energy residual, impulses."""

@@ -247,7 +247,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     from ..integrators import EnergyWatch, integrate, steps_for
     from ..nonsmooth.relation import build_constraints, check_initial_state
     from .outdir import install_signal_handlers
-    from .output import BodyMomenta, HistoryWriter, Progress, RunStatistics, VTKWriter, find_probes
+    from .output import BodyMomenta, HistoryWriter, ImpactLog, Progress, RunStatistics, VTKWriter, find_probes
 
     install_signal_handlers()   # again: PETSc, imported just now, installs its own (SIGHUP, SIGQUIT)
 
@@ -269,7 +269,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
                                 scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name)
         stats = RunStatistics(cons)
-        observers = [history, stats]
+        impacts = ImpactLog(cons)
+        observers = [history, stats, impacts]
         vtk = None
         if case.output.vtk and stage is not None:
             vtk = VTKWriter(stage, model, fields, case.output.every, n_steps, case.output.format)
@@ -325,6 +326,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "impact_loss": final.energy.impact_loss,
             "contact_loss": final.energy.contact_loss,
             "total_impulse": stats.total_impulse,
+            "impacts": {c.name: sum(e[1] == c.name for e in impacts.close()) for c in cons.contacts},
             "body_mass": momenta.mass,
             "vtk_frames": vtk.frames if vtk else 0, "fields_file": VTKWriter.FILES[case.output.format] if vtk else None,
             "fem_impact_version": __version__,
@@ -339,6 +341,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                 (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
             with writing(stage / "case.resolved.yaml"):
                 case.write_resolved(stage / "case.resolved.yaml")
+            with writing(stage / "impacts.csv"):
+                impacts.save(stage / "impacts.csv")
             if vtk is not None and case.output.format == "vtu":   # (view.py loads results.pvd)
                 from .paraview_view import write_view_script
 
