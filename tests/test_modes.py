@@ -190,7 +190,9 @@ def test_cli_writes_table_csv_and_pvd(tmp_path):
     assert "mass x [%]" in result.stdout and "elastic" in result.stdout
     rows = read_csv(out / "modes.csv")
     assert [r["mode"] for r in rows] == ["1", "2", "3", "4"]
-    assert list(rows[0]) == ["mode", "frequency_hz", "type", "mass_x_percent", "residual"]
+    # (the earlier columns keep their places; `moves` describes each mode)
+    assert list(rows[0]) == ["mode", "frequency_hz", "type", "mass_x_percent", "residual", "moves"]
+    assert all(r["moves"] == "longitudinal: bar 100 %; x 100 %" for r in rows)
     f = np.array([float(r["frequency_hz"]) for r in rows])
     assert f == pytest.approx((2 * np.arange(1, 5) - 1) / 4.0, rel=0.02)
     pvd = (out / "modes.pvd").read_text()

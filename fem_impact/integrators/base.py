@@ -82,9 +82,12 @@ class PETScAlgebra:
             S = S.copy()   # the pattern grew all the same
         return S
 
-    def factorize(self, A: PETSc.Mat, spd: bool = False) -> Factor:
+    def factorize(self, A: PETSc.Mat, spd: bool = False) -> Factor | DiagonalFactor:
         """A direct solver for ``A``, factorized now, once: ``solve(b, x)`` on arrays from ``vector()``,
-        ``solve.many(B)`` on a block of columns. See ``factorize`` for the choice of solver."""
+        ``solve.many(B)`` on a block of columns. See ``factorize`` for the choice of solver; a
+        diagonal ``A`` (a lumped mass) is inverted entry by entry on each rank, no factorization."""
+        if is_diagonal(A):
+            return DiagonalFactor(A.getDiagonal().array_r.copy())
         return Factor(_direct_solver(A, spd), self)
 
     def diagonal(self, A: PETSc.Mat) -> np.ndarray:
@@ -241,6 +244,39 @@ class Factor:
         Bm.destroy()
         Xm.destroy()
         return X
+
+
+def is_diagonal(A: PETSc.Mat) -> bool:
+    """Whether every owned row of ``A`` holds its diagonal entry alone (collective)."""
+    first = A.getOwnershipRange()[0]
+    indptr, indices, values = A.getValuesCSR()
+    counts = np.diff(indptr)
+    rows = np.arange(first, first + counts.size)
+    local = bool(np.all(counts <= 1) and np.all(indices == rows[counts == 1])) if counts.size else True
+    # (a stored zero off the diagonal does not count)
+    if not local and counts.size:
+        row_of = np.repeat(rows, counts)
+        local = bool(np.all((values == 0.0) | (indices == row_of)))
+    return A.getComm().tompi4py().allreduce(local, op=MPI.LAND)
+
+
+class DiagonalFactor:
+    """The inverse of a diagonal PETSc matrix on each rank's owned entries: ``solve(b, x)``, ``many(B)``.
+
+    Under MPI every other system goes to MUMPS; a lumped mass needs no factorization, only a
+    division per entry (central difference's step matrix M + dt/2 C with a lumped M and no C).
+    """
+
+    def __init__(self, diagonal: np.ndarray):
+        if np.any(diagonal == 0.0):
+            raise SimulationError("a diagonal system matrix has a zero on its diagonal")
+        self.inverse = 1.0 / diagonal
+
+    def __call__(self, b: np.ndarray, x: np.ndarray) -> None:
+        np.multiply(self.inverse, b, out=x)
+
+    def many(self, B: np.ndarray) -> np.ndarray:
+        return self.inverse[:, None] * B
 
 
 class DenseFactor:
