@@ -227,3 +227,31 @@ def test_explicit_method_defaults_to_the_lumped_mass(tmp_path):
     assert case.resolved()["solver"]["mass"] == "lumped"
     assert load_case(BAR).solver.mass == "consistent"
     assert load_case(BAR, ["solver.method=central_difference", "solver.mass=consistent"]).solver.mass == "consistent"
+
+
+def test_a_diagonal_system_is_divided_not_factorized():
+    """A lumped mass (diagonal) is inverted entry by entry: under MPI every other system goes to MUMPS,
+    which made central difference 14 times slower on 2 ranks than on 1 (issue 21; measured here on
+    the 3D bar of 72 963 unknowns: 36.9 ms a step before, 1.9 ms after, 2.8 to 3.0 ms serial)."""
+    from mpi4py import MPI
+
+    from fem_impact.config.build import model_spec
+    from fem_impact.fem.mesh import build_mesh
+    from fem_impact.fem.model import build_model
+    from fem_impact.integrators.base import DiagonalFactor, Factor, PETScAlgebra, is_diagonal
+
+    case = load_case(CASES / "impacting_bar.yaml", ["mesh.dim=2", "mesh.cells=40"])   # (newmark: consistent mass)
+    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+    alg = PETScAlgebra(model.M)
+    assert not is_diagonal(model.M) and not is_diagonal(model.K)
+    lumped = load_case(CASES / "impacting_bar.yaml", ["mesh.dim=2", "mesh.cells=40", "solver.method=central_difference",
+                                                      "solver.mass=lumped"])
+    M = build_model(model_spec(lumped), build_mesh(lumped.mesh, MPI.COMM_WORLD)).M
+    solve = alg.factorize(M, spd=True)
+    assert is_diagonal(M) and isinstance(solve, DiagonalFactor)
+    assert isinstance(alg.factorize(model.M, spd=True), Factor)
+    b, x = alg.vector(), alg.vector()
+    b[:] = np.linspace(1.0, 2.0, b.size)
+    solve(b, x)
+    assert np.array_equal(x, b / M.getDiagonal().array_r)
+    assert np.array_equal(solve.many(np.column_stack([b, 2 * b])), np.column_stack([x, 2 * x]))
