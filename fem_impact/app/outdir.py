@@ -238,6 +238,20 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def _remove_while_written(stage: Path, linger: float) -> None:
+    """Remove a staging folder that another rank may still be writing into, and keep it removed for
+    ``linger`` seconds. Interrupted under MPI, the signal reaches one rank; another may be inside a
+    write that creates the folder again (dolfinx's VTK writer makes its directories) before it waits
+    in a collective until mpirun kills it: an empty ``.NAME.partial-PID`` left behind (measured on 1
+    in 5 interrupted 2-rank runs before this)."""
+    deadline = time.monotonic() + linger
+    while True:
+        shutil.rmtree(stage, ignore_errors=True)
+        if time.monotonic() >= deadline:
+            return
+        time.sleep(0.05)
+
+
 def _remove_stale(parent: Path, name: str) -> list[Path]:
     """Staging and replaced folders of ``name`` left by processes that no longer exist."""
     removed = []
@@ -375,6 +389,10 @@ class OutputFolder:
             if interrupted and comm.rank != 0:   # (rank 0, if stuck, is killed with the lock file left)
                 with contextlib.suppress(OSError):
                     os.unlink(self._lock_path)
+            if interrupted and comm.size > 1:
+                if comm.rank == 0:
+                    self._release()   # (before lingering: mpirun may kill this rank meanwhile)
+                _remove_while_written(stage, linger=1.0)
             if isinstance(err, OSError):
                 raise write_error(err, stage, self.path) from None
             raise
