@@ -70,7 +70,10 @@ def run_child(method: str, cells: int, steps: int, ranks: int, folder: Path) -> 
     command = [sys.executable, __file__, "--one", method, str(cells), str(steps), str(history)]
     if ranks > 1:
         command = MPIRUN + command
-    out = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
+    # (a process that has initialized MPI itself, e.g. a test run, leaves OMPI_/PMIX_ variables that make
+    # a child mpirun think it is nested: they are not passed on)
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}
+    out = subprocess.run(command, capture_output=True, text=True, cwd=ROOT, env=env)
     if out.returncode:
         raise SystemExit(f"{' '.join(command)} failed:\n{out.stderr[-2000:]}")
     data = json.loads(out.stdout.split("JSON", 1)[1].splitlines()[0])
