@@ -16,6 +16,21 @@ from conftest import CASES, read_history, run_cli
 pytestmark = pytest.mark.mpi
 
 
+def run_serial_and_two_ranks(case: str, folder, overrides) -> None:
+    """``fem-impact run CASE`` into folder/serial, and under ``mpirun -n 2`` into folder/mpi."""
+    serial = run_cli("run", case, "-o", str(folder / "serial"), "-q", *overrides)
+    assert serial.returncode == 0, serial.stderr
+    # This pytest process has initialized MPI itself (singleton): its OMPI_/PMIX_ variables
+    # would make the child mpirun think it is nested, so they are not passed on.
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}
+    parallel = subprocess.run(
+        ["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-m", "fem_impact",
+         "run", case, "-o", str(folder / "mpi"), "-q", *overrides],
+        capture_output=True, text=True, env=env,
+    )
+    assert parallel.returncode == 0, parallel.stderr
+
+
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
 @pytest.mark.parametrize("dim, cells, method", [(1, 100, "newmark"), (2, 60, "newmark"), (2, 60, "modal"),
                                                (2, 60, "moreau_jean"), (2, 60, "friction")])
@@ -28,17 +43,7 @@ def test_serial_and_two_ranks_agree(tmp_path, dim, cells, method):
                  *(["--set", "solver.modes=10"] if method == "modal" else []),
                  *(friction if method == "friction" else [])]
     case = str(CASES / "impacting_bar.yaml")
-    serial = run_cli("run", case, "-o", str(tmp_path / "serial"), "-q", *overrides)
-    assert serial.returncode == 0, serial.stderr
-    # This pytest process has initialized MPI itself (singleton): its OMPI_/PMIX_ variables
-    # would make the child mpirun think it is nested, so they are not passed on.
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}
-    parallel = subprocess.run(
-        ["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-m", "fem_impact",
-         "run", case, "-o", str(tmp_path / "mpi"), "-q", *overrides],
-        capture_output=True, text=True, env=env,
-    )
-    assert parallel.returncode == 0, parallel.stderr
+    run_serial_and_two_ranks(case, tmp_path, overrides)
     a, b = read_history(tmp_path / "serial"), read_history(tmp_path / "mpi")
     assert a.dtype.names == b.dtype.names and a.shape == b.shape
     energy_scale = a["kinetic"][0] + a["strain"][0]
@@ -69,13 +74,7 @@ def test_axisymmetric_binary_fields_and_impacts_agree_on_two_ranks(tmp_path):
 
     overrides = ["--set", "solver.t_end=1.5e-4", "--set", "output.format=xdmf", "--set", "output.every=200"]
     case = str(CASES / "vibroconverter_axi.yaml")
-    serial = run_cli("run", case, "-o", str(tmp_path / "serial"), "-q", *overrides)
-    assert serial.returncode == 0, serial.stderr
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}
-    parallel = subprocess.run(
-        ["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-m", "fem_impact",
-         "run", case, "-o", str(tmp_path / "mpi"), "-q", *overrides], capture_output=True, text=True, env=env)
-    assert parallel.returncode == 0, parallel.stderr
+    run_serial_and_two_ranks(case, tmp_path, overrides)
     a, b = fi.Result.load(tmp_path / "serial"), fi.Result.load(tmp_path / "mpi")
     assert (tmp_path / "serial" / "impacts.csv").read_text() == (tmp_path / "mpi" / "impacts.csv").read_text()
     assert a.summary["impacts"] == {"stop": 4}
