@@ -209,3 +209,28 @@ def test_the_axisymmetric_horn_hits_the_stop_as_the_1d_horn_within_its_lateral_i
         k = np.pi / (c * tau)
         assert s2 == pytest.approx(s1, rel=0.3**2 * k**2 * R**2 / 4)
         assert abs(t2 - t1) <= 0.01 * T1
+
+
+def test_an_axisymmetric_mesh_reaching_a_negative_radius_is_refused(tmp_path):
+    """A meridian mesh must lie at radius >= 0: a rectangle from x = -0.1 about the y axis is bad input
+    that names the key, before any run."""
+    import gmsh
+
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("off_axis")
+        surface = gmsh.model.occ.addRectangle(-0.1, 0.0, 0.0, 1.0, 0.2)
+        gmsh.model.occ.synchronize()
+        gmsh.model.setPhysicalName(2, gmsh.model.addPhysicalGroup(2, [surface]), "body")
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.1)
+        gmsh.model.mesh.generate(2)
+        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
+        gmsh.write(str(tmp_path / "off_axis.msh"))
+    finally:
+        gmsh.finalize()
+    case = fi.Case.from_dict({"name": "off", "material": {"E": 1.0, "rho": 1.0}, "solver": {"dt": 0.01, "t_end": 0.02},
+                              "mesh": {"file": str(tmp_path / "off_axis.msh"), "hypothesis": "axisymmetric"},
+                              "output": {"vtk": False}})
+    with pytest.raises(CaseError, match=r"mesh.axis: an axisymmetric mesh lies in the half plane x >= 0 .* x = -0.1"):
+        fi.run(case)

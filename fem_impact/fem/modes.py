@@ -262,8 +262,9 @@ def at_point(modes: Modes, model, group: str, direction: int, key: tuple = ("--a
     nodes = model.node_set(group, key)
     owned = nodes.local_node[nodes.local_node >= 0]
     phi = modes.comm.allreduce(modes.Y_local[owned * model.bs + direction].sum(axis=0), op=MPI.SUM) / len(nodes)
-    with np.errstate(divide="ignore"):
-        mass = np.where(np.abs(phi) > 0.0, 1.0 / np.where(phi != 0.0, phi * phi, 1.0), np.inf)
+    mass = np.full_like(phi, np.inf)
+    moved = phi != 0.0
+    mass[moved] = 1.0 / phi[moved] ** 2
     r = np.zeros(modes.Y_local.shape[0])
     r.reshape(-1, model.bs)[:, direction] = 1.0
     r[model.fixed] = 0.0
@@ -284,8 +285,10 @@ def describe(modes: Modes, model) -> list[str]:
                                   for d in range(model.bs)]))
     per_direction = np.sum(shares_d, axis=0)   # (dim, n)
     total = per_direction.sum(axis=0)
-    long_axis = int(np.argmax(np.ptp(model.meshdata.mesh.geometry.x[:, :model.bs], axis=0))) if model.bs > 1 else 0
-    long_axis = modes.comm.allreduce(long_axis, op=MPI.MAX)   # (a rank's part: the same long axis, mostly)
+    x = model.meshdata.mesh.geometry.x[:, :model.bs]   # (this rank's part: the extents over all ranks)
+    extent = [modes.comm.allreduce(float(x[:, d].max(initial=-np.inf)), op=MPI.MAX)
+              - modes.comm.allreduce(float(x[:, d].min(initial=np.inf)), op=MPI.MIN) for d in range(model.bs)]
+    long_axis = int(np.argmax(extent))
     for i in range(modes.n):
         if total[i] <= 0.0:
             out.append("")
