@@ -54,11 +54,14 @@ class Expression:
         the expression from parsing on.
     """
 
-    def __init__(self, source, variables, function, constants=()):
+    def __init__(self, source, variables, function, constants=(), tree=None, values=None):
         self.source = source
         self.variables = frozenset(variables)
         self.constants = frozenset(constants)
         self._function = function
+        self._tree, self._values = tree, values   # for time_derivative (None: a number)
+        self._jets: dict = {}
+        self.what: str | None = None   # how an error names it (None: by its source)
 
     @property
     def is_constant(self) -> bool:
@@ -117,8 +120,33 @@ class Expression:
         with np.errstate(all="ignore"):
             return float(self._function({"t": np.float64(t)}))
 
+    def time_derivative(self, order: int) -> Expression:
+        """The expression's ``order``-th derivative in t (0, 1 or 2), exact: evaluated by Taylor
+        arithmetic (values and derivatives carried through each operation), never by differences.
+        It takes t alone; a function not differentiable at a point (abs, min, max) takes the
+        derivative of the branch it is on."""
+        if order not in (0, 1, 2):
+            raise ValueError(f"derivatives of order 0, 1 or 2, not {order}")
+        if order == 0:
+            return self
+        if self.variables - {"t"}:
+            raise ExpressionError(f"expression {self.source!r} may depend on t only")
+        if order not in self._jets:
+            if self._tree is None or "t" not in self.variables:
+                function = _ZERO
+            else:
+                jet = _jet(self._tree, self._values)
+                function = lambda env: jet(env)[order]  # noqa: E731
+            name = "d/dt" if order == 1 else "d2/dt2"
+            self._jets[order] = Expression(f"{name}({self.source})", self.variables & {"t"}, function)
+        return self._jets[order]
+
     def __repr__(self):
         return f"Expression({self.source!r})"
+
+
+def _ZERO(env):
+    return 0.0 * env["t"] if "t" in env else 0.0
 
 
 def parse_expression(source, allowed=("x", "y", "z", "t"), constants=None) -> Expression:
@@ -161,7 +189,8 @@ def parse_expression(source, allowed=("x", "y", "z", "t"), constants=None) -> Ex
         function = _build(tree.body, text, scope)
     except RecursionError:
         raise ExpressionError(f"expression {_short(text)} is too deeply nested") from None
-    return Expression(source, scope.names, function, scope.used)
+    values = {name: _float(value) for name, value in (constants or {}).items() if name in scope.used}
+    return Expression(source, scope.names, function, scope.used, tree.body, values)
 
 
 class _Scope(NamedTuple):
@@ -237,3 +266,98 @@ def _build_call(node, text, scope):
         return lambda env: functools.reduce(function, [arg(env) for arg in args])
     (arg,) = args
     return lambda env: function(arg(env))
+
+
+# Taylor arithmetic to second order: a value is a jet (f, f', f'') in t. For f(a):
+# (f(a0), f'(a0) a1, f''(a0) a1^2 + f'(a0) a2).
+def _chain(a, f0, f1, f2):
+    return (f0, f1 * a[1], f2 * a[1] * a[1] + f1 * a[2])
+
+
+def _jet_function(name, a):
+    x = a[0]
+    if name == "sin":
+        return _chain(a, np.sin(x), np.cos(x), -np.sin(x))
+    if name == "cos":
+        return _chain(a, np.cos(x), -np.sin(x), -np.cos(x))
+    if name == "tan":
+        t = np.tan(x)
+        return _chain(a, t, 1 + t * t, 2 * t * (1 + t * t))
+    if name == "exp":
+        e = np.exp(x)
+        return _chain(a, e, e, e)
+    if name == "log":
+        return _chain(a, np.log(x), 1 / x, -1 / (x * x))
+    if name == "sqrt":
+        r = np.sqrt(x)
+        return _chain(a, r, 0.5 / r, -0.25 / (r * x))
+    if name == "abs":
+        return _chain(a, np.abs(x), np.sign(x), 0.0 * x)
+    if name == "sinh":
+        return _chain(a, np.sinh(x), np.cosh(x), np.sinh(x))
+    if name == "cosh":
+        return _chain(a, np.cosh(x), np.sinh(x), np.cosh(x))
+    if name == "tanh":
+        t = np.tanh(x)
+        return _chain(a, t, 1 - t * t, -2 * t * (1 - t * t))
+    if name in ("asin", "acos"):
+        d = 1 / np.sqrt(1 - x * x)
+        sign = 1.0 if name == "asin" else -1.0
+        return _chain(a, FUNCTIONS[name](x), sign * d, sign * x * d ** 3)
+    if name == "atan":
+        d = 1 / (1 + x * x)
+        return _chain(a, np.arctan(x), d, -2 * x * d * d)
+    raise ExpressionError(f"no derivative of {name}()")   # (every whitelisted function is above)
+
+
+def _jet_binary(op, a, b):
+    if op is ast.Add:
+        return tuple(u + v for u, v in zip(a, b))
+    if op is ast.Sub:
+        return tuple(u - v for u, v in zip(a, b))
+    if op is ast.Mult:
+        return (a[0] * b[0], a[1] * b[0] + a[0] * b[1], a[2] * b[0] + 2 * a[1] * b[1] + a[0] * b[2])
+    if op is ast.Div:
+        c0 = a[0] / b[0]
+        c1 = (a[1] - c0 * b[1]) / b[0]
+        return (c0, c1, (a[2] - 2 * c1 * b[1] - c0 * b[2]) / b[0])
+    # a ** b: the power rule for a constant exponent (negative bases allowed), else exp(b log a)
+    if np.all(np.asarray(b[1]) == 0) and np.all(np.asarray(b[2]) == 0):
+        n = b[0]
+        return _chain(a, np.power(a[0], n), n * np.power(a[0], n - 1), n * (n - 1) * np.power(a[0], n - 2))
+    return _jet_function("exp", _jet_binary(ast.Mult, b, _jet_function("log", a)))
+
+
+def _jet(node, values):
+    """A closure ``env -> (f, df/dt, d2f/dt2)`` for an expression tree that parse_expression accepted."""
+    if isinstance(node, ast.Constant):
+        value = _float(node.value)
+        return lambda env: (value, 0.0, 0.0)
+    if isinstance(node, ast.Name):
+        if node.id == "t":
+            return lambda env: (env["t"], 1.0, 0.0)
+        value = CONSTANTS[node.id] if node.id in CONSTANTS else values[node.id]
+        return lambda env: (value, 0.0, 0.0)
+    if isinstance(node, ast.BinOp):
+        op, left, right = type(node.op), _jet(node.left, values), _jet(node.right, values)
+        return lambda env: _jet_binary(op, left(env), right(env))
+    if isinstance(node, ast.UnaryOp):
+        operand = _jet(node.operand, values)
+        if isinstance(node.op, ast.USub):
+            return lambda env: tuple(-u for u in operand(env))
+        return operand
+    name = node.func.id
+    args = [_jet(arg, values) for arg in node.args]
+    if name in VARIADIC:
+        pick = np.less if name == "min" else np.greater
+
+        def extreme(env):
+            best = args[0](env)
+            for arg in args[1:]:
+                other = arg(env)
+                take = pick(other[0], best[0])
+                best = tuple(np.where(take, o, b) for o, b in zip(other, best))
+            return best
+        return extreme
+    (arg,) = args
+    return lambda env: _jet_function(name, arg(env))

@@ -138,3 +138,26 @@ def test_named_constants_are_numbers_from_parsing_on():
     assert constant.is_constant and constant() == 10.0
     with pytest.raises(ExpressionError, match=r"'g' is not an allowed name \(allowed: t, pi, F0\)"):
         parse_expression("g*t", allowed=("t",), constants={"F0": 5.0})
+
+
+@pytest.mark.parametrize("source, first, second", [
+    ("A*sin(2*pi*f*t)", lambda t: 0.5 * np.pi * np.cos(np.pi * t), lambda t: -np.pi**2 * 0.5 * np.sin(np.pi * t)),
+    ("v*t", lambda t: 0.25 + 0 * t, lambda t: 0 * t),
+    ("t**3/(1 + t)", lambda t: (3 * t**2 * (1 + t) - t**3) / (1 + t) ** 2,
+     lambda t: (6 * t + 6 * t**2 + 2 * t**3) / (1 + t) ** 3 - 0 * t),
+    ("exp(-t)*cos(3*t)", lambda t: -np.exp(-t) * (np.cos(3 * t) + 3 * np.sin(3 * t)),
+     lambda t: np.exp(-t) * (-8 * np.cos(3 * t) + 6 * np.sin(3 * t))),
+    ("sqrt(1 + t*t) + 2**t", lambda t: t / np.sqrt(1 + t * t) + np.log(2) * 2**t,
+     lambda t: (1 + t * t) ** -1.5 + np.log(2) ** 2 * 2**t),
+    ("min(t, 0.3)**2", lambda t: np.where(t < 0.3, 2 * t, 0.0), lambda t: np.where(t < 0.3, 2.0, 0.0)),
+])
+def test_time_derivatives_are_exact(source, first, second):
+    """A support's motion enters as loads with its first and second derivatives in t
+    (fem/prescribed.py): carried exactly through every operation, not by differences."""
+    e = parse_expression(source, allowed=("t",), constants={"A": 0.5, "f": 0.5, "v": 0.25})
+    t = np.array([0.05, 0.2, 0.45, 0.8, 1.7])
+    assert np.allclose(e.time_derivative(1)(t=t), first(t), rtol=1e-13, atol=1e-14)
+    assert np.allclose(e.time_derivative(2)(t=t), second(t), rtol=1e-13, atol=1e-14)
+    assert e.time_derivative(2).at_time(0.45) == pytest.approx(second(np.array(0.45)), rel=1e-13, abs=1e-14)
+    assert e.time_derivative(0) is e
+    assert parse_expression("3.5").time_derivative(2).at_time(1.0) == 0.0

@@ -88,3 +88,29 @@ def test_axisymmetric_binary_fields_and_impacts_agree_on_two_ranks(tmp_path):
     assert np.array_equal(fa.points[ia], fb.points[ib]) and np.array_equal(fa.t, fb.t)
     for name in ("u", "v", "contact_force"):
         assert np.abs(fa.values[name][:, ia] - fb.values[name][:, ib]).max() <= 1e-10 * np.abs(fa.values[name]).max()
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
+@pytest.mark.parametrize("method", ["moreau_jean", "modal"])
+def test_a_moving_support_agrees_on_two_ranks(tmp_path, method):
+    """The base-excited cantilever (cases/base_excited_beam.yaml, 2 periods: its first impacts), the
+    clamp on one rank only: the same history, the clamp's reactions and the fields (u includes the
+    clamp's motion) on 2 ranks."""
+    import fem_impact as fi
+
+    overrides = ["--set", "solver.t_end=0.74", "--set", f"solver.method={method}", "--set", "output.format=xdmf",
+                 "--set", "output.every=500", *(["--set", "solver.modes=10"] if method == "modal" else [])]
+    run_serial_and_two_ranks(str(CASES / "base_excited_beam.yaml"), tmp_path, overrides)
+    a, b = fi.Result.load(tmp_path / "serial"), fi.Result.load(tmp_path / "mpi")
+    assert a.history["stop.impulse"].sum() > 10.0            # N s: the tip hit the stop
+    energy = (a.history["kinetic"] + a.history["strain"]).max()
+    for name, column in a.history.items():
+        scale = energy if name in ("energy_error", "contact_loss", "external_work") else max(np.abs(column).max(), 1e-300)
+        assert np.abs(column - b.history[name]).max() <= 1e-8 * scale, name
+    fa, fb = a.fields(), b.fields()
+    ia, ib = np.lexsort(fa.points.T[::-1]), np.lexsort(fb.points.T[::-1])
+    clamp = np.isclose(fa.points[ia, 0], 0.0)
+    expected = 2e-5 * np.sin(2 * np.pi * 2.7 * fa.t)
+    assert np.allclose(fa.values["u"][:, ia][:, clamp, 1], expected[:, None], rtol=0, atol=1e-12 * 2e-5)
+    for name in ("u", "v"):
+        assert np.abs(fa.values[name][:, ia] - fb.values[name][:, ib]).max() <= 1e-10 * np.abs(fa.values[name]).max()

@@ -39,6 +39,10 @@ class NodalFields:
         """Displacement and velocity at a few owned dofs."""
         return state.U[dofs], state.V[dofs]
 
+    def inertial_at(self, state: StepState, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Velocity and acceleration at a few owned dofs (of the dofs' mass: all of it here)."""
+        return state.V[dofs], state.A[dofs]
+
     def frame(self, state: StepState) -> dict[str, np.ndarray]:
         """Owned values of u, v, a and the contact force on the structure (-P^T F_N, and -P_T^T F_T
         with friction: normal and tangential parts in one vector, as ParaView's arrows show it)."""
@@ -185,7 +189,7 @@ class HistoryWriter:
 
     def __init__(self, path: Path | None, cons: Constraints, probes: Probes, comm: MPI.Comm, fields,
                  flush_every: int = 2000, momenta: BodyMomenta | None = None, scheme_energy: bool = False,
-                 name: str = "run"):
+                 name: str = "run", reactions: list[str] = ()):
         self.cons, self.probes, self.comm, self.fields = cons, probes, comm, fields
         self.name = name
         # FEM_IMPACT_RECORD=DIR: every run also keeps its rows unrounded in DIR (tools/same_histories.py).
@@ -205,6 +209,8 @@ class HistoryWriter:
         self.friction = FrictionColumns(cons) if cons.pt else None
         if self.friction is not None:
             self.columns += self.friction.columns()
+        self.reactions = list(reactions)   # moving supports (fem/prescribed.py): N, the support's force on the body
+        self.columns += self.reactions
         self._keep = comm.rank == 0
         self.path = path
         self._file = open(path, "w", newline="") if comm.rank == 0 and path is not None else None
@@ -227,6 +233,8 @@ class HistoryWriter:
             row.append(e.scheme)
         if self.friction is not None:
             row += self.friction.values(state)
+        if self.reactions:
+            row += state.reaction.tolist()
         if self._keep:
             self.rows.append(row)
             if self._file and len(self.rows) >= self.flush_every:

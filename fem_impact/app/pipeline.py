@@ -259,15 +259,18 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     probes = find_probes(case, model)
     system = model_of(case)(case, model, cons)
     integrator = make_integrator(case, system.operators)
+    fields = system.fields
+    if model.motion is not None:   # moving supports: the run seen as the whole structure's
+        integrator, fields = model.motion.view(integrator, fields, comm)
     n_steps = steps_for(solver.t_end, solver.dt)
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
 
     with out.staged() if out is not None else contextlib.nullcontext(None) as stage:
-        fields = system.fields
         momenta = BodyMomenta(model, fields)
         history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
-                                scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name)
+                                scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name,
+                                reactions=model.motion.names if model.motion else ())
         stats = RunStatistics(cons)
         impacts = ImpactLog(cons)
         observers = [history, stats, impacts]

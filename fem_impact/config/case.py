@@ -191,7 +191,8 @@ class Case:
         data["damping"] = dataclasses.asdict(self.damping)
         data["initial"] = {"displacement": _body_values_data(self.initial.displacement),
                            "velocity": _body_values_data(self.initial.velocity)}
-        data["supports"] = [{"nodes": s.nodes, "fix": "all" if s.all_components else [COMPONENTS[i] for i in s.fix]}
+        data["supports"] = [{"nodes": s.nodes, "fix": "all" if s.all_components else [COMPONENTS[i] for i in s.fix],
+                             **({} if s.displacement is None else {"displacement": _sources(s.displacement)})}
                             for s in self.supports]
         data["loads"] = [{key: _sources(value) if key in ("force", "acceleration") else value
                           for key, value in vars(load).items() if value is not None}
@@ -775,9 +776,20 @@ def _fix(value, path):
     return sorted({COMPONENTS.index(n) for n in names})
 
 
-def _support(value, path):
-    f = _fields(value, path, {"nodes": (_string, _REQUIRED), "fix": (_fix, "all")})
+def _support(value, path, parameters):
+    f = _fields(value, path, {"nodes": (_string, _REQUIRED), "fix": (_fix, "all"),
+                              "displacement": (_vector(_expression(TIME, parameters)), None)})
     fixed = value.get("fix", "all") if isinstance(value, dict) else "all"
+    motion = f["displacement"]
+    if motion is not None and fixed not in ("all", None):
+        names = [fixed] if isinstance(fixed, str) else fixed
+        if len(motion) != len(names):
+            raise _Invalid(path + ("displacement",), f"gives {len(motion)} expressions for the {len(names)} fixed "
+                                                     f"component(s) {', '.join(names)}: give one per component, "
+                                                     "in the order of 'fix'")
+        # (fix is stored sorted: x, y, z) the expressions follow it
+        order = {COMPONENTS.index(n): expr for n, expr in zip(names, motion)}
+        f["displacement"] = [order[c] for c in sorted(order)]
     return Support(**f, all_components=fixed in ("all", None))
 
 
@@ -1053,7 +1065,7 @@ def _case(data, folder: Path, default_name: str):
         "material": (_material, None), "materials": (_mapping_of(_material), None),
         "damping": (_damping, Damping()),
         "initial": (lambda value, path: _initial(value, path, parameters), Initial()),
-        "supports": (_list(_support), []),
+        "supports": (_list(lambda value, path: _support(value, path, parameters)), []),
         "loads": (_list(lambda value, path: _load(value, path, parameters)), []),
         "contacts": (_contacts, []), "solver": (_solver, _REQUIRED), "output": (_output, Output()),
         "parameters": (lambda value, path: parameters, {}), "reference": (_reference, None)})

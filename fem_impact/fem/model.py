@@ -16,6 +16,7 @@ from .specs import BodyValue, Material, ModelSpec
 from ..errors import ModelInputError, SimulationError
 from ..expressions import Expression, parse_expression
 from .mesh import MeshData
+from .prescribed import PrescribedMotion, build_motion, effective_loads
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +67,8 @@ def load_factor(f: Expression, t: float) -> float:
     """The value of a load's time function at t; a run whose load overflows stops with its name."""
     value = f.at_time(t)
     if not math.isfinite(value):
-        raise SimulationError(f"the load '{f.source}' is no longer finite at t = {t:.6g} ({value})")
+        what = getattr(f, "what", None) or f"the load '{f.source}'"   # (a support's motion names itself)
+        raise SimulationError(f"{what} is no longer finite at t = {t:.6g} ({value})")
     return value
 
 
@@ -91,6 +93,7 @@ class Model:
     # m_b[:, c] . V is the body's momentum along c and its column sum the body's mass.
     momentum_rows: dict[str, np.ndarray] = field(default_factory=dict)
     massless: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # owned dofs without mass
+    motion: PrescribedMotion | None = None   # supports that move (fem/prescribed.py)
 
     @property
     def comm(self) -> MPI.Comm:
@@ -178,6 +181,8 @@ def build_model(spec: ModelSpec, meshdata: MeshData) -> Model:
     if spec.mass == "redistributed":
         massless = np.setdiff1d(_contact_dofs(spec, meshdata, V, bs), fixed)
         M = _redistributed(M, massless, first * bs, spec)
+    motion = build_motion(spec, meshdata, lambda name, key: node_set(meshdata, V, name, key), bs, M, K,
+                          spec.damping, first * bs, ("supports",))
     rows = (fixed + first * bs).astype(np.int32)
     # Supports: zero rows and columns; unit mass and zero stiffness on the diagonal keep S
     # regular for any Newmark parameters while the held dofs see a zero right-hand side.
@@ -189,7 +194,7 @@ def build_model(spec: ModelSpec, meshdata: MeshData) -> Model:
         C.scale(spec.damping.beta)
         C.axpy(spec.damping.alpha, M, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
 
-    load = _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed, hypothesis)
+    load = _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed, hypothesis, motion)
     U0, V0 = M.createVecs()
     _initial_field(spec, "displacement", meshdata, V, bs, coords[:n_owned], U0)
     _initial_field(spec, "velocity", meshdata, V, bs, coords[:n_owned], V0)
@@ -199,7 +204,7 @@ def build_model(spec: ModelSpec, meshdata: MeshData) -> Model:
     log.info("model: %d dofs, %s mass", K.getSize()[0], spec.mass)
     if spec.mass == "redistributed":
         momentum = _redistributed_momentum_rows(momentum, M, fixed)
-    return Model(meshdata, V, bs, M, K, C, fixed, load, U0, V0, coords, n_owned, first, momentum, massless)
+    return Model(meshdata, V, bs, M, K, C, fixed, load, U0, V0, coords, n_owned, first, momentum, massless, motion)
 
 
 def _momentum_rows(meshdata: MeshData, V, materials, dim: int, dxm, hypothesis) -> dict[str, np.ndarray]:
@@ -390,12 +395,19 @@ def _fixed_dofs(spec: ModelSpec, meshdata: MeshData, V, bs: int) -> np.ndarray:
     return np.unique(np.concatenate(fixed)).astype(np.int64) if fixed else np.zeros(0, dtype=np.int64)
 
 
-def _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed, hypothesis) -> LoadVector:
+def _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed, hypothesis, motion=None) -> LoadVector:
     constant = dx.function(V, "R").vector.copy()
     constant.set(0.0)
     varying = []
+    held = [np.zeros(motion.count)] if motion else None   # the loads the moving supports take
 
     def add(expr: Expression, vec: PETSc.Vec, key: tuple) -> None:
+        if motion:
+            on_held = motion.patterns.T @ vec.array_r
+            if expr.is_constant:
+                held[0] += float(expr.evaluate()) * on_held
+            else:
+                held.append(on_held)
         vec.array[fixed] = 0.0
         if expr.is_constant:
             value = float(expr.evaluate())
@@ -439,6 +451,10 @@ def _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed, hypothesis) -> Loa
                     term = mat.rho * section * ufl.inner(unit, w) * measure
                     form = term if form is None else form + term
                 add(expr, dx.assemble_vector(form), key)
+    if motion:
+        motion.held_load = meshdata.comm.allreduce(np.array(held), op=MPI.SUM)
+        motion.load_functions = [f for f, _ in varying]
+        varying = varying + effective_loads(motion, constant, fixed)
     return LoadVector(constant, varying)
 
 

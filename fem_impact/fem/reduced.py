@@ -193,6 +193,12 @@ class ReducedFields:
     def at(self, state: StepState, dofs: np.ndarray):
         return self._parts(state, dofs)
 
+    def inertial_at(self, state: StepState, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The kept modes' velocity and acceleration: what carries mass and damping (the static
+        part has neither)."""
+        Y = self._block(dofs)[0]
+        return Y @ state.V, Y @ state.A
+
     def frame(self, state: StepState) -> dict[str, np.ndarray]:
         u, v = self._parts(state, slice(None))
         force = -(self.cons.P_local @ state.force)
@@ -306,6 +312,12 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
 def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tuple[ReducedModel, dict]:
     """Modes (given or chosen), static solves (both cached) and the reduced model."""
     comm = model.comm
+    if model.motion is not None and spec.beta:
+        # Its kept modes carry their share of the support's quasi-static motion, which a stiffness-
+        # proportional damping would book as dissipated although the whole structure's K-damping of
+        # that motion cancels (fem/prescribed.py, docs/theory.md s. 2.4).
+        raise ModelInputError(("damping", "beta"), "the reduced model with a moving support takes mass-proportional "
+                                                   "damping only (alpha): set beta to 0, or use the full model")
     scene = cache.key(comm, model.K, model.M, model.fixed)
     reused = set()
     if spec.modes == "auto":

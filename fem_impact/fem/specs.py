@@ -67,6 +67,9 @@ class Support:
     nodes: str
     fix: list[int]
     all_components: bool = False   # fix: all (every component the mesh's dimension has)
+    # Prescribed motion: one expression in t per component of ``fix`` (in its order: x, y, z);
+    # None: held at zero (and no reaction column).
+    displacement: list[Expression] | None = None
 
 
 @dataclass

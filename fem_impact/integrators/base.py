@@ -615,6 +615,7 @@ class StepState:
     normal_velocity: np.ndarray      # P V (after the impact correction)
     tangential: np.ndarray | None = None            # friction forces r_T / dt per tangent row (with friction)
     tangential_velocity: np.ndarray | None = None   # P_T V per tangent row: the sliding velocity
+    reaction: np.ndarray | None = None              # per moving support pattern (fem/prescribed.py)
 
 
 class Observer(Protocol):

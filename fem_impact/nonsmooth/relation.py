@@ -125,6 +125,15 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
         compliance.append(c)
     if not columns:
         return Constraints(sparse.csr_matrix((n_local, 0)), np.zeros(0), np.zeros(0), [], np.zeros(0))
+    if model.motion is not None:   # a gap that a support's motion changes: not in the relation (refused)
+        moving = np.zeros(n_local)
+        moving[model.motion.moving_dofs()] = 1.0
+        touched = model.comm.allreduce(np.asarray(abs(sparse.hstack(columns)).T @ moving).ravel(), op=MPI.SUM)
+        for c in contacts:
+            if np.any(touched[c.rows] > 0.0):
+                raise ModelInputError(("contacts", c.index, "nodes"),
+                                      "acts on nodes whose motion a support prescribes (supports: displacement); "
+                                      "put the contact on nodes the support does not hold")
     # Supports act first: a held dof cannot move, so it does not enter a constraint.
     free = np.ones(n_local)
     free[model.fixed] = 0.0
