@@ -23,7 +23,7 @@ import numpy as np
 from petsc4py import PETSc
 from scipy import sparse
 
-from ..errors import ModelInputError
+from ..errors import ModelInputError, SimulationError
 from ..parallel import allsum
 
 AXES = "xyz"
@@ -44,12 +44,10 @@ class PrescribedMotion:
     load_functions: list = None      # the time functions of b_1, ...
 
     def held_load_at(self, t: float) -> np.ndarray:
-        from .model import load_factor
-
         if self.load_functions is None:
             return 0.0
-        return self.held_load[0] + sum(load_factor(f, t) * row for f, row in zip(self.load_functions,
-                                                                                   self.held_load[1:]))
+        # (the model's LoadVector has checked these functions at t already)
+        return self.held_load[0] + sum(f.at_time(t) * row for f, row in zip(self.load_functions, self.held_load[1:]))
 
     @property
     def count(self) -> int:
@@ -75,8 +73,6 @@ class PrescribedMotion:
 
 
 def raise_not_finite(function, t):
-    from ..errors import SimulationError
-
     raise SimulationError(f"the support's motion '{function.source}' (or its derivatives) is no longer finite at "
                           f"t = {t:.6g}")
 
