@@ -7,7 +7,7 @@ PY          := $(VENV)/bin/python
 CASE        ?= cases/impacting_bar.yaml
 PYTEST_ARGS ?=
 APT_PACKAGES := python3-dolfinx-real python3-petsc4py-real python3-slepc4py-real python3-gmsh \
-                python3-meshio python3-scipy python3-matplotlib python3-yaml python3-tqdm python3-numba \
+                python3-meshio python3-h5py python3-scipy python3-matplotlib python3-yaml python3-tqdm python3-numba \
                 python3-pytest python3-hypothesis python3-venv python3-pip python3-setuptools python3-wheel \
                 openmpi-bin make libopenblas0-pthread \
                 paraview xvfb xauth libegl1 libgl1-mesa-dri

@@ -114,3 +114,35 @@ def test_a_moving_support_agrees_on_two_ranks(tmp_path, method):
     assert np.allclose(fa.values["u"][:, ia][:, clamp, 1], expected[:, None], rtol=0, atol=1e-12 * 2e-5)
     for name in ("u", "v"):
         assert np.abs(fa.values[name][:, ia] - fb.values[name][:, ib]).max() <= 1e-10 * np.abs(fa.values[name]).max()
+
+
+def mpirun(*args) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}
+    return subprocess.run(["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-m",
+                           "fem_impact", *args], capture_output=True, text=True, env=env)
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
+@pytest.mark.parametrize("method", ["moreau_jean", "modal"])
+def test_a_run_restarted_on_two_ranks_is_the_uninterrupted_run(tmp_path, method):
+    """The 2D bar on 2 ranks: run to 1.25, continue from its checkpoint (one file per rank) to 2.5, and
+    compare with the run to 2.5 at once; a checkpoint of 2 ranks is refused by a serial run."""
+    from test_restart import assert_same_from
+
+    import fem_impact as fi
+
+    case = str(CASES / "impacting_bar.yaml")
+    common = ["--set", "mesh.dim=2", "--set", "mesh.cells=60", "--set", "solver.dt=0.008333333333333333",
+              "--set", "output.vtk=false", "--set", f"solver.method={method}",
+              *(["--set", "solver.modes=10"] if method == "modal" else []), "-q"]
+    for name, t_end, extra in (("whole", 2.5, []), ("half", 1.25, []), ("continued", 2.5, ["--restart", "half"])):
+        extra = [str(tmp_path / e) if e == "half" else e for e in extra]
+        done = mpirun("run", case, "-o", str(tmp_path / name), *common, "--set", f"solver.t_end={t_end}", *extra)
+        assert done.returncode == 0, done.stderr
+    assert sorted(p.name for p in (tmp_path / "half" / "checkpoint").iterdir()) == ["rank-0.h5", "rank-1.h5",
+                                                                                     "state.json"]
+    whole, continued = fi.Result.load(tmp_path / "whole"), fi.Result.load(tmp_path / "continued")
+    assert continued.summary["restarted_from"]["t"] == pytest.approx(1.25)
+    assert_same_from(whole.history, continued.history, tol=1e-10)   # (history.csv: 12 digits)
+    serial = run_cli("run", case, "-o", str(tmp_path / "serial"), *common, "--restart", str(tmp_path / "half"))
+    assert serial.returncode == 2 and "written on 2 MPI rank(s), this run has 1" in serial.stderr

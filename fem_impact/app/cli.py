@@ -65,6 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="stop with status 3 as soon as the contacts create energy (E above E0 + W_ext by more "
                           "than 1e-6 of the energy scale); without it the run goes on, warns at the end and "
                           "records energy_created in summary.json")
+    run.add_argument("--restart", metavar="DIR", default=None,
+                     help="continue the run saved in DIR (an output folder, or the checkpoint folder an interrupted "
+                          "run kept) from its last checkpoint to the case's t_end")
     run.add_argument("--force", action="store_true",
                      help="run even when the estimated steps, memory or output size are beyond the limits")
 
@@ -269,7 +272,7 @@ def main(argv=None) -> int:
 
     def run():
         summary = run_case(args.case, args.output, args.overrides, comm=_comm(), progress=not args.quiet,
-                           stop_on_energy_gain=args.stop_on_energy_gain, force=args.force)
+                           stop_on_energy_gain=args.stop_on_energy_gain, force=args.force, restart=args.restart)
         if _comm().rank == 0 and not args.quiet:
             print(describe(summary))
         warning = energy_warning(summary)

@@ -252,9 +252,40 @@ def _remove_while_written(stage: Path, linger: float) -> None:
         time.sleep(0.05)
 
 
+CHECKPOINT = "checkpoint"   # (fem_impact/app/checkpoint.py writes it)
+
+
+def _keep_checkpoint(folder: Path, path: Path) -> tuple[Path, str] | None:
+    """Move the last complete checkpoint written in ``folder`` to ``NAME.checkpoint`` beside the output
+    folder ``path`` (an earlier checkpoint of that name is replaced, anything else is kept: the
+    checkpoint then goes to ``NAME.checkpoint-TIMESTAMP``); returns (where, its time) or None."""
+    try:
+        for source in (folder / CHECKPOINT, folder / f"{CHECKPOINT}.old"):   # (.old: interrupted mid-rename)
+            if (source / "state.json").is_file():
+                break
+        else:
+            return None
+        when = json.loads((source / "state.json").read_text()).get("t")
+        target = path.parent / f"{path.name}.checkpoint"
+        if target.exists() and (target / "state.json").is_file() and not (target / MARKER).exists():
+            shutil.rmtree(target)
+        if target.exists():
+            target = path.parent / f"{path.name}.checkpoint-{time.strftime('%Y%m%d-%H%M%S')}"
+        os.rename(source, target)
+        return target, f"t = {when:.6g}"
+    except (OSError, ValueError):
+        return None
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def _remove_stale(parent: Path, name: str) -> list[Path]:
     """Staging and replaced folders of ``name`` left by processes that no longer exist."""
     removed = []
+    for p in parent.glob(f".{_glob_escape(name)}.checkpoint-*"):   # a killed run's checkpoints: kept
+        pid = p.name.rsplit("-", 1)[1]
+        if pid.isdigit() and not _alive(int(pid)):
+            _keep_checkpoint(p, parent / name)
     for kind in ("partial", "old"):
         for p in parent.glob(f".{_glob_escape(name)}.{kind}-*"):
             pid = p.name.rsplit("-", 1)[1]
@@ -361,12 +392,19 @@ class OutputFolder:
         if error:
             raise OutputFolderError(str(self.path), error)
         stage = Path(comm.bcast(str(stage), root=0))
+        # Checkpoints are written beside the staging folder, not in it: an interrupted run keeps the last
+        # one (:func:`_keep_checkpoint`) while every rank removes the staging folder.
+        self.checkpoints = stage.parent / stage.name.replace(".partial-", ".checkpoint-", 1)
         try:
             yield stage
             comm.barrier()
             failure = None
             if comm.rank == 0:
                 try:
+                    saved = self.checkpoints / CHECKPOINT
+                    if saved.is_dir():
+                        os.rename(saved, stage / CHECKPOINT)
+                    shutil.rmtree(self.checkpoints, ignore_errors=True)
                     with writing(stage / MARKER):
                         self.write_marker(stage)
                     self.install(stage)
@@ -382,6 +420,11 @@ class OutputFolder:
             interrupted = isinstance(err, KeyboardInterrupt)
             if interrupted:
                 ignore_signals()   # a second signal (mpirun sends one) must not cut the cleanup short
+            if comm.rank == 0:
+                kept = _keep_checkpoint(self.checkpoints, self.path)
+                if kept is not None:
+                    err.left = (f"the output folder was left as it was; the run's last checkpoint ({kept[1]}) is "
+                                f"kept in {kept[0]}: continue it with --restart {kept[0]}")
             # Interrupted, every rank removes it: the signal may have reached one rank only, and mpirun
             # then kills the others.
             if comm.rank == 0 or interrupted:

@@ -15,7 +15,7 @@ from mpi4py import MPI
 
 from .._version import __version__
 from ..config.case import Case, load_case
-from ..errors import SimulationError, wrong_type
+from ..errors import CaseError, SimulationError, wrong_type
 from .limits import check_limits
 from .outdir import case_inputs, claim, writing
 
@@ -163,7 +163,7 @@ def read_fields(outdir) -> Fields:
 
 
 def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
-        stop_on_energy_gain: bool = False, force: bool = False) -> Result:
+        stop_on_energy_gain: bool = False, force: bool = False, restart=None) -> Result:
     """Run a case: the public entry point (``fem-impact run`` is a thin layer over it).
 
     Parameters
@@ -185,6 +185,10 @@ def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
         scheme creates energy; by default the summary records it (``energy_created_at``).
     force : bool
         Run even when the size estimate is beyond the limits (:mod:`fem_impact.app.limits`).
+    restart : path-like, optional
+        Continue the run saved in this folder (a run's output folder, or a checkpoint folder) from
+        its last checkpoint to the case's ``t_end`` (:mod:`fem_impact.app.checkpoint`): the same
+        case (method, dt, mesh) on as many MPI ranks. The history then starts at the checkpoint's time.
 
     Raises
     ------
@@ -200,13 +204,16 @@ def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
     """
     t_start = time.perf_counter()
     _check_arguments(case, outdir, progress, comm, stop_on_energy_gain, force)
+    if restart is not None and not isinstance(restart, (str, os.PathLike)):
+        raise wrong_type("run()", "restart as a folder (str or os.PathLike) or None", restart)
     comm = MPI.COMM_WORLD if comm is None else comm
     if outdir is None:
         with case.errors_at_keys():
-            return _run(case, None, comm, progress, force, t_start, stop_on_energy_gain)
-    with claim(Path(outdir), comm, "run", protect=case_inputs(case), source=case.path) as out, \
+            return _run(case, None, comm, progress, force, t_start, stop_on_energy_gain, restart)
+    protect = case_inputs(case) + ((Path(restart),) if restart is not None else ())
+    with claim(Path(outdir), comm, "run", protect=protect, source=case.path) as out, \
             case.errors_at_keys():
-        return _run(case, out, comm, progress, force, t_start, stop_on_energy_gain)
+        return _run(case, out, comm, progress, force, t_start, stop_on_energy_gain, restart)
 
 
 def _check_arguments(case, outdir, progress, comm, stop_on_energy_gain, force) -> None:
@@ -225,18 +232,18 @@ def _check_arguments(case, outdir, progress, comm, stop_on_energy_gain, force) -
 
 
 def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, progress=True,
-             stop_on_energy_gain: bool = False, force: bool = False) -> dict:
+             stop_on_energy_gain: bool = False, force: bool = False, restart=None) -> dict:
     """Run a case file into ``outdir`` (default ``results/<name>``); returns the summary.
 
     The command's path: :func:`load_case` with the ``--set`` overrides, then :func:`run`.
     """
     case = load_case(path, overrides)
     return run(case, outdir if outdir is not None else default_outdir(case), progress, comm,
-               stop_on_energy_gain, force).summary
+               stop_on_energy_gain, force, restart).summary
 
 
 def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
-         stop_on_energy_gain: bool) -> Result:
+         stop_on_energy_gain: bool, restart=None) -> Result:
     """The pipeline; ``out`` is the claimed output folder, or None to write nothing."""
     outdir = out.path if out is not None else None
     check_limits(case, outdir, comm, force)
@@ -263,6 +270,28 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     if model.motion is not None:   # moving supports: the run seen as the whole structure's
         integrator, fields = model.motion.view(integrator, fields, comm)
     n_steps = steps_for(solver.t_end, solver.dt)
+    # What a checkpoint holds: the state of every part of the run that carries one from step to step.
+    raw = integrator.integrator if model.motion is not None else integrator
+    parts = {"integrator": raw, "fields": system.fields}
+    if model.motion is not None:
+        parts["motion"] = integrator
+    watch = EnergyWatch(stop_on_energy_gain)
+    parts["watch"] = watch
+    meta = {"case": case.name, "method": solver.method, "scheme": raw.name, "dt": solver.dt, "dofs": model.dofs}
+    t0, restarted = 0.0, None
+    if restart is not None:
+        from .checkpoint import load as load_checkpoint, restore
+
+        saved, state = load_checkpoint(restart, comm, meta)
+        if saved["t"] >= solver.t_end * (1 - 1e-12):
+            raise CaseError(f"--restart {restart}", "solver.t_end", None,
+                            f"the checkpoint is at t = {saved['t']:.6g}, not before the case's t_end = "
+                            f"{solver.t_end:.6g}: raise solver.t_end to continue")
+        integrator.start(system.U0, system.V0, 0.0)   # (allocates what the state then overwrites)
+        for name, part in parts.items():
+            restore(part, state[name])
+        restored_impacts = state.get("impacts")
+        t0, restarted = saved["t"], {"folder": str(Path(restart).resolve()), "t": saved["t"], "step": saved["step"]}
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
 
@@ -278,13 +307,21 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         if case.output.vtk and stage is not None:
             vtk = VTKWriter(stage, model, fields, case.output.every, n_steps, case.output.format)
             observers.append(vtk)
+        parts["impacts"] = impacts
+        if restarted is not None and restored_impacts is not None:   # (an impact under way goes on)
+            restore(impacts, restored_impacts)
+            impacts.events = []
+        if hasattr(fields, "write"):   # the reduced model's fields remember the previous step
+            observers.append(fields)
+        if stage is not None:   # last: it saves the state every other observer has updated
+            from .checkpoint import Checkpoints
+
+            observers.append(Checkpoints(out.checkpoints, comm, parts, meta, case.output.checkpoint_every, n_steps))
         t_loop = time.perf_counter()
         try:
-            if hasattr(fields, "write"):   # the reduced model's fields remember the previous step
-                observers.append(fields)
-            watch = EnergyWatch(stop_on_energy_gain)
-            final = integrate(integrator, system.U0, system.V0, solver.t_end, observers, watch=watch,
-                              progress=progress if callable(progress) else Progress(comm) if progress else None)
+            final = integrate(integrator, system.U0, system.V0, solver.t_end, observers, watch=watch, t0=t0,
+                              progress=progress if callable(progress) else Progress(comm) if progress else None,
+                              resume=restart is not None)
         except BaseException:
             # Both closed now (the VTK file writes again when destroyed, after the staging folder is gone),
             # without hiding the run's own error behind a write that fails too.
@@ -333,6 +370,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "body_mass": momenta.mass,
             "vtk_frames": vtk.frames if vtk else 0, "fields_file": VTKWriter.FILES[case.output.format] if vtk else None,
             "fem_impact_version": __version__,
+            "restarted_from": restarted,
         }
         if getattr(integrator, "friction", None) is not None:   # (keys added only where friction is)
             summary.update(friction_loss=final.energy.friction_loss,

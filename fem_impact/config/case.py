@@ -47,6 +47,7 @@ class Output:
     probes: dict[str, list[float]] = field(default_factory=dict)
     vtk: bool = True
     format: str = "vtu"   # the fields' files: vtu (results.pvd, ASCII) | xdmf (results.xdmf + .h5, binary)
+    checkpoint_every: int = 0   # steps between checkpoints (0: at the end only; app/checkpoint.py)
 
 
 @dataclass
@@ -1028,7 +1029,7 @@ def _follow_kind_changes(data, before: str | None, changed) -> None:
 def _output(value, path):
     return Output(**_fields(value, path, {
         "every": _integer(1), "probes": _mapping_of(_vector(_number), _csv_name), "vtk": _boolean,
-        "format": _choice("vtu", "xdmf")}, Output))
+        "format": _choice("vtu", "xdmf"), "checkpoint_every": _integer(0)}, Output))
 
 
 def _parameters(value, path):

@@ -255,3 +255,6 @@ class MotionView:
 
     def step(self):
         return self._state(self.integrator.step(), first=False)
+
+    def resume(self):
+        return self._state(self.integrator.resume(), first=False)   # (a step of length 0: nothing booked)

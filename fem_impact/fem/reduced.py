@@ -156,6 +156,7 @@ class ReducedFields:
     def __init__(self, Y1: np.ndarray, XR: np.ndarray | None, XP: np.ndarray | None, static, cons: Constraints, dt):
         self.Y1, self.XR, self.XP, self.static, self.cons, self.dt = Y1, XR, XP, static, cons, dt
         self._previous = None   # (t, force) of the previous step, for the static part's velocity
+        self._before = None     # ... and of the one before it (a step read again: a restarted run's first)
         self._blocks: dict[bytes, tuple] = {}     # rows -> (Y1, X_R, X_P rows, [t, static part])
 
     def _block(self, rows):
@@ -173,8 +174,11 @@ class ReducedFields:
         step divided by dt (0 on the first). ``last``: [t, value] of the previous call, reused."""
         now = XR @ self.static.coefficients(state.t) - XP @ state.force
         rate = 0.0
-        if self._previous is not None and self._previous[0] < state.t:
-            t0, f0 = self._previous
+        reference = self._previous
+        if reference is not None and reference[0] >= state.t:
+            reference = self._before
+        if reference is not None and reference[0] < state.t:
+            t0, f0 = reference
             before = last[1] if last is not None and last[0] == t0 else XR @ self.static.coefficients(t0) - XP @ f0
             rate = (now - before) / (state.t - t0)
         if last is not None:
@@ -224,6 +228,8 @@ class ReducedFields:
 
     def write(self, state: StepState) -> None:
         """Observer hook, registered last: remembers the step for the next velocity difference."""
+        if self._previous is None or self._previous[0] < state.t:
+            self._before = self._previous
         self._previous = (state.t, state.force.copy())
 
 

@@ -696,7 +696,7 @@ class EnergyWatch:
 
 
 def integrate(integrator, U0, V0, t_end: float, observers=(), t0: float = 0.0, progress=None,
-              watch: EnergyWatch | None = None) -> StepState:
+              watch: EnergyWatch | None = None, resume: bool = False) -> StepState:
     """Run ``integrator`` from (U0, V0) at ``t0`` to ``t_end``, calling each observer every step.
 
     ``watch`` (an EnergyWatch; a default one when None) checks every step before the observers see
@@ -705,7 +705,8 @@ def integrate(integrator, U0, V0, t_end: float, observers=(), t0: float = 0.0, p
     """
     n_steps = steps_for(t_end - t0, integrator.dt)
     watch = EnergyWatch() if watch is None else watch
-    state = integrator.start(U0, V0, t0)
+    # resume: the integrator's state was restored from a checkpoint at t0 (fem_impact/app/checkpoint.py)
+    state = integrator.resume() if resume else integrator.start(U0, V0, t0)
     watch.check(state)
     for obs in observers:
         obs.write(state)

@@ -274,6 +274,10 @@ class ContactScheme:
         pv, energy.impact_loss = self._apply_corrections(res, pv)
         return res.force, res.lam1.copy(), pu, pv
 
+    def resume(self) -> StepState:
+        """The state restored from a checkpoint, to go on from (fem_impact/app/checkpoint.py)."""
+        return self.state
+
     def start(self, U0, V0, t0: float = 0.0) -> StepState:
         """Initial acceleration from the equation of motion; closed contacts get their impulse and force."""
         ops = self.ops

@@ -1,0 +1,289 @@
+"""Checkpoints: a run's whole state on disk, to continue it later (``fem-impact run CASE --restart DIR``).
+
+A checkpoint is a folder ``checkpoint/`` in the run's output folder (README.md, "Checkpoint and
+restart"):
+
+- ``state.json``: what the state belongs to and where it stands: ``format``, ``t``, ``step``,
+  ``ranks``, ``case``, ``method``, ``scheme``, ``dt``, ``dofs``, ``fem_impact_version``;
+- ``rank-R.h5`` (HDF5, one per MPI rank: the distributed vectors are each rank's owned entries):
+  one group per stateful part of the run (``integrator``, ``motion``, ``fields``, ``watch``,
+  ``impacts``); in each, the part's state attributes: arrays as datasets, numbers and strings as
+  HDF5 attributes, nested values (the step's state, its energy budget, a pair) as subgroups.
+
+What a part's state is: its attributes that are numbers, strings, None, one-dimensional arrays,
+the step's StepState and EnergyBudget, and lists, tuples and string-keyed dicts of these; an
+object may name more with ``__checkpoint__`` (a tuple of attribute names: the friction solver's
+warm start). Matrices, factors and operators are left out: the restarted run builds them again
+from the case, and the checks of ``state.json`` make sure it is the same case. Two attributes
+holding one array (the integrator's state vectors and its StepState's) are stored once and
+linked again on restore.
+
+A checkpoint is written into ``checkpoint.new/`` and renamed over ``checkpoint/`` when every rank
+has written its file: an interruption mid-write leaves the previous one whole.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from .._version import __version__
+from ..errors import CaseError
+from ..integrators.base import EnergyBudget, StepState
+
+FORMAT = 1
+FOLDER = "checkpoint"
+_DATACLASSES = {"StepState": StepState, "EnergyBudget": EnergyBudget}
+_SCALARS = (bool, int, float, str, np.bool_, np.integer, np.floating)
+
+
+# -- capture and restore of an object's state -----------------------------------------------
+def capture(obj) -> dict:
+    """The state of ``obj`` as a tree of plain values (module docstring)."""
+    seen: dict[int, str] = {}
+    names = list(vars(obj)) + [n for n in getattr(obj, "__checkpoint__", ()) if n not in vars(obj)]
+    out = {}
+    for name in names:
+        value = _capture(getattr(obj, name), name, seen)
+        if value is not _SKIP:
+            out[name] = value
+    return out
+
+
+_SKIP = object()
+
+
+def _capture(value, path: str, seen: dict):
+    if value is None or isinstance(value, _SCALARS):
+        return value.item() if isinstance(value, np.generic) else value
+    if isinstance(value, np.ndarray):
+        if value.ndim > 1 or value.dtype.kind not in "biuf":
+            return _SKIP
+        if id(value) in seen:
+            return ("alias", seen[id(value)])
+        seen[id(value)] = path
+        return value.copy()
+    if type(value).__name__ in _DATACLASSES and dataclasses.is_dataclass(value):
+        fields = {}
+        for f in dataclasses.fields(value):
+            item = _capture(getattr(value, f.name), f"{path}.{f.name}", seen)
+            fields[f.name] = None if item is _SKIP else item
+        return ("dataclass", type(value).__name__, fields)
+    if isinstance(value, (list, tuple)):
+        items = [_capture(v, f"{path}.{i}", seen) for i, v in enumerate(value)]
+        return _SKIP if any(i is _SKIP for i in items) else ("list" if isinstance(value, list) else "tuple", items)
+    if isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            return _SKIP
+        items = {k: _capture(v, f"{path}.{k}", seen) for k, v in value.items()}
+        return _SKIP if any(i is _SKIP for i in items.values()) else ("dict", items)
+    if hasattr(value, "__checkpoint__"):
+        return ("object", {n: _capture(getattr(value, n), f"{path}.{n}", seen) for n in value.__checkpoint__})
+    return _SKIP
+
+
+def restore(obj, state: dict) -> None:
+    """Set the attributes of ``obj`` (built again from the same case) from ``capture``'s tree."""
+    arrays: dict[str, np.ndarray] = {}
+    pending: list = []
+    written: set[int] = set()
+
+    def build(value, path):
+        if isinstance(value, np.ndarray):
+            # Into the object's own array where it has one: an integrator's vectors are known to its
+            # algebra by identity (PETSc vectors over them), and swapped in pairs by reference.
+            existing = getattr(obj, path, None) if "." not in path else None
+            if isinstance(existing, np.ndarray) and existing.shape == value.shape and \
+                    existing.dtype == value.dtype and id(existing) not in written:
+                np.copyto(existing, value)
+                written.add(id(existing))
+                arrays[path] = existing
+            else:
+                arrays[path] = value.copy()
+            return arrays[path]
+        if not isinstance(value, tuple):
+            return value
+        kind = value[0]
+        if kind == "alias":
+            pending.append((path, value[1]))
+            return None
+        if kind == "dataclass":
+            _, cls, fields = value
+            return _DATACLASSES[cls](**{k: build(v, f"{path}.{k}") for k, v in fields.items()})
+        if kind in ("list", "tuple"):
+            items = [build(v, f"{path}.{i}") for i, v in enumerate(value[1])]
+            return items if kind == "list" else tuple(items)
+        if kind == "dict":
+            return {k: build(v, f"{path}.{k}") for k, v in value[1].items()}
+        if kind == "object":
+            return ("object", {k: build(v, f"{path}.{k}") for k, v in value[1].items()})
+        raise ValueError(f"unknown entry {kind!r}")
+
+    built = {name: build(value, name) for name, value in state.items()}
+    for name, value in built.items():
+        if isinstance(value, tuple) and value and value[0] == "object":
+            target = getattr(obj, name)
+            for k, v in value[1].items():
+                setattr(target, k, v)
+        else:
+            setattr(obj, name, value)
+    # Links: a path "a.b.c" names an attribute, a dataclass field or a sequence's item.
+    for path, source in pending:
+        _set_path(obj, path, arrays[source] if source in arrays else _get_path(obj, source))
+
+
+def _get_path(obj, path: str):
+    for part in path.split("."):
+        obj = obj[int(part)] if isinstance(obj, (list, tuple)) else obj[part] if isinstance(obj, dict) \
+            else getattr(obj, part)
+    return obj
+
+
+def _set_path(obj, path: str, value) -> None:
+    head, _, last = path.rpartition(".")
+    parent = _get_path(obj, head) if head else obj
+    if isinstance(parent, list):
+        parent[int(last)] = value
+    elif isinstance(parent, dict):
+        parent[last] = value
+    elif isinstance(parent, tuple):
+        raise ValueError(f"cannot link {path}: inside a tuple")
+    else:
+        setattr(parent, last, value)
+
+
+# -- HDF5 -----------------------------------------------------------------------------------
+def _write(group, tree: dict) -> None:
+    for name, value in tree.items():
+        _write_value(group, name, value)
+
+
+def _write_value(group, name: str, value) -> None:
+    if value is None:
+        group.attrs[name] = "__none__"
+    elif isinstance(value, np.ndarray):
+        group.create_dataset(name, data=value)
+    elif isinstance(value, tuple):
+        kind = value[0]
+        sub = group.create_group(name)
+        sub.attrs["__kind__"] = kind
+        if kind == "alias":
+            sub.attrs["source"] = value[1]
+        elif kind == "dataclass":
+            sub.attrs["__class__"] = value[1]
+            _write(sub, value[2])
+        elif kind in ("list", "tuple"):
+            sub.attrs["__length__"] = len(value[1])
+            _write(sub, {str(i): v for i, v in enumerate(value[1])})
+        else:   # dict, object
+            _write(sub, value[1])
+    else:
+        group.attrs[name] = value
+
+
+def _read(group) -> dict:
+    out = {}
+    for name, value in group.attrs.items():
+        if name.startswith("__") and name.endswith("__"):
+            continue
+        out[name] = None if isinstance(value, str) and value == "__none__" else _plain(value)
+    for name, item in group.items():
+        if not hasattr(item, "attrs") or "__kind__" not in item.attrs:
+            out[name] = np.asarray(item[()])
+            continue
+        kind = str(item.attrs["__kind__"])
+        if kind == "alias":
+            out[name] = ("alias", str(item.attrs["source"]))
+        elif kind == "dataclass":
+            out[name] = ("dataclass", str(item.attrs["__class__"]), _read(item))
+        elif kind in ("list", "tuple"):
+            items = _read(item)
+            out[name] = (kind, [items[str(i)] for i in range(int(item.attrs["__length__"]))])
+        else:
+            out[name] = (kind, _read(item))
+    return out
+
+
+def _plain(value):
+    if isinstance(value, bytes):
+        return value.decode()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+# -- the run's checkpoints ------------------------------------------------------------------
+class Checkpoints:
+    """An observer that saves the run's parts every ``every`` steps (0: at the end only) and at the end."""
+
+    def __init__(self, folder: Path, comm, parts: dict, meta: dict, every: int, last_step: int):
+        self.folder, self.comm, self.parts, self.meta = Path(folder), comm, parts, meta
+        self.every, self.last_step = every, last_step
+        self.saved_at: float | None = None
+
+    def write(self, state: StepState) -> None:
+        if state.step == self.last_step or (self.every and state.step % self.every == 0 and state.step):
+            self.save(state)
+
+    def save(self, state: StepState) -> None:
+        import h5py
+
+        comm = self.comm
+        new, final = self.folder / f"{FOLDER}.new", self.folder / FOLDER
+        if comm.rank == 0:
+            shutil.rmtree(new, ignore_errors=True)
+            new.mkdir(parents=True)
+        comm.barrier()
+        with h5py.File(new / f"rank-{comm.rank}.h5", "w") as f:
+            f.attrs["format"] = FORMAT
+            for name, part in self.parts.items():
+                _write(f.create_group(name), capture(part))
+        comm.barrier()
+        if comm.rank == 0:
+            meta = dict(self.meta, format=FORMAT, t=state.t, step=state.step, ranks=comm.size,
+                        fem_impact_version=__version__)
+            (new / "state.json").write_text(json.dumps(meta, indent=2) + "\n")
+            old = self.folder / f"{FOLDER}.old"
+            if final.exists():
+                os.rename(final, old)
+            os.rename(new, final)
+            shutil.rmtree(old, ignore_errors=True)
+        comm.barrier()
+        self.saved_at = state.t
+
+
+def find(path) -> Path:
+    """The checkpoint folder of ``path``: a run's output folder, or the checkpoint folder itself."""
+    path = Path(path)
+    for folder in (path / FOLDER, path):
+        if (folder / "state.json").is_file():
+            return folder
+    raise CaseError(f"--restart {path}", None, None, f"no checkpoint there (neither {path / FOLDER / 'state.json'} "
+                    f"nor {path / 'state.json'}); a run saves one at its end and every output.checkpoint_every steps")
+
+
+def load(path, comm, meta: dict) -> tuple[dict, dict]:
+    """(state.json, this rank's parts) of the checkpoint at ``path``, checked against the run's ``meta``."""
+    import h5py
+
+    folder = find(path)
+    saved = json.loads((folder / "state.json").read_text())
+    problems = []
+    if saved.get("format") != FORMAT:
+        problems.append(f"format {saved.get('format')} (this version reads {FORMAT})")
+    if saved.get("ranks") != comm.size:
+        problems.append(f"it was written on {saved.get('ranks')} MPI rank(s), this run has {comm.size}: restart "
+                        f"with the same count")
+    for key in ("method", "scheme", "dt", "dofs"):
+        if saved.get(key) != meta.get(key):
+            problems.append(f"its {key} is {saved.get(key)!r}, the case's {meta.get(key)!r}")
+    if problems:
+        raise CaseError(f"--restart {folder}", None, None, "the checkpoint does not fit this case: " + "; ".join(problems))
+    with h5py.File(folder / f"rank-{comm.rank}.h5", "r") as f:
+        parts = {name: _read(f[name]) for name in f}
+    return saved, parts

@@ -1,0 +1,113 @@
+"""Checkpoint and restart (fem_impact/app/checkpoint.py): a run continued from its checkpoint gives the
+uninterrupted run's history from that time on, to round-off, for every method; an interrupted run
+keeps its last checkpoint beside its output folder and continues from it to the same end."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import fem_impact as fi
+from fem_impact.config.case import CaseError
+
+from conftest import CASES
+
+RUNS = {
+    "moreau_jean": ("impacting_bar.yaml", ["solver.method=moreau_jean"]),
+    "moreau_jean_velocity": ("impacting_bar.yaml", ["solver.method=moreau_jean", "solver.level=velocity"]),
+    "newmark": ("impacting_bar.yaml", ["solver.method=newmark"]),
+    "central_difference": ("impacting_bar.yaml", ["solver.method=central_difference", "solver.mass=lumped"]),
+    "modal": ("impacting_bar.yaml", ["solver.method=modal", "solver.modes=20"]),
+    "modal_static_correction_elastic_stop": ("beam_stop.yaml", ["solver.method=modal", "solver.modes=10",
+                                                                "solver.t_end=0.06"]),
+    "friction": ("sliding_block.yaml", ["solver.t_end=0.3"]),
+    "moving_support_reduced": ("base_excited_beam.yaml", ["solver.method=modal", "solver.modes=10",
+                                                          "solver.t_end=0.8", "damping.alpha=0.5"]),
+}
+
+
+def assert_same_from(full: dict, continued: dict, tol: float = 1e-12) -> None:
+    """``continued`` equals ``full`` from its first time on, column by column, to ``tol`` of each column's scale."""
+    start = np.searchsorted(full["t"], continued["t"][0] - 1e-9 * (full["t"][1] - full["t"][0]))
+    assert full["t"][start] == continued["t"][0]
+    assert len(full["t"]) - start == len(continued["t"])
+    for name, column in full.items():
+        scale = max(np.abs(column).max(), 1e-300)
+        assert np.abs(column[start:] - continued[name]).max() <= tol * scale, name
+
+
+@pytest.mark.parametrize("run", list(RUNS))
+def test_a_run_continued_from_its_checkpoint_is_the_uninterrupted_run(tmp_path, run):
+    name, changes = RUNS[run]
+    case = fi.load_case(CASES / name, ["output.vtk=false", *changes])
+    t_end = case.solver.t_end
+    full = fi.run(case, tmp_path / "full")
+    half = fi.run(case.with_changes({"solver.t_end": 0.5 * t_end}), tmp_path / "half")
+    continued = fi.run(case, tmp_path / "continued", restart=tmp_path / "half")
+    assert continued.summary["restarted_from"]["t"] == pytest.approx(0.5 * t_end, rel=1e-9)
+    assert continued.history["t"][0] == half.history["t"][-1]
+    assert_same_from(full.history, continued.history)
+    state = json.loads((tmp_path / "half" / "checkpoint" / "state.json").read_text())
+    assert state["step"] == half.summary["steps"] and state["ranks"] == 1
+    # the continued run saved its own end: it continues again (to a later t_end)
+    again = fi.run(case.with_changes({"solver.t_end": 1.25 * t_end}), tmp_path / "again",
+                   restart=tmp_path / "continued")
+    assert again.history["t"][0] == full.history["t"][-1]
+
+
+def test_a_restart_that_does_not_fit_is_refused(tmp_path):
+    case = fi.load_case(CASES / "impacting_bar.yaml", ["output.vtk=false", "solver.t_end=0.5"])
+    fi.run(case, tmp_path / "done")
+    with pytest.raises(CaseError, match="the checkpoint does not fit this case: its dt is 0.002, the case's 0.001"):
+        fi.run(case.with_changes({"solver.dt": 0.001, "solver.t_end": 1.0}), restart=tmp_path / "done")
+    with pytest.raises(CaseError, match="its method is 'newmark', the case's 'moreau_jean'"):
+        fi.run(case.with_changes({"solver.method": "moreau_jean", "solver.t_end": 1.0}), restart=tmp_path / "done")
+    with pytest.raises(CaseError, match="the checkpoint is at t = 0.5, not before the case's t_end = 0.5"):
+        fi.run(case, restart=tmp_path / "done")
+    with pytest.raises(CaseError, match="no checkpoint there"):
+        fi.run(case, restart=tmp_path)
+    with pytest.raises(TypeError, match="restart as a folder"):
+        fi.run(case, restart=3)
+
+
+def test_an_interrupted_run_keeps_its_last_checkpoint_and_continues_to_the_same_end(tmp_path):
+    """SIGTERM in the middle of a run with checkpoints every 200 steps: the output folder's earlier
+    result stays as it was, the last checkpoint is kept in OUTDIR.checkpoint (the one line says so),
+    and the run continued from it ends as the uninterrupted one."""
+    case = str(CASES / "impacting_bar.yaml")
+    common = ["--set", "output.vtk=false", "--set", "solver.t_end=400", "--set", "output.checkpoint_every=200"]
+    out = tmp_path / "run"
+    first = subprocess.run([sys.executable, "-m", "fem_impact", "run", case, "-o", str(out), "-q",
+                            "--set", "solver.t_end=1", "--set", "output.vtk=false"], capture_output=True, text=True)
+    assert first.returncode == 0, first.stderr
+    before = (out / "history.csv").read_bytes()
+    process = subprocess.Popen([sys.executable, "-m", "fem_impact", "run", case, "-o", str(out), "-q", *common],
+                               stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list(tmp_path.glob(".run.checkpoint-*/checkpoint/state.json")):
+        assert process.poll() is None and time.monotonic() < deadline, "no checkpoint was written"
+        time.sleep(0.05)
+    time.sleep(0.3)
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 128 + signal.SIGTERM
+    kept = tmp_path / "run.checkpoint"
+    assert f"kept in {kept}: continue it with --restart {kept}" in err
+    assert (out / "history.csv").read_bytes() == before           # the earlier result untouched
+    assert not list(tmp_path.glob(".run.*"))                      # no debris
+    saved = json.loads((kept / "state.json").read_text())
+    assert 0 < saved["step"] < 200_000 and saved["step"] % 200 == 0
+    # continued to a nearer end, and compared with an uninterrupted run to that end
+    t_end = saved["t"] + 2.0
+    finish = subprocess.run([sys.executable, "-m", "fem_impact", "run", case, "-o", str(tmp_path / "finished"), "-q",
+                             *common, "--set", f"solver.t_end={t_end}", "--restart", str(kept)],
+                            capture_output=True, text=True)
+    assert finish.returncode == 0, finish.stderr
+    whole = fi.run(fi.load_case(case, ["output.vtk=false", f"solver.t_end={t_end}"]))
+    assert_same_from(whole.history, fi.Result.load(tmp_path / "finished").history, tol=1e-10)
