@@ -420,12 +420,15 @@ def energy_advice(summary: dict) -> str:
 
 def describe(summary: dict) -> str:
     """The one-paragraph report printed at the end of a run."""
+    restarted = summary.get("restarted_from")
+    run_steps = summary["steps"] - (restarted["step"] if restarted else 0)
+    start = f" from t = {restarted['t']:.4g} s (restarted from {restarted['folder']})" if restarted else ""
     return (
-        f"{summary['case']}: {summary['steps']} steps of {summary['dt']:.4g} s to t = {summary['t_end']:.4g} s, "
+        f"{summary['case']}: {run_steps} steps of {summary['dt']:.4g} s{start} to t = {summary['t_end']:.4g} s, "
         f"{summary['dofs']} unknowns, {summary['constraints']} contact rows, {summary['method']} "
         f"on {summary['mpi_ranks']} rank(s). Wall time {summary['wall_time_s']:.2f} s "
         f"(setup {summary['setup_time_s']:.2f} s, loop {summary['loop_time_s']:.2f} s, "
-        f"{1e3 * summary['loop_time_s'] / max(summary['steps'], 1):.3f} ms/step). "
+        f"{1e3 * summary['loop_time_s'] / max(run_steps, 1):.3f} ms/step). "
         f"Max penetration {summary['max_penetration']:.3g}"
         + (f", elastic stops compressed by up to {summary['max_stop_compression']:.3g}"
            if summary.get("max_stop_compression") else "")
