@@ -257,21 +257,36 @@ class Checkpoints:
         self.saved_at = state.t
 
 
-def find(path) -> Path:
+def find(path, option: str = "--restart") -> Path:
     """The checkpoint folder of ``path``: a run's output folder, or the checkpoint folder itself."""
     path = Path(path)
     for folder in (path / FOLDER, path):
         if (folder / "state.json").is_file():
             return folder
-    raise CaseError(f"--restart {path}", None, None, f"no checkpoint there (neither {path / FOLDER / 'state.json'} "
+    raise CaseError(f"{option} {path}", None, None, f"no checkpoint there (neither {path / FOLDER / 'state.json'} "
                     f"nor {path / 'state.json'}); a run saves one at its end and every output.checkpoint_every steps")
 
 
-def load(path, comm, meta: dict) -> tuple[dict, dict]:
+def initial_state(path, comm, meta: dict, U0, V0):
+    """(U, V) of the saved run at ``path``: its integrator's state vectors (nodal values, or the reduced
+    model's modal coordinates), for a run that starts where it ended (``initial: {from: DIR}``). The time
+    step and the loads may differ; the unknowns (method family, mesh, modes) and the ranks must not."""
+    saved, parts = load(path, comm, meta, keys=("dofs",), option="initial.from")
+    state = parts["integrator"]
+    U, V = state["U"], state["V"]
+    size = np.asarray(U0.array_r if hasattr(U0, "array_r") else U0).size
+    if U.size != size:
+        raise CaseError(f"initial.from {find(path)}", None, None,
+                        f"its state has {U.size} unknowns on this rank, the case {size} (another mesh, method or "
+                        "count of modes)")
+    return U.copy(), V.copy()
+
+
+def load(path, comm, meta: dict, keys=("method", "scheme", "dt", "dofs"), option="--restart") -> tuple[dict, dict]:
     """(state.json, this rank's parts) of the checkpoint at ``path``, checked against the run's ``meta``."""
     import h5py
 
-    folder = find(path)
+    folder = find(path, option)
     saved = json.loads((folder / "state.json").read_text())
     problems = []
     if saved.get("format") != FORMAT:
@@ -279,11 +294,11 @@ def load(path, comm, meta: dict) -> tuple[dict, dict]:
     if saved.get("ranks") != comm.size:
         problems.append(f"it was written on {saved.get('ranks')} MPI rank(s), this run has {comm.size}: restart "
                         f"with the same count")
-    for key in ("method", "scheme", "dt", "dofs"):
+    for key in keys:
         if saved.get(key) != meta.get(key):
             problems.append(f"its {key} is {saved.get(key)!r}, the case's {meta.get(key)!r}")
     if problems:
-        raise CaseError(f"--restart {folder}", None, None, "the checkpoint does not fit this case: " + "; ".join(problems))
+        raise CaseError(f"{option} {folder}", None, None, "the checkpoint does not fit this case: " + "; ".join(problems))
     with h5py.File(folder / f"rank-{comm.rank}.h5", "r") as f:
         parts = {name: _read(f[name]) for name in f}
     return saved, parts

@@ -171,7 +171,7 @@ def _add_study_parser(sub) -> argparse.ArgumentParser:
     from .studies.methods import describe_methods
 
     study = sub.add_parser(
-        "study", help="convergence orders, the speed-accuracy chart, the stability map",
+        "study", help="convergence orders, the speed-accuracy chart, the stability map, the forced response",
         description=STUDY_DESCRIPTION + describe_methods(), epilog=STUDY_EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     kinds = study.add_subparsers(dest="study", metavar="STUDY")
@@ -233,6 +233,28 @@ def _add_study_parser(sub) -> argparse.ArgumentParser:
     stab.add_argument("--restitution", metavar="E1,E2,...", help="restitution coefficients (default 0,0.5,1)")
     stab.add_argument("--length", metavar="K1,K2,...", help="run lengths in multiples of t_end (default 1,4)")
     stab.add_argument("--tolerance", metavar="TOL", help="largest relative error of an accurate run (default 0.05)")
+    resp = kinds.add_parser(
+        "response", help="the settled forced response over a frequency sweep: Poincare sections, periods, "
+                         "impulses (response.csv, response.png)",
+        description="Sweep the forcing frequency (the varied key, in Hz): each level starts from the previous "
+                    "one's last state, runs --settle forcing periods, then --periods periods sampled at forcing "
+                    "phase 0 (the stroboscopic Poincare section), at --steps-per-period steps a period. The "
+                    "period of the settled response (the smallest k whose section repeats, 0: none), the "
+                    "Poincare points of the probes and each contact's impulse and impacts per period go to "
+                    "response.csv; response.png is the bifurcation diagram. A sweep --down into the same folder "
+                    "keeps the sweep up: the chart shows both.",
+        epilog="example:\n  fem-impact study response cases/impact_oscillator.yaml --vary parameters.f=0.45,0.5,0.55",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    common(resp, "1")
+    resp.add_argument("--vary", required=True, metavar="KEY=F1,F2,...",
+                      help="the forcing frequency's key and its values in Hz, e.g. parameters.f=40,45,50")
+    resp.add_argument("--down", action="store_true", help="sweep the values from the highest down")
+    resp.add_argument("--settle", default="50", metavar="M", help="forcing periods to settle (default 50)")
+    resp.add_argument("--periods", default="16", metavar="N", help="forcing periods sampled (default 16)")
+    resp.add_argument("--steps-per-period", default="500", metavar="K", help="time steps a forcing period "
+                                                                              "(default 500)")
+    resp.add_argument("--tolerance", default="1e-4", metavar="TOL",
+                      help="relative tolerance of a repeated section point (default 1e-4)")
     return study
 
 
@@ -484,6 +506,20 @@ def _study_in(args, case) -> None:
             allow_failure=args.allow_failure, quiet=quiet)
         if not quiet:
             print(format_pareto(result))
+    elif args.study == "response":
+        from .studies.response import format_response, response_study
+
+        if jobs != 1:
+            raise StudyInputError(f"-j {jobs}: the response study runs its levels one after the other (each starts "
+                                  "from the previous one's state)")
+        result = response_study(
+            case, args.vary, args.output, down=args.down, settle=_numbers("--settle", args.settle, int, single=True),
+            periods=_numbers("--periods", args.periods, int, single=True),
+            steps_per_period=_numbers("--steps-per-period", args.steps_per_period, int, single=True),
+            tolerance=_numbers("--tolerance", args.tolerance, single=True), changes=args.overrides, quiet=quiet,
+            allow_failure=args.allow_failure)
+        if not quiet:
+            print(format_response(result))
     else:
         from .studies.stability import format_stability, stability_study
 

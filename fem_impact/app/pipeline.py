@@ -279,6 +279,10 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     parts["watch"] = watch
     meta = {"case": case.name, "method": solver.method, "scheme": raw.name, "dt": solver.dt, "dofs": model.dofs}
     t0, restarted = 0.0, None
+    if case.initial.source is not None:   # initial.from: the saved run's last state, as this run's start
+        from .checkpoint import initial_state
+
+        system.U0, system.V0 = initial_state(case.initial.source, comm, meta, system.U0, system.V0)
     if restart is not None:
         from .checkpoint import load as load_checkpoint, restore
 

@@ -190,8 +190,9 @@ class Case:
         else:
             data["materials"] = {body: dataclasses.asdict(m) for body, m in self.materials.items()}
         data["damping"] = dataclasses.asdict(self.damping)
-        data["initial"] = {"displacement": _body_values_data(self.initial.displacement),
-                           "velocity": _body_values_data(self.initial.velocity)}
+        data["initial"] = ({"from": str(self.initial.source)} if self.initial.source is not None else
+                           {"displacement": _body_values_data(self.initial.displacement),
+                            "velocity": _body_values_data(self.initial.velocity)})
         data["supports"] = [{"nodes": s.nodes, "fix": "all" if s.all_components else [COMPONENTS[i] for i in s.fix],
                              **({} if s.displacement is None else {"displacement": _sources(s.displacement)})}
                             for s in self.supports]
@@ -758,9 +759,16 @@ def _body_values(value, path, parameters):
     return [BodyValue(None, expressions(value, path))]
 
 
-def _initial(value, path, parameters):
+def _initial(value, path, parameters, folder):
     field_ = lambda v, p: _body_values(v, p, parameters)  # noqa: E731
-    return Initial(**_fields(value, path, {"displacement": (field_, []), "velocity": (field_, [])}))
+    f = _fields(value, path, {"displacement": (field_, []), "velocity": (field_, []), "from": (_string, None)})
+    source = f.pop("from")
+    if source is not None:
+        if f["displacement"] or f["velocity"]:
+            raise _Invalid(path + ("from",), "starts from a saved state: give either 'from' or the initial fields, "
+                                             "not both")
+        source = Path(os.path.abspath(folder / source))   # (read when the run starts: fem_impact/app/checkpoint.py)
+    return Initial(**f, source=source)
 
 
 def _fix(value, path):
@@ -1065,7 +1073,7 @@ def _case(data, folder: Path, default_name: str):
         "mesh": (lambda value, path: _mesh(value, path, folder), _REQUIRED),
         "material": (_material, None), "materials": (_mapping_of(_material), None),
         "damping": (_damping, Damping()),
-        "initial": (lambda value, path: _initial(value, path, parameters), Initial()),
+        "initial": (lambda value, path: _initial(value, path, parameters, folder), Initial()),
         "supports": (_list(lambda value, path: _support(value, path, parameters)), []),
         "loads": (_list(lambda value, path: _load(value, path, parameters)), []),
         "contacts": (_contacts, []), "solver": (_solver, _REQUIRED), "output": (_output, Output()),

@@ -60,6 +60,7 @@ class BodyValue:
 class Initial:
     displacement: list[BodyValue] = field(default_factory=list)
     velocity: list[BodyValue] = field(default_factory=list)
+    source: Path | None = None   # initial.from: a saved run's last state (its checkpoint), instead of the fields
 
 
 @dataclass
