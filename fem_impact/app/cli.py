@@ -253,6 +253,12 @@ def _add_study_parser(sub) -> argparse.ArgumentParser:
     resp.add_argument("--periods", default="16", metavar="N", help="forcing periods sampled (default 16)")
     resp.add_argument("--steps-per-period", default="500", metavar="K", help="time steps a forcing period "
                                                                               "(default 500)")
+    resp.add_argument("--flight", choices=("scheme", "events"), default="scheme",
+                      help="scheme: each level a run of the case's time stepping (default); events: the reduced "
+                           "model without static correction flown from impact to impact (exact impact instants)")
+    resp.add_argument("--no-shooting", action="store_true",
+                      help="skip the periodic orbits by shooting (done for the reduced model without static "
+                           "correction: the period-1 orbit along the sweep, its Floquet multipliers, bifurcations)")
     resp.add_argument("--tolerance", default="1e-4", metavar="TOL",
                       help="relative tolerance of a repeated section point (default 1e-4)")
     return study
@@ -517,7 +523,7 @@ def _study_in(args, case) -> None:
             periods=_numbers("--periods", args.periods, int, single=True),
             steps_per_period=_numbers("--steps-per-period", args.steps_per_period, int, single=True),
             tolerance=_numbers("--tolerance", args.tolerance, single=True), changes=args.overrides, quiet=quiet,
-            allow_failure=args.allow_failure)
+            allow_failure=args.allow_failure, flight=args.flight, shooting=not args.no_shooting)
         if not quiet:
             print(format_response(result))
     else:
