@@ -1,4 +1,4 @@
-"""Periodic orbits of a reduced model by shooting (docs/impact_oscillator.md s. 6): event-driven flights,
+"""Periodic orbits of a reduced model by shooting (docs/impact_oscillator.md s. 8): event-driven flights,
 the stroboscopic Poincare map, Newton on ``P^k(x) = x``, Floquet multipliers.
 
 The reduced model without static correction (``method: modal``, ``static_correction: false``) is
