@@ -84,8 +84,8 @@ def test_an_up_sweep_finds_period_one_then_period_two_past_the_period_doubling(t
 @pytest.mark.slow
 def test_the_time_stepped_sweep_gives_the_closed_form_impact_speed(tmp_path):
     """The default flight, the case's Moreau-Jean steps (1000 a period): its impacts fall at the ends of
-    steps, so its impact speed carries an error of the step's order (measured: 0.12 % at f = 0.45,
-    1e-5 at 0.5)."""
+    steps, so its impact speed carries an error of the step's order (measured: 0.12 % at f = 0.45
+    with 1000 steps a period)."""
     case = fi.load_case(CASES / "impact_oscillator.yaml")
     result = response_study(case, "parameters.f=0.45,0.5", tmp_path, settle=100, periods=6, steps_per_period=1000,
                             quiet=True)
