@@ -123,7 +123,7 @@ def mpirun(*args) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
-@pytest.mark.parametrize("method", ["moreau_jean", "modal"])
+@pytest.mark.parametrize("method", ["moreau_jean", "moreau_jean_velocity", "newmark", "central_difference", "modal"])
 def test_a_run_restarted_on_two_ranks_is_the_uninterrupted_run(tmp_path, method):
     """The 2D bar on 2 ranks: run to 1.25, continue from its checkpoint (one file per rank) to 2.5, and
     compare with the run to 2.5 at once; a checkpoint of 2 ranks is refused by a serial run."""
@@ -133,8 +133,10 @@ def test_a_run_restarted_on_two_ranks_is_the_uninterrupted_run(tmp_path, method)
 
     case = str(CASES / "impacting_bar.yaml")
     common = ["--set", "mesh.dim=2", "--set", "mesh.cells=60", "--set", "solver.dt=0.008333333333333333",
-              "--set", "output.vtk=false", "--set", f"solver.method={method}",
-              *(["--set", "solver.modes=10"] if method == "modal" else []), "-q"]
+              "--set", "output.vtk=false", "--set", f"solver.method={method.replace('_velocity', '')}",
+              *(["--set", "solver.modes=10"] if method == "modal" else []),
+              *(["--set", "solver.level=velocity"] if method.endswith("_velocity") else []),
+              *(["--set", "solver.mass=lumped"] if method == "central_difference" else []), "-q"]
     for name, t_end, extra in (("whole", 2.5, []), ("half", 1.25, []), ("continued", 2.5, ["--restart", "half"])):
         extra = [str(tmp_path / e) if e == "half" else e for e in extra]
         done = mpirun("run", case, "-o", str(tmp_path / name), *common, "--set", f"solver.t_end={t_end}", *extra)
@@ -143,6 +145,8 @@ def test_a_run_restarted_on_two_ranks_is_the_uninterrupted_run(tmp_path, method)
                                                                                      "state.json"]
     whole, continued = fi.Result.load(tmp_path / "whole"), fi.Result.load(tmp_path / "continued")
     assert continued.summary["restarted_from"]["t"] == pytest.approx(1.25)
-    assert_same_from(whole.history, continued.history, tol=1e-10)   # (history.csv: 12 digits)
+    # dolfinx distributes the mesh differently from run to run (the checkpoint's vectors are matched by node
+    # numbers): two 2-rank runs then differ by the round-off of their reductions (history.csv: 12 digits)
+    assert_same_from(whole.history, continued.history, tol=1e-9)
     serial = run_cli("run", case, "-o", str(tmp_path / "serial"), *common, "--restart", str(tmp_path / "half"))
     assert serial.returncode == 2 and "written on 2 MPI rank(s), this run has 1" in serial.stderr

@@ -221,8 +221,10 @@ def _plain(value):
 class Checkpoints:
     """An observer that saves the run's parts every ``every`` steps (0: at the end only) and at the end."""
 
-    def __init__(self, folder: Path, comm, parts: dict, meta: dict, every: int, last_step: int):
+    def __init__(self, folder: Path, comm, parts: dict, meta: dict, every: int, last_step: int,
+                 dof_keys: np.ndarray | None = None):
         self.folder, self.comm, self.parts, self.meta = Path(folder), comm, parts, meta
+        self.dof_keys = dof_keys   # the owned dofs' partition-independent numbers (the full model's vectors)
         self.every, self.last_step = every, last_step
         self.saved_at: float | None = None
 
@@ -241,6 +243,8 @@ class Checkpoints:
         comm.barrier()
         with h5py.File(new / f"rank-{comm.rank}.h5", "w") as f:
             f.attrs["format"] = FORMAT
+            if self.dof_keys is not None:
+                f.create_dataset("dof_keys", data=self.dof_keys)
             for name, part in self.parts.items():
                 _write(f.create_group(name), capture(part))
         comm.barrier()
@@ -267,11 +271,11 @@ def find(path, option: str = "--restart") -> Path:
                     f"nor {path / 'state.json'}); a run saves one at its end and every output.checkpoint_every steps")
 
 
-def initial_state(path, comm, meta: dict, U0, V0):
+def initial_state(path, comm, meta: dict, U0, V0, dof_keys=None):
     """(U, V) of the saved run at ``path``: its integrator's state vectors (nodal values, or the reduced
     model's modal coordinates), for a run that starts where it ended (``initial: {from: DIR}``). The time
     step and the loads may differ; the unknowns (method family, mesh, modes) and the ranks must not."""
-    saved, parts = load(path, comm, meta, keys=("dofs",), option="initial.from")
+    saved, parts = load(path, comm, meta, keys=("dofs",), option="initial.from", dof_keys=dof_keys)
     state = parts["integrator"]
     U, V = state["U"], state["V"]
     size = np.asarray(U0.array_r if hasattr(U0, "array_r") else U0).size
@@ -282,7 +286,8 @@ def initial_state(path, comm, meta: dict, U0, V0):
     return U.copy(), V.copy()
 
 
-def load(path, comm, meta: dict, keys=("method", "scheme", "dt", "dofs"), option="--restart") -> tuple[dict, dict]:
+def load(path, comm, meta: dict, keys=("method", "scheme", "dt", "dofs"), option="--restart",
+         dof_keys: np.ndarray | None = None) -> tuple[dict, dict]:
     """(state.json, this rank's parts) of the checkpoint at ``path``, checked against the run's ``meta``."""
     import h5py
 
@@ -300,5 +305,53 @@ def load(path, comm, meta: dict, keys=("method", "scheme", "dt", "dofs"), option
     if problems:
         raise CaseError(f"{option} {folder}", None, None, "the checkpoint does not fit this case: " + "; ".join(problems))
     with h5py.File(folder / f"rank-{comm.rank}.h5", "r") as f:
-        parts = {name: _read(f[name]) for name in f}
+        parts = {name: _read(f[name]) for name in f if name != "dof_keys"}
+        keys = f["dof_keys"][()] if "dof_keys" in f else None
+    if dof_keys is not None and keys is not None and not np.array_equal(keys, dof_keys):
+        parts = _redistributed(folder, saved["ranks"], parts, dof_keys)
     return saved, parts
+
+
+def _redistributed(folder: Path, ranks: int, mine: dict, dof_keys: np.ndarray) -> dict:
+    """This rank's parts when the mesh was distributed otherwise than in the saved run (the partitioner
+    numbers nodes its own way each time): every vector of owned dofs is gathered from all ranks' files
+    by the dofs' partition-independent numbers. (Each rank reads every file: N values a rank, once.)"""
+    import h5py
+
+    trees, keys = [], []
+    for r in range(ranks):
+        with h5py.File(folder / f"rank-{r}.h5", "r") as f:
+            trees.append({name: _read(f[name]) for name in f if name != "dof_keys"})
+            keys.append(f["dof_keys"][()])
+    all_keys = np.concatenate(keys)
+    order = np.argsort(all_keys, kind="stable")
+    where = order[np.searchsorted(all_keys[order], dof_keys)]
+    if not np.array_equal(all_keys[where], dof_keys):
+        raise CaseError(f"checkpoint {folder}", None, None, "its dofs are not this case's (another mesh?)")
+
+    def remap(values, path):
+        first = values[0]
+        if isinstance(first, dict):   # a part: its attributes
+            return {k: remap([v[k] for v in values], path + (k,)) for k in first}
+        if isinstance(first, np.ndarray):
+            local = all(v.ndim == 1 and v.size == k.size for v, k in zip(values, keys))
+            # (a p-vector the ranks share may have the length of every rank's owned dofs, by chance)
+            replicated = len(values) > 1 and all(v.shape == first.shape and np.array_equal(v, first) for v in values)
+            if local and not (replicated and first.size):
+                return np.concatenate(values)[where]
+            return mine_at(path)
+        if isinstance(first, tuple) and first and first[0] in ("dataclass", "list", "tuple", "dict", "object"):
+            if first[0] == "dataclass":
+                return ("dataclass", first[1], {k: remap([v[2][k] for v in values], path + (k,)) for k in first[2]})
+            if first[0] in ("list", "tuple"):
+                return (first[0], [remap([v[1][i] for v in values], path + (i,)) for i in range(len(first[1]))])
+            return (first[0], {k: remap([v[1][k] for v in values], path + (k,)) for k in first[1]})
+        return mine_at(path)
+
+    def mine_at(path):
+        node = mine
+        for part in path:
+            node = node[part] if isinstance(node, dict) else (node[2][part] if node[0] == "dataclass" else node[1][part])
+        return node
+
+    return {name: remap([t[name] for t in trees], (name,)) for name in mine}

@@ -279,14 +279,19 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     parts["watch"] = watch
     meta = {"case": case.name, "method": solver.method, "scheme": raw.name, "dt": solver.dt, "dofs": model.dofs}
     t0, restarted = 0.0, None
+    # The full model's vectors are saved with their dofs' partition-independent numbers: a restart on as
+    # many ranks may find the mesh distributed otherwise (the reduced model's state is replicated).
+    from ..integrators import is_reduced
+
+    dof_keys = None if is_reduced(solver) else model.dof_keys()
     if case.initial.source is not None:   # initial.from: the saved run's last state, as this run's start
         from .checkpoint import initial_state
 
-        system.U0, system.V0 = initial_state(case.initial.source, comm, meta, system.U0, system.V0)
+        system.U0, system.V0 = initial_state(case.initial.source, comm, meta, system.U0, system.V0, dof_keys)
     if restart is not None:
         from .checkpoint import load as load_checkpoint, restore
 
-        saved, state = load_checkpoint(restart, comm, meta)
+        saved, state = load_checkpoint(restart, comm, meta, dof_keys=dof_keys)
         if saved["t"] >= solver.t_end * (1 - 1e-12):
             raise CaseError(f"--restart {restart}", "solver.t_end", None,
                             f"the checkpoint is at t = {saved['t']:.6g}, not before the case's t_end = "
@@ -320,7 +325,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         if stage is not None:   # last: it saves the state every other observer has updated
             from .checkpoint import Checkpoints
 
-            observers.append(Checkpoints(out.checkpoints, comm, parts, meta, case.output.checkpoint_every, n_steps))
+            observers.append(Checkpoints(out.checkpoints, comm, parts, meta, case.output.checkpoint_every, n_steps,
+                                         dof_keys))
         t_loop = time.perf_counter()
         try:
             final = integrate(integrator, system.U0, system.V0, solver.t_end, observers, watch=watch, t0=t0,

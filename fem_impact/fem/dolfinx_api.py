@@ -113,6 +113,20 @@ def node_coordinates(V) -> np.ndarray:
     return Q.tabulate_dof_coordinates()
 
 
+def node_keys(V) -> np.ndarray:
+    """A partition-independent number per node of P1 space ``V`` (local numbering, owned then ghosts): its
+    index in the mesh as read or built (the geometry's input index). Two runs on as many ranks may number
+    and distribute the nodes differently; these numbers are the same."""
+    msh = V.mesh
+    geometry = msh.geometry.dofmap.array
+    nodes = V.dofmap.list.array
+    if geometry.size != nodes.size:
+        raise RuntimeError("the P1 space's cells and the geometry's differ; cannot key the nodes")
+    keys = np.full(V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts, -1, dtype=np.int64)
+    keys[nodes] = np.asarray(msh.geometry.input_global_indices, dtype=np.int64)[geometry]
+    return keys
+
+
 def vertex_dofs(V, vertices: np.ndarray) -> np.ndarray:
     """Local node (block) indices of the given local vertices."""
     return fem.locate_dofs_topological(V, 0, vertices)

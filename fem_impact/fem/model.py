@@ -107,6 +107,11 @@ class Model:
         """Global PETSc row indices of the dofs held by supports (owned by this rank)."""
         return (self.fixed + self.first_node * self.bs).astype(np.int32)
 
+    def dof_keys(self) -> np.ndarray:
+        """Owned dofs' numbers independent of the partition: node key x block size + component."""
+        nodes = dx.node_keys(self.V)[: self.n_owned_nodes]
+        return (nodes[:, None] * self.bs + np.arange(self.bs)[None, :]).reshape(-1)
+
     def regular_stiffness(self) -> PETSc.Mat:
         """K with a unit diagonal on held dofs: regular for a constrained body (static solves)."""
         K = self.K.copy()
