@@ -325,7 +325,7 @@ def _redistributed(folder: Path, ranks: int, mine: dict, dof_keys: np.ndarray) -
             keys.append(f["dof_keys"][()])
     all_keys = np.concatenate(keys)
     order = np.argsort(all_keys, kind="stable")
-    where = order[np.searchsorted(all_keys[order], dof_keys)]
+    where = order[np.minimum(np.searchsorted(all_keys[order], dof_keys), all_keys.size - 1)]
     if not np.array_equal(all_keys[where], dof_keys):
         raise CaseError(f"checkpoint {folder}", None, None, "its dofs are not this case's (another mesh?)")
 
