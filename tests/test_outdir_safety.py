@@ -546,7 +546,8 @@ def test_a_really_full_disk(tmp_path):
     out = tmp_path / "disk" / "out"
     run = f"{sys.executable} -m fem_impact run {CASES / 'impacting_bar.yaml'} -q --force -o {out}"
     result = in_small_filesystem(
-        f"{run} {' '.join(SMALL)} && cd {out} && sha1sum * > {tmp_path / 'before.sha1'} && cd / && "
+        f"{run} {' '.join(SMALL)} && cd {out} && find . -type f -exec sha1sum {{}} + > {tmp_path / 'before.sha1'} && "
+        f"cd / && "
         f"{run} --set solver.t_end=20; echo status $?; "
         f"{run} --set solver.t_end=20 --set output.every=100000; echo status $?; "
         f"cd {out} && sha1sum -c --quiet {tmp_path / 'before.sha1'} && echo same && ls -A {out.parent}", tmp_path)

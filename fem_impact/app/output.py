@@ -388,7 +388,8 @@ class RunStatistics:
             self.max_stop_compression = max(self.max_stop_compression,
                                             float(-state.gap[self.elastic].min(initial=0.0)))
         self.max_energy_error = max(self.max_energy_error, abs(e.error))
-        self.energy_scale = max(self.energy_scale, e.initial, abs(e.external_work))
+        # (with the load's own energy scale, as the energy watch: a body pressed on a stop at rest does no work)
+        self.energy_scale = max(self.energy_scale, e.initial, abs(e.external_work), e.load_scale)
         self.max_energy = max(self.max_energy, e.total)
         for c in self.cons.contacts:
             self.total_impulse[c.name] += float(state.impulse[c.rows].sum())
