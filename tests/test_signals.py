@@ -207,7 +207,8 @@ def test_study_interrupted_before_a_level_completes_leaves_the_folder_as_it_was(
     result = interrupted_study(out, 0)
     assert result.returncode == 143, result.stderr
     assert result.stderr == "fem-impact: interrupted by SIGTERM (the output folder was left as it was)\n"
-    assert snapshot(out) == before and sorted(p.name for p in out.iterdir()) == sorted(before)
+    assert snapshot(out) == before
+    assert sorted(p.name for p in out.iterdir()) == sorted({k.split("/")[0] for k in before})   # (checkpoint/)
     assert debris(out.parent) == []
 
 
