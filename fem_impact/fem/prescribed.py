@@ -256,5 +256,5 @@ class MotionView:
     def step(self):
         return self._state(self.integrator.step(), first=False)
 
-    def resume(self):
-        return self._state(self.integrator.resume(), first=False)   # (a step of length 0: nothing booked)
+    def restored(self):
+        return self._state(self.integrator.restored(), first=False)   # (a step of length 0: nothing booked)

@@ -274,7 +274,7 @@ class ContactScheme:
         pv, energy.impact_loss = self._apply_corrections(res, pv)
         return res.force, res.lam1.copy(), pu, pv
 
-    def resume(self) -> StepState:
+    def restored(self) -> StepState:
         """The state restored from a checkpoint, to go on from (fem_impact/app/checkpoint.py)."""
         return self.state
 
