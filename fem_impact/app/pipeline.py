@@ -69,6 +69,17 @@ def make_integrator(case: Case, operators):
     return integrator_class(scheme_of(case.solver)).from_solver(operators, case.solver)
 
 
+def block_stepper(case: Case, integrator):
+    """The reduced model's stepper of open phases (``solver.blocks``, integrators/blocks.py), or None."""
+    from ..integrators import is_reduced
+
+    if not is_reduced(case.solver) or not case.solver.blocks:
+        return None
+    from ..integrators.blocks import BlockStepper
+
+    return BlockStepper.of(integrator)
+
+
 def default_outdir(case: Case) -> Path:
     return Path.cwd() / "results" / case.name
 
@@ -262,6 +273,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     fields = system.fields
     if model.motion is not None:   # moving supports: the run seen as the whole structure's
         integrator, fields = model.motion.view(integrator, fields, comm)
+    blocks = block_stepper(case, integrator)
     n_steps = steps_for(solver.t_end, solver.dt)
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
@@ -284,7 +296,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                 observers.append(fields)
             watch = EnergyWatch(stop_on_energy_gain)
             final = integrate(integrator, system.U0, system.V0, solver.t_end, observers, watch=watch,
-                              progress=progress if callable(progress) else Progress(comm) if progress else None)
+                              progress=progress if callable(progress) else Progress(comm) if progress else None,
+                              blocks=blocks)
         except BaseException:
             # Both closed now (the VTK file writes again when destroyed, after the staging folder is gone),
             # without hiding the run's own error behind a write that fails too.
@@ -307,6 +320,9 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "setup_time_s": setup_time,
             "loop_time_s": loop_time,
             "steps": final.step,
+            # the reduced model's steps taken many at a time between contacts, and in how many blocks
+            "steps_in_blocks": blocks.steps if blocks is not None else 0,
+            "blocks": blocks.blocks if blocks is not None else 0,
             "dt": solver.dt,
             "t_end": final.t,
             "dofs": model.dofs,

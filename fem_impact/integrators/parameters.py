@@ -105,6 +105,8 @@ class _ReductionKeys(BaseModel):
                                                       "contact rows (Barauskas 1992)")
     tolerance: float = _number("-", "modes: auto: the largest neglected flexibility per contact row, as a "
                                     "fraction of the row's static flexibility", 0.01, gt=0, lt=1)
+    blocks: bool = Field(True, description="take the steps between contacts many at a time (the step as an "
+                                           "affine map; the same results to round-off); false: one at a time")
 
     def _written(self) -> set[str]:
         keys = super()._written()
