@@ -32,7 +32,7 @@ def oscillator(scheme="moreau_jean", periods=20, per_period=150, **solver):
         "contacts": [{"name": "stop", "type": "obstacle", "nodes": "right", "normal": [1.0], "gap": 0.0,
                       "restitution": 0.8}],
         "solver": {"method": "modal", "scheme": scheme, "modes": 1, "static_correction": False,
-                   "dt": 2.0 / per_period, "t_end": 2.0 * periods, **solver},
+                   "dt": 2.0 / per_period, "t_end": 2.0 * periods, **solver},   # (blocks: auto)
         "output": {"vtk": False, "probes": {"tip": [1.0], "middle": [0.5]}},
     })
 
@@ -248,8 +248,17 @@ def test_without_numba_the_steps_are_taken_one_at_a_time(monkeypatch):
 
     monkeypatch.setitem(sys.modules, "fem_impact.integrators.kernels", None)   # (as if Numba could not be imported)
     monkeypatch.delattr(fem_impact.integrators, "kernels", raising=False)
-    result = fi.run(oscillator(periods=2))
+    result = fi.run(oscillator(periods=2, blocks=True))
     assert result.summary["steps_in_blocks"] == 0 and result.summary["steps"] == 300
+
+
+def test_blocks_auto_takes_them_from_4000_steps():
+    """``blocks: auto`` (the default): a short run one step at a time (loading the compiled steps would
+    cost more than they save), a run of 4000 steps or more in blocks."""
+    short, long = fi.run(oscillator(periods=2)), fi.run(oscillator(periods=27))   # 300 and 4050 steps
+    assert short.summary["steps_in_blocks"] == 0 and long.summary["steps_in_blocks"] > 3500
+    with pytest.raises(fi.CaseError, match="expected true, false or 'auto'"):
+        oscillator().with_changes({"solver.blocks": "often"})
 
 
 def test_a_load_that_overflows_stops_the_run_at_the_same_step():

@@ -69,14 +69,17 @@ def make_integrator(case: Case, operators):
     return integrator_class(scheme_of(case.solver)).from_solver(operators, case.solver)
 
 
-def block_stepper(case: Case, integrator):
-    """The reduced model's stepper of open phases (``solver.blocks``, integrators/blocks.py), or None."""
+def block_stepper(case: Case, integrator, n_steps: int):
+    """The reduced model's stepper of the steps between contacts (``solver.blocks``,
+    integrators/blocks.py), or None: one step at a time."""
     from ..integrators import is_reduced
 
-    if not is_reduced(case.solver) or not case.solver.blocks:
+    if not is_reduced(case.solver) or case.solver.blocks is False:
         return None
-    from ..integrators.blocks import BlockStepper
+    from ..integrators.blocks import AUTO_FROM, BlockStepper
 
+    if case.solver.blocks == "auto" and n_steps < AUTO_FROM:
+        return None
     return BlockStepper.of(integrator)
 
 
@@ -273,8 +276,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     fields = system.fields
     if model.motion is not None:   # moving supports: the run seen as the whole structure's
         integrator, fields = model.motion.view(integrator, fields, comm)
-    blocks = block_stepper(case, integrator)
     n_steps = steps_for(solver.t_end, solver.dt)
+    blocks = block_stepper(case, integrator, n_steps)
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
 
