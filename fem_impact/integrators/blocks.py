@@ -183,8 +183,10 @@ class BlockStepper:
         self.predicted = open_step.predicted_rows if np.count_nonzero(open_step.predicted_rows) else None
         self.steps = 0
         self.blocks = 0
-        self.length = MIN_BLOCK
-        self._closing = False   # the last block stopped before a step where a row may act
+        self.length = MIN_BLOCK   # the next block's length: twice the last open phase's (or block's)
+        self._closing = False     # the last block stopped before a step where a row may act
+        self._phase = 0           # steps of the open phase the last block ended (in blocks since a single step)
+        self._end = -1            # the last block's last step
 
     @classmethod
     def of(cls, integrator) -> BlockStepper | None:
@@ -227,19 +229,20 @@ class BlockStepper:
             finite &= np.isfinite(coefficients[1:]).all(axis=1)
         if not finite.all():   # a load no longer finite: the single step there stops the run with its name
             size = int(np.argmin(finite))
-            self._closing = True
             if not size:
                 return None
+            self._closing = True
             t, loads = t[:size], loads[:size + 1]
             coefficients = coefficients[:size + 1] if coefficients is not None else None
         steps = it.open_steps(loads)
         pu = steps.PU if static is None else steps.PU + static.offsets_for(coefficients[1:])
         keep = self._open_count(st, t, steps, pu)
-        if keep < size:
-            self._closing = True
-        self.length = min(MAX_BLOCK, max(MIN_BLOCK, 2 * keep))
+        phase = keep + (self._phase if st.step == self._end else 0)   # the open phase's steps so far
+        self.length = min(MAX_BLOCK, max(MIN_BLOCK, 2 * (phase if keep < size else size)))
         if not keep:
             return None
+        if keep < size:   # (the step after the block may close: the next call does not try again)
+            self._closing = True
         return self._block(st, t[:keep], steps.head(keep), pu[:keep], loads[:keep + 1],
                            coefficients[:keep + 1] if coefficients is not None else None)
 
@@ -309,6 +312,8 @@ class BlockStepper:
         """The integrator continues from the block's last step."""
         last = len(block) - 1
         self.integrator.resume(block.state(last), {name: value[last] for name, value in block.carry.items()})
+        self._phase = len(block) + (self._phase if block.previous.step == self._end else 0)
+        self._end = int(block.step[last])
         self.steps += len(block)
         self.blocks += 1
 
