@@ -133,6 +133,46 @@ def test_observers_without_blocks_get_every_step():
     assert np.all(np.abs(runs["blocks"] - runs["single"]) <= ROUND_OFF * np.maximum(scale, 1e-300))
 
 
+def test_blocks_end_where_an_observer_reads_the_integrator():
+    """An observer that reads the integrator's own state at given steps (a checkpoint) says which
+    (``next_stop``): no block runs past them, and there the integrator holds that step's state."""
+    from fem_impact.app import pipeline
+    from fem_impact.config.build import model_spec
+    from fem_impact.fem.mesh import build_mesh
+    from fem_impact.fem.model import build_model
+    from fem_impact.integrators import integrate
+    from fem_impact.integrators.blocks import BlockStepper
+    from fem_impact.nonsmooth.relation import build_constraints
+    from mpi4py import MPI
+
+    case = oscillator(periods=6)
+    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_SELF))
+    cons = build_constraints(case.contacts, model)
+    system = pipeline.reduced_model(case, model, cons)
+    integrator = pipeline.make_integrator(case, system.operators)
+    stepper = BlockStepper.of(integrator)
+
+    class Checkpoint:
+        every, seen = 100, {}
+
+        def next_stop(self, step):
+            return (step // self.every + 1) * self.every
+
+        def write(self, state):
+            if state.step % self.every == 0:
+                self.seen[state.step] = (state.U.copy(), integrator.state.step, integrator.U.copy())
+
+        def write_block(self, block):
+            if block.step[-1] % self.every == 0:
+                self.write(block.state(len(block) - 1))
+
+    check = Checkpoint()
+    integrate(integrator, system.U0, system.V0, case.solver.t_end, [check], blocks=stepper)
+    assert sorted(check.seen) == list(range(0, 901, 100)) and stepper.steps > 700
+    for step, (U, integrator_step, integrator_U) in check.seen.items():
+        assert integrator_step == step and np.array_equal(U, integrator_U)
+
+
 def test_files_and_fields_are_the_same_in_blocks(tmp_path):
     """history.csv, summary.json and the xdmf frames (u, v, a with the static part's rate) of B3 with a
     probe, written by the command's path."""

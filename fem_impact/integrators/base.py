@@ -762,7 +762,10 @@ def integrate(integrator, U0, V0, t_end: float, observers=(), t0: float = 0.0, p
     step at a time) takes the steps without contact many at a time, the same to round-off. Each
     of their steps still reaches every observer: as a block (``write_block(block)``) when every
     observer takes one, else as ``StepState``s one by one, in the order single steps would give
-    them; ``progress`` is then called once a block.
+    them; ``progress`` is then called once a block. The integrator's own state (its vectors) is
+    that of a block's last step: an observer that reads it at given steps (a checkpoint) says
+    which with ``next_stop(step)`` (the next such step after ``step``, or None), and no block
+    runs past it.
     """
     n_steps = steps_for(t_end - t0, integrator.dt)
     watch = EnergyWatch() if watch is None else watch
@@ -771,9 +774,17 @@ def integrate(integrator, U0, V0, t_end: float, observers=(), t0: float = 0.0, p
     for obs in observers:
         obs.write(state)
     whole = all(hasattr(obs, "write_block") for obs in observers)
+    stops = [obs.next_stop for obs in observers if hasattr(obs, "next_stop")]
     done = 0
     while done < n_steps:
-        block = blocks.advance(n_steps - done) if blocks is not None else None
+        block = None
+        if blocks is not None:
+            limit = n_steps - done
+            for stop in stops:
+                at = stop(state.step)
+                if at is not None and at > state.step:
+                    limit = min(limit, at - state.step)
+            block = blocks.advance(limit)
         size = watch.check_block(block) if block is not None else 0
         if size:
             block = block.head(size) if size < len(block) else block
