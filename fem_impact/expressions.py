@@ -120,6 +120,17 @@ class Expression:
         with np.errstate(all="ignore"):
             return float(self._function({"t": np.float64(t)}))
 
+    def at_times(self, t: np.ndarray) -> np.ndarray:
+        """:meth:`at_time` on an array of times at once (a block of steps): a new float array of
+        t's shape, the same numpy operations element by element; overflow gives inf or nan, as
+        there (the caller decides what a non-finite value means)."""
+        t = np.asarray(t, dtype=float)
+        with np.errstate(all="ignore"):
+            value = self._function({"t": t})
+        if isinstance(value, np.ndarray) and value.shape == t.shape and value is not t:
+            return value   # (a new array from numpy's operations)
+        return np.array(np.broadcast_to(value, t.shape), dtype=float)
+
     def time_derivative(self, order: int) -> Expression:
         """The expression's ``order``-th derivative in t (0, 1 or 2), exact: evaluated by Taylor
         arithmetic (values and derivatives carried through each operation), never by differences.

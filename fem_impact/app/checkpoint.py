@@ -228,9 +228,23 @@ class Checkpoints:
         self.every, self.last_step = every, last_step
         self.saved_at: float | None = None
 
+    def _due(self, step: int) -> bool:
+        return step == self.last_step or bool(self.every and step % self.every == 0 and step)
+
     def write(self, state: StepState) -> None:
-        if state.step == self.last_step or (self.every and state.step % self.every == 0 and state.step):
+        if self._due(state.step):
             self.save(state)
+
+    def next_stop(self, step: int) -> int:
+        """The next step after ``step`` at which a checkpoint is saved: no block of steps runs past it."""
+        if not self.every:
+            return self.last_step
+        return min(self.last_step, (step // self.every + 1) * self.every)
+
+    def write_block(self, block) -> None:
+        """After a block (integrators/blocks.py), the integrator holds its last step: saved when due."""
+        if self._due(int(block.step[-1])):
+            self.save(block.state(len(block) - 1))
 
     def save(self, state: StepState) -> None:
         import h5py

@@ -78,6 +78,14 @@ class Probes:
             out[mine, 0], out[mine, 1] = fields.at(state, self.owned_dofs[mine])
         return allsum(comm, out).reshape(-1)
 
+    def values_block(self, block, comm: MPI.Comm, fields) -> np.ndarray:
+        """``values`` at every step of a block of steps (L x columns), one reduction."""
+        out = np.zeros((len(block), len(self.names), 2, self.dim))
+        mine = self.owned_dofs[:, 0] >= 0
+        if mine.any():
+            out[:, mine, 0], out[:, mine, 1] = fields.at_block(block, self.owned_dofs[mine])
+        return allsum(comm, out).reshape(len(block), -1)
+
     def columns(self) -> list[str]:
         return [f"{name}.{q}{AXES[c]}" for name in self.names for q in "uv" for c in range(self.dim)]
 
@@ -96,6 +104,10 @@ class BodyMomenta:
 
     def values(self, state: StepState) -> np.ndarray:
         return self.read(state) if self.names else np.zeros(0)
+
+    def values_block(self, block) -> np.ndarray:
+        """``values`` at every step of a block of steps (L x columns)."""
+        return self.read.block(block) if self.names else np.zeros((len(block), 0))
 
     def columns(self) -> list[str]:
         return [f"{name}.p{AXES[c]}" for name in self.names for c in range(self.dim)]
@@ -195,7 +207,9 @@ class HistoryWriter:
         # FEM_IMPACT_RECORD=DIR: every run also keeps its rows unrounded in DIR (tools/same_histories.py).
         self._recorded: list | None = [] if os.environ.get("FEM_IMPACT_RECORD") and comm.rank == 0 else None
         self.momenta = momenta
-        self.rows: list[list[float]] = []
+        self.rows: list[list[float]] = []   # rows of single steps since the last block or flush
+        self._chunks: list[np.ndarray] = []  # kept rows before those, as arrays (blocks of steps)
+        self._pending = 0                    # rows kept since the last flush
         self.flush_every = flush_every
         self.columns = ["t"]
         for c in cons.contacts:
@@ -215,7 +229,7 @@ class HistoryWriter:
         self.path = path
         self._file = open(path, "w", newline="") if comm.rank == 0 and path is not None else None
         if self._file:
-            self._csv = csv.writer(self._file)
+            self._csv = CsvRows(self._file)
             with writing(path):
                 self._csv.writerow(self.columns)
 
@@ -237,22 +251,61 @@ class HistoryWriter:
             row += state.reaction.tolist()
         if self._keep:
             self.rows.append(row)
-            if self._file and len(self.rows) >= self.flush_every:
+            self._pending += 1
+            if self._file and self._pending >= self.flush_every:
                 self.flush()
+
+    def write_block(self, block) -> None:
+        """The rows of a block of steps (fem_impact/integrators/blocks.py), column by column."""
+        if self.friction is not None or self.reactions:
+            raise ValueError("a block of steps carries no friction or support reactions")
+        columns = [block.t]
+        for c in self.cons.contacts:
+            r = c.rows
+            columns += [block.gap[:, r].min(axis=1), block.force[:, r].sum(axis=1), block.impulse[:, r].sum(axis=1)]
+        if self.probes.names:
+            columns.append(self.probes.values_block(block, self.comm, self.fields))
+        e = block.energy
+        columns += [e.kinetic, e.strain, e.external_work, e.damping_loss, e.impact_loss, e.contact_loss, e.error]
+        if self.momenta is not None:
+            columns.append(self.momenta.values_block(block))
+        if self.scheme_energy:
+            columns.append(e.scheme)
+        if self._keep:
+            self._keep_rows()
+            self._chunks.append(np.column_stack(columns))
+            self._pending += len(block)
+            if self._file and self._pending >= self.flush_every:
+                self.flush()
+
+    def _keep_rows(self) -> None:
+        """The single steps' rows into the chunks (before a block's, in order)."""
+        if self.rows:
+            self._chunks.append(np.array(self.rows, dtype=float).reshape(len(self.rows), len(self.columns)))
+            self.rows.clear()
+
+    def _data(self) -> np.ndarray:
+        """Every row kept since the last flush, as one array (rows x columns)."""
+        self._keep_rows()
+        data = np.concatenate(self._chunks) if self._chunks else np.zeros((0, len(self.columns)))
+        self._chunks = [data] if len(self._chunks) > 1 else self._chunks
+        return data
 
     def flush(self) -> None:
         if self._file:
+            data = self._data()
             if self._recorded is not None:
-                self._recorded += self.rows
+                self._recorded.append(data)
             with writing(self.path):   # (a failed write names no file)
-                self._csv.writerows([[f"{v:.12g}" for v in row] for row in self.rows])
-            self.rows.clear()
+                self._csv.writerows(data)
+            self._chunks.clear()
+            self._pending = 0
 
     def close(self) -> None:
         """Write what is left and close the file; the file is closed even when that write fails."""
         file = self._file
         if file is None:
-            self._record(self.rows)   # (a run that writes no file keeps its rows)
+            self._record([self._data()] if self._keep else None)   # (a run that writes no file keeps its rows)
             return
         try:
             self.flush()
@@ -266,15 +319,15 @@ class HistoryWriter:
             self._file = None
         self._record(self._recorded)
 
-    def _record(self, rows: list | None) -> None:
+    def _record(self, chunks: list | None) -> None:
         """With FEM_IMPACT_RECORD, save the rows under ``$FEM_IMPACT_RECORD/<the pytest test running, if any>/``."""
-        if self._recorded is None or rows is None:
+        if self._recorded is None or chunks is None:
             return
         self._recorded = None   # (once)
         test = os.environ.get("PYTEST_CURRENT_TEST", "no-test").rsplit(" (", 1)[0]
         folder = Path(os.environ["FEM_IMPACT_RECORD"]) / re.sub(r"[^A-Za-z0-9_.-]+", "_", test)
         folder.mkdir(parents=True, exist_ok=True)
-        data = np.array(rows, dtype=float).reshape(len(rows), len(self.columns))
+        data = np.concatenate(chunks) if chunks else np.zeros((0, len(self.columns)))
         stem = f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', self.name)}-{os.getpid()}-{time.monotonic_ns()}"
         np.savez(folder / f"{stem}.npz", columns=np.array(self.columns), data=data)
 
@@ -282,8 +335,31 @@ class HistoryWriter:
         """The kept rows as columns by name (a writer without a file; None on ranks other than 0)."""
         if not self._keep or self.path is not None:
             return None
-        data = np.array(self.rows, dtype=float).reshape(len(self.rows), len(self.columns))
+        data = self._data()
         return {name: data[:, i].copy() for i, name in enumerate(self.columns)}
+
+
+class CsvRows:
+    """history.csv's writer: the header as the csv module writes it, the rows (an array of numbers)
+    by :func:`csv_rows`, the same text written faster."""
+
+    def __init__(self, file):
+        self.file, self._header = file, csv.writer(file)
+
+    def writerow(self, row) -> None:
+        self._header.writerow(row)
+
+    def writerows(self, data: np.ndarray) -> None:
+        self.file.write(csv_rows(np.asarray(data, dtype=float)))
+
+
+def csv_rows(data: np.ndarray) -> str:
+    """Rows of numbers as history.csv writes them: 12 significant digits (``{:.12g}``), commas, CRLF
+    line ends (the csv module's); one format string a row."""
+    if not data.size:
+        return ""
+    line = ",".join(["%.12g"] * data.shape[1]) + "\r\n"
+    return "".join([line % tuple(row) for row in data.tolist()])
 
 
 class VTKWriter:
@@ -303,6 +379,12 @@ class VTKWriter:
             return
         self.series.write(state.t, self.fields.frame(state))
         self.frames += 1
+
+    def write_block(self, block) -> None:
+        """The frames that fall in a block of steps (the fields' ``frame_in``)."""
+        for j in np.flatnonzero((block.step % self.every == 0) | (block.step == self.last_step)):
+            self.series.write(float(block.t[j]), self.fields.frame_in(block, int(j)))
+            self.frames += 1
 
     def close(self) -> None:
         # dolfinx 0.5's VTKFile writes its .pvd again when destroyed: drop it now, while its
@@ -345,6 +427,16 @@ class ImpactLog:
             elif event is not None:
                 self._finish(c.name)
         self._approach = np.array(state.normal_velocity, copy=True)
+
+    def write_block(self, block) -> None:
+        """A block of steps: without impulses it ends the impacts still open (else step by step)."""
+        if np.count_nonzero(block.impulse):
+            for state in block.states():
+                self.write(state)
+            return
+        for name in list(self._open):
+            self._finish(name)
+        self._approach = np.array(block.normal_velocity[-1], copy=True)
 
     def _finish(self, name: str) -> None:
         event = self._open.pop(name)
@@ -393,3 +485,21 @@ class RunStatistics:
         self.max_energy = max(self.max_energy, e.total)
         for c in self.cons.contacts:
             self.total_impulse[c.name] += float(state.impulse[c.rows].sum())
+
+    def write_block(self, block) -> None:
+        """``write`` for every step of a block at once."""
+        e = block.energy
+        if block.gap.size:
+            gap = block.gap
+            if self.elastic.any():
+                self.max_stop_compression = max(self.max_stop_compression,
+                                                float(-gap[:, self.elastic].min(initial=0.0)))
+                gap = gap[:, ~self.elastic]
+            self.max_penetration = max(self.max_penetration, float(-gap.min(initial=0.0)))
+        self.max_energy_error = max(self.max_energy_error, float(np.abs(e.error).max()))
+        self.energy_scale = max(self.energy_scale, float(e.initial.max()), float(np.abs(e.external_work).max()))
+        self.max_energy = max(self.max_energy, float(e.total.max()))
+        if np.count_nonzero(block.impulse):
+            for c in self.cons.contacts:   # (summed in the order step by step would)
+                sums = np.concatenate(([self.total_impulse[c.name]], block.impulse[:, c.rows].sum(axis=1)))
+                self.total_impulse[c.name] = float(np.cumsum(sums)[-1])

@@ -69,6 +69,20 @@ def make_integrator(case: Case, operators):
     return integrator_class(scheme_of(case.solver)).from_solver(operators, case.solver)
 
 
+def block_stepper(case: Case, integrator, n_steps: int):
+    """The reduced model's stepper of the steps between contacts (``solver.blocks``,
+    integrators/blocks.py), or None: one step at a time."""
+    from ..integrators import is_reduced
+
+    if not is_reduced(case.solver) or case.solver.blocks is False:
+        return None
+    from ..integrators.blocks import AUTO_FROM, BlockStepper
+
+    if case.solver.blocks == "auto" and n_steps < AUTO_FROM:
+        return None
+    return BlockStepper.of(integrator)
+
+
 def default_outdir(case: Case) -> Path:
     return Path.cwd() / "results" / case.name
 
@@ -301,6 +315,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             restore(part, state[name])
         restored_impacts = state.get("impacts")
         t0, restarted = saved["t"], {"folder": str(Path(restart).resolve()), "t": saved["t"], "step": saved["step"]}
+    blocks = block_stepper(case, integrator, n_steps)
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
 
@@ -331,7 +346,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         try:
             final = integrate(integrator, system.U0, system.V0, solver.t_end, observers, watch=watch, t0=t0,
                               progress=progress if callable(progress) else Progress(comm) if progress else None,
-                              resume=restart is not None)
+                              resume=restart is not None, blocks=blocks)
         except BaseException:
             # Both closed now (the VTK file writes again when destroyed, after the staging folder is gone),
             # without hiding the run's own error behind a write that fails too.
@@ -354,6 +369,9 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "setup_time_s": setup_time,
             "loop_time_s": loop_time,
             "steps": final.step,
+            # the reduced model's steps taken many at a time between contacts, and in how many blocks
+            "steps_in_blocks": blocks.steps if blocks is not None else 0,
+            "blocks": blocks.blocks if blocks is not None else 0,
             "dt": solver.dt,
             "t_end": final.t,
             "dofs": model.dofs,

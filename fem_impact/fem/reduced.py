@@ -97,6 +97,15 @@ class ModalLoad:
             out += load_factor(f, t) * r
         return out
 
+    def evaluate_block(self, times: np.ndarray) -> np.ndarray:
+        """``Y1^T R(t)`` at each of ``times`` (L x n1), the time functions evaluated on all at once; a
+        value that overflows is left inf or nan (the caller stops before it)."""
+        out = np.empty((times.size, self.constant.size))
+        out[:] = self.constant
+        for f, r in self.varying:
+            out += f.at_times(times)[:, None] * r
+        return out
+
 
 @dataclass
 class StaticCorrection:
@@ -143,6 +152,34 @@ class StaticCorrection:
         c0, c1 = self.coefficients(t0), self.coefficients(t1)
         c_mean = (1.0 - gamma) * c0 + gamma * c1
         return c_mean @ self.load_gram @ (c1 - c0) - c_mean @ self.load_offsets.T @ (f1 - f0)
+
+    # -- the same for a block of steps without contact force (fem_impact/integrators/blocks.py) --
+    def coefficients_block(self, times: np.ndarray) -> np.ndarray:
+        """(1, f_1(t), ...) at each of ``times`` (L x nl); a value that overflows is left inf or nan."""
+        out = np.ones((times.size, 1 + len(self.functions)))
+        for i, f in enumerate(self.functions):
+            out[:, 1 + i] = f.at_times(times)
+        return out
+
+    def offsets_for(self, c: np.ndarray) -> np.ndarray:
+        """``offset`` at each step of a block, from its coefficients (L x nl): L x p."""
+        if self._constant:
+            return np.broadcast_to(self._offset0, (c.shape[0], self._offset0.size))
+        return c @ self.load_offsets.T
+
+    def energies_for(self, c: np.ndarray) -> np.ndarray:
+        """``energy`` at each step of a block without contact force."""
+        if self._constant:
+            return np.full(c.shape[0], self._energy0)
+        return 0.5 * np.einsum("ji,ik,jk->j", c, self.load_gram, c)
+
+    def works_for(self, c0: np.ndarray, c1: np.ndarray, gamma: float) -> np.ndarray:
+        """``work`` over each step of a block without contact force (coefficients at the steps' starts
+        and ends)."""
+        if self._constant:
+            return np.zeros(c1.shape[0])
+        c_mean = (1.0 - gamma) * c0 + gamma * c1
+        return np.einsum("ji,ik,jk->j", c_mean, self.load_gram, c1 - c0)
 
 
 class ReducedFields:
@@ -197,6 +234,44 @@ class ReducedFields:
     def at(self, state: StepState, dofs: np.ndarray):
         return self._parts(state, dofs)
 
+    def _static_block(self, XR, XP, block, last: list | None = None, shape=None):
+        """``_static_and_rate`` for each step of a block (no contact force in it): (L x k) each, for
+        the rows XR, XP (k x nl, k x p); ``last`` keeps the last step's value in ``shape``."""
+        now = block.coefficients @ XR.T
+        rate = np.empty_like(now)
+        t = block.t
+        rate[0] = 0.0
+        if self._previous is not None and self._previous[0] < t[0]:
+            t0, f0 = self._previous
+            first = last[1] if last is not None and last[0] == t0 else XR @ self.static.coefficients(t0) - XP @ f0
+            rate[0] = (now[0] - np.ravel(first)) / (t[0] - t0)
+        rate[1:] = (now[1:] - now[:-1]) / (t[1:] - t[:-1])[:, None]
+        if last is not None:
+            last[:] = [float(t[-1]), now[-1].reshape(shape) if shape is not None else now[-1]]
+        return now, rate
+
+    def at_block(self, block, dofs: np.ndarray):
+        """``at`` for every step of a block (fem_impact/integrators/blocks.py): arrays (L, *dofs.shape)."""
+        Y, XR, XP, last = self._block(dofs)
+        shape = Y.shape[:-1]
+        flat = lambda X: X.reshape(int(np.prod(shape)), X.shape[-1])   # noqa: E731
+        u, v = block.U @ flat(Y).T, block.V @ flat(Y).T
+        if self.static is not None:
+            now, rate = self._static_block(flat(XR), flat(XP), block, last, shape)
+            u, v = u + now, v + rate
+        return u.reshape(len(block), *shape), v.reshape(len(block), *shape)
+
+    def frame_in(self, block, j: int) -> dict[str, np.ndarray]:
+        """``frame`` of step j of a block (its static part's rate from the block's step before)."""
+        state = block.state(j)
+        saved = self._previous
+        if j:
+            self._previous = (float(block.t[j - 1]), block.force[j - 1])
+        try:
+            return self.frame(state)
+        finally:
+            self._previous = saved
+
     def inertial_at(self, state: StepState, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The kept modes' velocity and acceleration: what carries mass and damping (the static
         part has neither)."""
@@ -224,6 +299,13 @@ class ReducedFields:
             if self.static is not None:
                 values = values + self._static_and_rate(rows_R, rows_P, state, last)[1]
             return values
+
+        def read_block(block) -> np.ndarray:
+            values = block.V @ rows_Y.T
+            if self.static is not None:
+                values = values + self._static_block(rows_R, rows_P, block, last)[1]
+            return values
+        read.block = read_block   # (L x k) for a block of steps
         return read
 
     def write(self, state: StepState) -> None:
@@ -231,6 +313,10 @@ class ReducedFields:
         if self._previous is None or self._previous[0] < state.t:
             self._before = self._previous
         self._previous = (state.t, state.force.copy())
+
+    def write_block(self, block) -> None:
+        self._before = (float(block.t[-2]), block.force[-2].copy()) if len(block) > 1 else self._previous
+        self._previous = (float(block.t[-1]), block.force[-1].copy())
 
 
 @dataclass

@@ -10,7 +10,8 @@ from .parameters import (DEFAULT_METHOD, METHODS, MODAL_SCHEMES, REDUCED, SCHEMA
 
 _LAZY = {"EnergyBudget": "base", "EnergyCreated": "base", "EnergyWatch": "base", "Operators": "base",
          "SimulationError": "base", "StepState": "base", "integrate": "base", "steps_for": "base",
-         "CentralDifference": "central_difference", "MoreauJean": "moreau_jean", "Newmark": "newmark"}
+         "CentralDifference": "central_difference", "MoreauJean": "moreau_jean", "Newmark": "newmark",
+         "BlockStepper": "blocks", "StepBlock": "blocks"}
 
 __all__ = ["DEFAULT_METHOD", "INTEGRATORS", "METHODS", "MODAL_SCHEMES", "REDUCED", "SCHEMAS", "integrator_class",
            "is_reduced", "register", "scheme_of", "solver_schema", *_LAZY]

@@ -684,6 +684,61 @@ class EnergyWatch:
                 f"{physical / self.scale:.3g} times the initial energy plus the work put in so far "
                 f"({self.scale:.4g}); the scheme is unstable at this time step")
 
+    def check_block(self, block) -> int:
+        """``check`` on each step of a block of steps (fem_impact/integrators/blocks.py) at once.
+
+        Returns how many of its first steps pass, the watch updated as by ``check`` on each of
+        them; the first step on which ``check`` would stop the run (not finite, blown up, or
+        energy created under ``stop_on_energy_gain``) is not counted: the loop takes it as a
+        single step, whose ``check`` stops the run with its message.
+        """
+        e = block.energy
+        total = e.total
+        size = total.size
+        finite = np.isfinite(total)
+        if not finite.all():
+            size = int(np.argmin(finite))
+        if not size:
+            return 0
+        initial, work = e.initial[:size], e.external_work[:size]
+        scale = np.maximum(initial + work, e.load_scale[:size])   # the scale after each step
+        np.maximum(scale, initial, out=scale)
+        scale[0] = max(scale[0], self.scale)
+        np.maximum.accumulate(scale, out=scale)
+        a = int(np.argmax(scale > 0.0)) if scale[0] <= 0.0 else 0   # steps before a: no scale yet, no check
+        if scale[-1] <= 0.0:
+            self.scale = float(scale[-1])
+            return size
+        live = slice(a, size)
+        excess = total[live] - initial[a:] - work[a:]
+        np.maximum(excess, -(e.contact_loss[live] + e.impact_loss[live]), out=excess)
+        np.maximum(excess, -e.damping_loss[live], out=excess)
+        np.maximum(excess, -e.friction_loss[live], out=excess)
+        at = scale[a:]
+        stop, created_at = size, None
+        blown = e.kinetic[live] + e.strain[live] > self.factor * at
+        if blown.any():
+            stop = a + int(np.argmax(blown))
+        if self.created_at is None:
+            over = excess > self.tolerance * at
+            if over.any():
+                before = np.maximum.accumulate(np.concatenate(([self.created], excess[:-1])))   # self.created then
+                first = over & (excess > before)
+                if first.any():
+                    created_at = a + int(np.argmax(first))
+                    if self.stop:
+                        stop = min(stop, created_at)
+        if not stop:
+            return 0
+        self.scale = float(scale[stop - 1])
+        if stop > a:
+            kept = stop - a
+            self.created = max(self.created, float(excess[:kept].max()))
+            self.max_ratio = max(self.max_ratio, float((total[a:stop] / at[:kept]).max()))
+            if created_at is not None and created_at < stop:
+                self.created_at = float(block.t[created_at])
+        return stop
+
     def describe(self) -> str:
         """The finding in words, for a warning or an error."""
         return (f"the energy exceeded E0 + W_ext (or the contacts' losses went below zero) by {self.created:.4g} "
@@ -696,12 +751,21 @@ class EnergyWatch:
 
 
 def integrate(integrator, U0, V0, t_end: float, observers=(), t0: float = 0.0, progress=None,
-              watch: EnergyWatch | None = None, resume: bool = False) -> StepState:
+              watch: EnergyWatch | None = None, resume: bool = False, blocks=None) -> StepState:
     """Run ``integrator`` from (U0, V0) at ``t0`` to ``t_end``, calling each observer every step.
 
     ``watch`` (an EnergyWatch; a default one when None) checks every step before the observers see
     it: a run whose state stops being finite or whose energy blows up stops with a
     SimulationError, and energy created by the contacts is recorded (or stops the run).
+
+    ``blocks`` (a ``BlockStepper`` of ``integrator``, fem_impact/integrators/blocks.py; None: one
+    step at a time) takes the steps without contact many at a time, the same to round-off. Each
+    of their steps still reaches every observer: as a block (``write_block(block)``) when every
+    observer takes one, else as ``StepState``s one by one, in the order single steps would give
+    them; ``progress`` is then called once a block. The integrator's own state (its vectors) is
+    that of a block's last step: an observer that reads it at given steps (a checkpoint) says
+    which with ``next_stop(step)`` (the next such step after ``step``, or None), and no block
+    runs past it.
     """
     n_steps = steps_for(t_end - t0, integrator.dt)
     watch = EnergyWatch() if watch is None else watch
@@ -710,11 +774,37 @@ def integrate(integrator, U0, V0, t_end: float, observers=(), t0: float = 0.0, p
     watch.check(state)
     for obs in observers:
         obs.write(state)
-    for _ in range(n_steps):
-        state = integrator.step()
-        watch.check(state)
-        for obs in observers:
-            obs.write(state)
+    whole = all(hasattr(obs, "write_block") for obs in observers)
+    stops = [obs.next_stop for obs in observers if hasattr(obs, "next_stop")]
+    done = 0
+    while done < n_steps:
+        block = None
+        if blocks is not None:
+            limit = n_steps - done
+            for stop in stops:
+                at = stop(state.step)
+                if at is not None and at > state.step:
+                    limit = min(limit, at - state.step)
+            block = blocks.advance(limit)
+        size = watch.check_block(block) if block is not None else 0
+        if size:
+            block = block.head(size) if size < len(block) else block
+            blocks.commit(block)
+            if whole:
+                for obs in observers:
+                    obs.write_block(block)
+            else:
+                for one in block.states():
+                    for obs in observers:
+                        obs.write(one)
+            done += size
+            state = integrator.state
+        else:
+            state = integrator.step()
+            watch.check(state)
+            for obs in observers:
+                obs.write(state)
+            done += 1
         if progress is not None:
             progress(state.step, n_steps)
     return state

@@ -42,6 +42,7 @@ import numpy as np
 from ..errors import ContactSolverError
 from ..nonsmooth.friction import FrictionProblem
 from ..nonsmooth.lcp import TINY, Delassus, solve_lcp
+from .blocks import OpenStep, OpenSteps, diagonal
 from .base import DenseAlgebra, EnergyBudget, Operators, StepState, axpy
 from .scheme import ContactScheme
 
@@ -143,6 +144,47 @@ class MoreauJean(ContactScheme):
     def from_solver(cls, ops: Operators, solver) -> MoreauJean:
         """From the case file's ``solver`` section."""
         return cls(ops, solver.dt, theta=solver.theta, level=solver.level)
+
+    def open_step(self) -> OpenStep | None:
+        """The step without impulse, on a replicated diagonal system without friction (blocks.py)."""
+        diag = diagonal(self.ops)
+        if diag is None or self.friction is not None:
+            return None
+        return OpenStep(*diag, self.theta, ~self.position_rows)
+
+    def open_steps(self, loads: np.ndarray) -> OpenSteps:
+        """``len(loads) - 1`` steps without impulse from the state, the loads ``loads`` at the state's
+        time and at each step's end (L + 1 x n): the compiled ``step`` (kernels.py)."""
+        ops = self.ops
+        if getattr(self, "_open_args", None) is None:   # (the step's constants, as step() forms them)
+            from .kernels import FUSED, moreau_jean_steps
+
+            dt, theta, n = self.dt, self.theta, self.U.size
+            coef = np.array([dt * (1.0 - theta), dt * theta, -dt * (1.0 - theta), -dt,
+                             -theta * (1.0 - theta) * dt * dt, 1.0 / dt, -theta * dt, 1.0 / (theta * theta * dt * dt)])
+            damped = ops.C is not None
+            self._open_args = (moreau_jean_steps, FUSED, self.loaded, damped, coef, ops.M, ops.K,
+                               ops.C if damped else np.zeros(n), self.solve_S.inverse)
+        U, V, A, KU, KV = np.empty((5, loads.shape[0] - 1, self.U.size))
+        CV = self.CV if ops.C is not None else self.U   # (not read without damping)
+        kernel, *args = self._open_args
+        kernel(self.state.step, CHECK_EVERY, *args, loads, self.U, self.V, self.MV, self.KU, self.KV, CV,
+               U, V, A, KU, KV)
+        P = ops._P_block   # (p x n, dense on a replicated system)
+        return OpenSteps(U, V, A, V * ops.M, np.einsum("ji,ji->j", U, KU), U @ P.T, V @ P.T, {"KU": KU, "KV": KV})
+
+    def block_ready(self, state: StepState) -> bool:
+        """The previous force enters a step only through a static part or an elastic stop's spring
+        (their energy and work): without them any state will do."""
+        return (self.ops.static is None and not self._elastic_stops) or super().block_ready(state)
+
+    def resume(self, state: StepState, carry: dict) -> None:
+        super().resume(state, carry)
+        np.copyto(self.KU, carry["KU"])
+        np.copyto(self.KV, carry["KV"])
+        if self.ops.p:
+            self._pu_dyn, pv = self.ops.project_many(self.U, self.V)
+            self._resume_rows(self._pu_dyn, pv)
 
     def start(self, U0, V0, t0: float = 0.0) -> StepState:
         """The state at t0: no impulse yet (a row closed and approaching is handled by the first step)."""

@@ -7,6 +7,7 @@ import logging
 import numpy as np
 
 from ..nonsmooth.lcp import Delassus, impact_correction
+from .blocks import OpenStep, OpenSteps, diagonal
 from .base import Operators, StepState, axpy
 from .scheme import ContactScheme
 
@@ -79,6 +80,52 @@ class Newmark(ContactScheme):
     def from_solver(cls, ops: Operators, solver) -> Newmark:
         """From the case file's ``solver`` section."""
         return cls(ops, solver.dt, beta=solver.beta, gamma=solver.gamma, impact_correction=solver.impact_correction)
+
+    def open_step(self) -> OpenStep | None:
+        """The step without multipliers, on a replicated diagonal system (blocks.py)."""
+        diag = diagonal(self.ops)
+        if diag is None:
+            return None
+        return OpenStep(*diag, self.gamma, np.zeros(self.ops.p, dtype=bool))
+
+    def open_steps(self, loads: np.ndarray) -> OpenSteps:
+        """``len(loads) - 1`` steps without multipliers from the state, the loads ``loads`` at the
+        state's time and at each step's end (L + 1 x n): the compiled ``step`` (kernels.py)."""
+        ops, dt, beta, gamma = self.ops, self.dt, self.beta, self.gamma
+        size = loads.shape[0] - 1
+        damped = ops.C is not None
+        if getattr(self, "_open_args", None) is None:   # (the step's constants, as step() forms them)
+            from .kernels import FUSED, newmark_steps
+
+            coef = np.array([dt, dt * dt * (0.5 - beta), dt * (1.0 - gamma), beta * dt * dt, gamma * dt])
+            self._open_args = (newmark_steps, FUSED, damped, coef, ops.M, ops.K,
+                               ops.C if damped else np.zeros(self.U.size), self.solve_S.inverse)
+        U, V, A, MV, Up, Vp = np.empty((6, size, self.U.size))
+        kernel, *args = self._open_args
+        kernel(*args, loads, self.U, self.V, self.A, self.MV, self.MA, U, V, A, MV, Up, Vp)
+        # U^T K U as step() books it: from its equation of motion, by a product every CHECK_EVERY-th step.
+        rows = lambda a, b: np.einsum("ji,ji->j", a, b)   # noqa: E731
+        UKU = -rows(U, A * ops.M)
+        if self.loaded:
+            UKU += rows(U, loads[1:])
+        if damped:
+            UKU -= rows(U, V * ops.C)
+        product = (self.state.step + 1 + np.arange(size)) % CHECK_EVERY == 0
+        if product.any():
+            UKU[product] = rows(U[product], U[product] * ops.K)
+        # P U and P V as step() reports them: from the predictors' projections and P A.
+        P = ops._P_block
+        PA = A @ P.T
+        PU, PV = Up @ P.T + beta * dt * dt * PA, Vp @ P.T + gamma * dt * PA
+        return OpenSteps(U, V, A, MV, UKU, PU, PV, {"MV": MV, "U~": Up, "V~": Vp})
+
+    def resume(self, state: StepState, carry: dict) -> None:
+        super().resume(state, carry)
+        np.copyto(self.MV, carry["MV"])   # (accumulated by the steps, not M V)
+        if self.ops.p:
+            dt = self.dt
+            pu_pred, pv_pred, pa = self.ops.project_many(carry["U~"], carry["V~"], self.A)
+            self._resume_rows(pu_pred + self.beta * dt * dt * pa, pv_pred + self.gamma * dt * pa)
 
     def step(self) -> StepState:
         ops, st, dt, beta, gamma = self.ops, self.state, self.dt, self.beta, self.gamma

@@ -47,6 +47,14 @@ def _count_or_auto(value):
                      else "expected 'auto' or an integer >= 1")
 
 
+def _flag_or_auto(value):
+    """``blocks``: true, false or ``auto``."""
+    if isinstance(value, bool) or value == "auto":
+        return value
+    raise ValueError(f"expected true, false or 'auto', got {value!r}" if not isinstance(value, (dict, list))
+                     else "expected true, false or 'auto'")
+
+
 class SolverParameters(BaseModel):
     """Keys every method takes: the time step, the end time, the mass matrix."""
 
@@ -105,6 +113,10 @@ class _ReductionKeys(BaseModel):
                                                       "contact rows (Barauskas 1992)")
     tolerance: float = _number("-", "modes: auto: the largest neglected flexibility per contact row, as a "
                                     "fraction of the row's static flexibility", 0.01, gt=0, lt=1)
+    blocks: Annotated[bool | str, PlainValidator(_flag_or_auto)] = Field(
+        "auto", description="take the steps between contacts many at a time (the same results to round-off; "
+                            "Numba); auto: when the run has at least 4000 steps (below, loading the compiled "
+                            "steps costs more than they save); false: one at a time")
 
     def _written(self) -> set[str]:
         keys = super()._written()

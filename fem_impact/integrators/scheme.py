@@ -240,6 +240,7 @@ class ContactScheme:
         """U, V from (U0, V0); R(t0); the free initial acceleration ``M A = R - K U - C V``; (P U, P V, P A)."""
         ops = self.ops
         self.t0 = t0
+        self._open_args = None   # (open_steps' constants: formed again for this start)
         self.U[:] = owned_values(U0)
         self.V[:] = owned_values(V0)
         ops.load.evaluate(t0, self.R)
@@ -277,6 +278,43 @@ class ContactScheme:
     def restored(self) -> StepState:
         """The state restored from a checkpoint, to go on from (fem_impact/app/checkpoint.py)."""
         return self.state
+
+    # -- many steps at a time between contacts (blocks.py, docs/theory.md s. 8.8) ---------------
+    def open_step(self):
+        """What the scheme's step without contact is (a ``blocks.OpenStep``), where the system allows
+        taking such steps in blocks (replicated, diagonal operators: the reduced model); None for a
+        scheme that cannot."""
+        return None
+
+    def block_ready(self, state: StepState) -> bool:
+        """Whether the step after ``state`` is the step without contact when no row acts in it: no
+        contact force of ``state`` enters it (a scheme that books the previous force, as the first
+        half of a trapezoidal impulse, says no while one is left)."""
+        return not np.count_nonzero(state.force)
+
+    def resume(self, state: StepState, carry: dict) -> None:
+        """Continue from ``state``, the last step of a block (blocks.py), as the step itself would
+        have left it: the state vectors, what the next step reads of them (M V, M A, C V, R), and
+        (in a scheme's own ``resume``) ``carry``, what the scheme's ``open_steps`` said it carries."""
+        ops, alg = self.ops, self.alg
+        np.copyto(self.U, state.U)
+        np.copyto(self.V, state.V)
+        np.copyto(self.A, state.A)
+        alg.mult(ops.M, self.V, self.MV)
+        alg.mult(ops.M, self.A, self.MA)
+        if ops.C is not None:
+            alg.mult(ops.C, self.V, self.CV)
+        if ops.load.time_dependent:   # (the block's R(t), as the load's evaluate gives it)
+            np.copyto(self.R, carry["R"])
+        state.U, state.V, state.A = self.U, self.V, self.A   # (observers read the integrator's own arrays)
+        self.state = state
+
+    def _resume_rows(self, pu_dyn: np.ndarray, pv: np.ndarray) -> None:
+        """The resumed state's contact rows from P U and P V of the kept modes as the step forms them
+        (the static part's offset at its time added; no force)."""
+        st, static = self.state, self.ops.static
+        pu = pu_dyn + static.offset(st.t) - static.compliance.dot(st.force) if static is not None else pu_dyn
+        st.normal_displacement, st.normal_velocity, st.gap = pu, pv, self.ops.d0 - pu
 
     def start(self, U0, V0, t0: float = 0.0) -> StepState:
         """Initial acceleration from the equation of motion; closed contacts get their impulse and force."""

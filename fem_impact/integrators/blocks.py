@@ -1,0 +1,332 @@
+"""The reduced model's steps between contacts, many at a time (docs/theory.md s. 8.8).
+
+On a replicated system with diagonal ``M``, ``C`` and ``K`` (the reduced model: ``M = I``, ``K =
+diag(w^2)``, ``C = diag(alpha + beta w^2)``) a step of Moreau-Jean or Newmark in which no contact
+row acts is a fixed affine map of the state, dof by dof, driven by the load at the step's ends:
+no contact problem, no solve, nothing that couples the dofs. From a state the integrator reached,
+:class:`BlockStepper`
+
+1. evaluates the load's time functions on a block of step times at once (numpy);
+2. runs the scheme's step without contact through the block: a compiled loop (kernels.py) that
+   performs the integrator's own operations in its order, so the states are its own to the bit;
+3. keeps the steps before the first one where a contact row might act: its gap at the step's
+   end (and, for rows that Moreau-Jean's velocity level decides at a step's start, the gap
+   predicted to mid-step) within ``SAFETY`` of the magnitudes it is made of;
+4. books each kept step's energy budget as the scheme does (``_step_energies``, ``_book_stored``
+   with the contact terms zero), with numpy over the block.
+
+The step that may close, and every step of a contact, goes through the integrator itself, which
+resumes from the block's last state (``resume``). The kept steps come as a :class:`StepBlock`:
+what a ``StepState`` holds, as arrays over the steps; observers that accept a block
+(``write_block``) read it at once, others get its ``StepState``s one by one (``integrate``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from functools import cached_property
+
+import numpy as np
+
+from ..nonsmooth.lcp import TINY
+from .base import EnergyBudget, StepState
+
+SAFETY = 1e-9          # a gap counts as open above this fraction of the magnitudes it is made of
+# solver.blocks: auto takes blocks from this many steps on: loading Numba and the compiled steps costs
+# about 0.2 s a run (1.5 s the first time, compiling), a step in a block saves about 70 us.
+AUTO_FROM = 4000
+MIN_BLOCK = 32         # steps: the first block's length, and the shortest one tried
+MAX_BLOCK = 4096       # steps: the longest block (memory: a few arrays of MAX_BLOCK x n)
+_ENERGY = [f.name for f in fields(EnergyBudget)]
+
+
+@dataclass
+class OpenStep:
+    """What a scheme's step without contact is on a diagonal system (``open_step()`` of an
+    integrator): the diagonals of M, K and C (or None), the weight of the step's end in its work
+    terms (theta, gamma: a force f works ``Delta U . ((1 - weight) f0 + weight f1)`` over a
+    step), and the contact rows whose activity the scheme decides at a step's start from the gap
+    predicted to mid-step (Moreau-Jean's velocity level; every other row acts only when its gap
+    at the step's end closes)."""
+
+    mass: np.ndarray
+    stiffness: np.ndarray
+    damping: np.ndarray | None
+    weight: float
+    predicted_rows: np.ndarray
+
+
+@dataclass
+class OpenSteps:
+    """A scheme's steps without contact from its state (``open_steps(loads)``), per step: U, V, A
+    (L x n); ``MV`` (L x n), the M V its budget books the kinetic energy with; ``UKU`` (L), U^T K U
+    as its budget books the strain energy; ``PU``, ``PV`` (L x p), P U and P V of the kept modes as
+    its step reports them; ``carry``: what it carries to its next step (name -> L x n), read by
+    its ``resume``."""
+
+    U: np.ndarray
+    V: np.ndarray
+    A: np.ndarray
+    MV: np.ndarray
+    UKU: np.ndarray
+    PU: np.ndarray
+    PV: np.ndarray
+    carry: dict = field(default_factory=dict)
+
+    def head(self, k: int) -> OpenSteps:
+        return OpenSteps(self.U[:k], self.V[:k], self.A[:k], self.MV[:k], self.UKU[:k], self.PU[:k], self.PV[:k],
+                         {name: value[:k] for name, value in self.carry.items()})
+
+
+def diagonal(ops) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+    """``(m, k, c)`` when ``ops`` is a replicated system with diagonal M, K (and C), else None."""
+    if ops.algebra.distributed or ops.massless.size:
+        return None
+    M, K, C = ops.M, ops.K, ops.C
+    if not (isinstance(M, np.ndarray) and isinstance(K, np.ndarray) and M.ndim == 1 and K.ndim == 1):
+        return None
+    if C is not None and not (isinstance(C, np.ndarray) and C.ndim == 1):
+        return None
+    return M, K, C
+
+
+def compiled() -> bool:
+    """Whether the compiled steps load (Numba installed); loads them now, not in the time loop."""
+    try:
+        from . import kernels
+    except ImportError:
+        return False
+    kernels.warm_up()
+    return True
+
+
+@dataclass
+class BlockEnergy(EnergyBudget):
+    """An ``EnergyBudget`` whose terms are arrays over a block's steps; ``total`` and ``error``
+    (EnergyBudget's, the same operations on each step) computed once."""
+
+    @cached_property
+    def total(self) -> np.ndarray:
+        return EnergyBudget.total.fget(self)
+
+    @cached_property
+    def error(self) -> np.ndarray:
+        return EnergyBudget.error.fget(self)
+
+
+@dataclass
+class StepBlock:
+    """Consecutive steps without contact impulse, as arrays over the steps (first axis).
+
+    The fields are those of ``StepState``: ``U``, ``V``, ``A`` (L x n), ``gap``, ``force``,
+    ``impulse``, ``normal_displacement``, ``normal_velocity`` (L x p), ``energy`` (an
+    ``EnergyBudget`` whose every term is an array of L values); ``previous`` is the state
+    before the block's first step, ``coefficients`` the static part's load coefficients at each
+    step (L x nl, or None without a static part), ``carry`` what the integrator carries from
+    each step to the next (its ``resume``).
+    """
+
+    step: np.ndarray
+    t: np.ndarray
+    U: np.ndarray
+    V: np.ndarray
+    A: np.ndarray
+    gap: np.ndarray
+    force: np.ndarray
+    impulse: np.ndarray
+    energy: EnergyBudget
+    normal_displacement: np.ndarray
+    normal_velocity: np.ndarray
+    previous: StepState
+    coefficients: np.ndarray | None = None
+    carry: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return self.t.size
+
+    def head(self, k: int) -> StepBlock:
+        """The block's first k steps."""
+        cut = {name: getattr(self, name)[:k] for name in ("step", "t", "U", "V", "A", "gap", "force", "impulse",
+                                                          "normal_displacement", "normal_velocity")}
+        return StepBlock(**cut, energy=BlockEnergy(*(getattr(self.energy, name)[:k] for name in _ENERGY)),
+                         previous=self.previous,
+                         coefficients=self.coefficients[:k] if self.coefficients is not None else None,
+                         carry={name: value[:k] for name, value in self.carry.items()})
+
+    def state(self, j: int) -> StepState:
+        """Step j of the block as a ``StepState`` (its arrays: views of the block's)."""
+        energy = EnergyBudget(*(float(getattr(self.energy, name)[j]) for name in _ENERGY))
+        return StepState(int(self.step[j]), float(self.t[j]), self.U[j], self.V[j], self.A[j], self.gap[j],
+                         self.force[j], self.impulse[j], energy, self.normal_displacement[j],
+                         self.normal_velocity[j])
+
+    def states(self):
+        """The steps one by one, as ``StepState``s."""
+        return (self.state(j) for j in range(len(self)))
+
+
+class BlockStepper:
+    """An integrator's steps between contacts, many at a time (module docstring).
+
+    ``advance(limit)`` gives the next block of at most ``limit`` steps from the integrator's
+    state, or None when the next step may involve a contact (take it with
+    ``integrator.step()``); ``commit(block)`` (or of its head) hands the block's last state to the
+    integrator. ``steps`` and ``blocks`` count what was done in blocks.
+    """
+
+    def __init__(self, integrator, open_step: OpenStep):
+        self.integrator, self.open_step = integrator, open_step
+        ops = integrator.ops
+        self.ops, self.static = ops, ops.static
+        self.abs_Pt = np.abs(ops.P_local.toarray())   # |P^T| (n x p), dense: a few modes and rows
+        self.abs_d0 = np.abs(ops.d0)
+        self.predicted = open_step.predicted_rows if np.count_nonzero(open_step.predicted_rows) else None
+        self.steps = 0
+        self.blocks = 0
+        self.length = MIN_BLOCK   # the next block's length: twice the last open phase's (or block's)
+        self._closing = False     # the last block stopped before a step where a row may act
+        self._phase = 0           # steps of the open phase the last block ended (in blocks since a single step)
+        self._end = -1            # the last block's last step
+
+    @classmethod
+    def of(cls, integrator) -> BlockStepper | None:
+        """A stepper for ``integrator``, or None when its steps cannot be taken in blocks: a
+        finite-element model, friction, dense operators, a wrapper (moving supports), no Numba."""
+        method = getattr(type(integrator), "open_step", None)   # (the class's own, not a wrapper's delegate)
+        open_step = method(integrator) if method is not None else None
+        if open_step is None or not compiled():
+            return None
+        ops = integrator.ops
+        if ops.load.time_dependent and not hasattr(ops.load, "evaluate_block"):
+            return None
+        if ops.static is not None and not hasattr(ops.static, "coefficients_block"):
+            return None
+        return cls(integrator, open_step)
+
+    def advance(self, limit: int) -> StepBlock | None:
+        """Up to ``limit`` steps from the integrator's state, stopped before the first step in which a
+        contact row may act; None when that is the next one (or the state carries a force into it)."""
+        it, ops, static = self.integrator, self.ops, self.static
+        st = it.state
+        if self._closing:
+            self._closing = False
+            return None
+        if limit <= 0 or not it.block_ready(st):
+            return None
+        size = min(limit, self.length)
+        t = it.t0 + np.arange(st.step + 1, st.step + size + 1) * it.dt   # (the integrators' own t1)
+        loads = np.empty((size + 1, it.R.size))
+        loads[0] = it.R
+        finite = np.ones(size, dtype=bool)
+        if ops.load.time_dependent:
+            loads[1:] = ops.load.evaluate_block(t)
+            finite &= np.isfinite(loads[1:]).all(axis=1)
+        else:
+            loads[1:] = it.R
+        coefficients = None
+        if static is not None:
+            coefficients = static.coefficients_block(np.concatenate(([st.t], t)))
+            finite &= np.isfinite(coefficients[1:]).all(axis=1)
+        if not finite.all():   # a load no longer finite: the single step there stops the run with its name
+            size = int(np.argmin(finite))
+            if not size:
+                return None
+            self._closing = True
+            t, loads = t[:size], loads[:size + 1]
+            coefficients = coefficients[:size + 1] if coefficients is not None else None
+        steps = it.open_steps(loads)
+        pu = steps.PU if static is None else steps.PU + static.offsets_for(coefficients[1:])
+        keep = self._open_count(st, t, steps, pu)
+        phase = keep + (self._phase if st.step == self._end else 0)   # the open phase's steps so far
+        self.length = min(MAX_BLOCK, max(MIN_BLOCK, 2 * (phase if keep < size else size)))
+        if not keep:
+            return None
+        if keep < size:   # (the step after the block may close: the next call does not try again)
+            self._closing = True
+        return self._block(st, t[:keep], steps.head(keep), pu[:keep], loads[:keep + 1],
+                           coefficients[:keep + 1] if coefficients is not None else None)
+
+    def _open_count(self, st: StepState, t, steps: OpenSteps, pu) -> int:
+        """How many of the block's first steps no contact row can act in (module docstring); ``pu``:
+        P U after each step (L x p)."""
+        ops = self.ops
+        if not ops.p:
+            return t.size
+        scale = np.abs(steps.U) @ self.abs_Pt   # |P| |U| + |d0| + |offset| >= what P U and d0 are made of
+        scale += self.abs_d0
+        scale += np.abs(pu - steps.PU)
+        gap = ops.d0 - pu
+        ok = gap > SAFETY * scale + TINY
+        if self.predicted is not None:   # rows decided at a step's start: the gap predicted to mid-step
+            rows = self.predicted
+            pv = steps.PV[:, rows]
+            gap0 = np.concatenate((st.gap[None, rows], gap[:-1, rows]))
+            pv0 = np.concatenate((st.normal_velocity[None, rows], pv[:-1]))
+            scale0 = np.concatenate(((self.abs_d0 + np.abs(st.normal_displacement))[None, rows], scale[:-1, rows]))
+            ok[:, rows] &= gap0 - 0.5 * self.integrator.dt * pv0 > SAFETY * scale0 + TINY
+        good = ok.all(axis=1)
+        return t.size if good.all() else int(np.argmin(good))
+
+    def _block(self, st: StepState, t, steps: OpenSteps, pu, loads, coefficients) -> StepBlock:
+        """The StepBlock of the kept steps: contact rows and the energy budget of each step."""
+        it, ops, static = self.integrator, self.ops, self.static
+        w, size, p = self.open_step.weight, t.size, ops.p
+        U, V = steps.U, steps.V
+        zeros = np.zeros((size, p))
+
+        # The budget as _step_energies and _book_stored book it, with the contact terms zero.
+        e0 = st.energy
+        du = U - np.concatenate((it.U[None], U[:-1]))
+        kinetic = 0.5 * _rows_dot(V, steps.MV)
+        strain = 0.5 * steps.UKU
+        work, load_scale = np.zeros(size), np.zeros(size)
+        if it.loaded:
+            if ops.load.time_dependent:
+                work = (1.0 - w) * _rows_dot(du, loads[:-1]) + w * _rows_dot(du, loads[1:])
+            else:
+                work = ((1.0 - w) + w) * (du @ it.R)
+            load_scale = np.einsum("ji,ji,i->j", loads[1:], loads[1:], it._load_weights)
+        damping = None
+        if self.open_step.damping is not None:
+            CV = V * self.open_step.damping
+            damping = (1.0 - w) * _rows_dot(du, np.concatenate((it.CV[None], CV[:-1]))) + w * _rows_dot(du, CV)
+        static_work = None
+        if static is not None:
+            stored = static.energies_for(coefficients[1:])
+            strain += stored
+            static_work = static.works_for(coefficients[:-1], coefficients[1:], w)
+            if it.loaded:
+                load_scale += stored
+        constant = lambda value: np.full(size, value)   # noqa: E731
+        energy = BlockEnergy(
+            kinetic=kinetic, strain=strain, external_work=_accumulate(e0.external_work, work, static_work),
+            damping_loss=_accumulate(e0.damping_loss, damping) if damping is not None else constant(e0.damping_loss),
+            impact_loss=constant(e0.impact_loss), contact_loss=constant(e0.contact_loss),
+            initial=constant(e0.initial), scheme=np.zeros(size), load_scale=load_scale,
+            friction_loss=constant(e0.friction_loss))
+        return StepBlock(np.arange(st.step + 1, st.step + size + 1), t, U, V, steps.A, ops.d0 - pu, zeros,
+                         zeros.copy(), energy, pu, steps.PV, st,
+                         coefficients[1:] if coefficients is not None else None, dict(steps.carry, R=loads[1:]))
+
+    def commit(self, block: StepBlock) -> None:
+        """The integrator continues from the block's last step."""
+        last = len(block) - 1
+        self.integrator.resume(block.state(last), {name: value[last] for name, value in block.carry.items()})
+        self._phase = len(block) + (self._phase if block.previous.step == self._end else 0)
+        self._end = int(block.step[last])
+        self.steps += len(block)
+        self.blocks += 1
+
+
+def _rows_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a[j] . b[j]`` for each row j."""
+    return np.einsum("ji,ji->j", a, b)
+
+
+def _accumulate(start: float, increments: np.ndarray, more: np.ndarray | None = None) -> np.ndarray:
+    """The running total after each step, ``start`` plus each step's increments (``increments[j]``,
+    then ``more[j]``), added in the order step by step adds them."""
+    if more is not None:
+        increments = np.column_stack((increments, more)).ravel()
+    total = np.cumsum(np.concatenate(([start], increments)))[1:]
+    return total[1::2] if more is not None else total

@@ -1,0 +1,122 @@
+"""Compiled steps without contact on a diagonal replicated system (blocks.py), by Numba (Debian's
+python3-numba, cached beside this file after the first run; optional: without it every step is a
+single step).
+
+Each loop is its scheme's step (moreau_jean.py, newmark.py) with the contact terms zero, operation
+by operation in the integrator's order, on each dof: the same products, sums and divisions, and a
+fused multiply-add where the integrator's BLAS ``axpy`` fuses (``FUSED``, probed once), so that
+the states are the integrator's own to the last bit. That is why the integrators' identities for
+``K U`` and ``K V`` (and their products every ``check_every`` steps) appear here too.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, types
+from numba.extending import intrinsic
+from scipy.linalg.blas import daxpy
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):
+    """``a b + c`` rounded once (LLVM's fma)."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        return builder.fma(*args)
+    return sig, codegen
+
+
+def blas_fuses() -> bool:
+    """Whether this BLAS's ``daxpy`` rounds ``y + a x`` once (a fused multiply-add), as the
+    integrators' ``axpy`` computes it: (1 + 2^-30)^2 - 1 keeps its 2^-60 only when fused."""
+    x, y = np.array([1.0 + 2.0 ** -30]), np.array([-1.0])
+    daxpy(x, y, a=1.0 + 2.0 ** -30)
+    return bool(y[0] != 2.0 ** -29)
+
+
+FUSED = blas_fuses()
+
+
+@njit(cache=True, inline="always")
+def _axpy(fused, a, x, y):
+    return _fma(a, x, y) if fused else a * x + y
+
+
+@njit(cache=True)
+def moreau_jean_steps(first, check_every, fused, loaded, damped, coef, m, k, d, inv_S, R,
+                      U0, V0, MV0, KU0, KV0, CV0, U, V, A, KU, KV):
+    """MoreauJean.step without impulse, ``U.shape[0]`` times from step ``first``'s vectors (U0, V0,
+    M V0, K U0, K V0, C V0); ``R`` (L + 1 x n) the modal loads at the steps' ends; ``coef``: the
+    step's scalars as the integrator forms them, [dt (1 - theta), dt theta, -dt (1 - theta), -dt,
+    -theta (1 - theta) dt^2, 1 / dt, -theta dt, 1 / (theta^2 dt^2)]. Writes U, V, A, K U and K V
+    after each step (L x n)."""
+    c0, c1, c2, c3, c4, c5, c6, c7 = coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7]
+    u, v, mv, ku, kv, cv = U0.copy(), V0.copy(), MV0.copy(), KU0.copy(), KV0.copy(), CV0.copy()
+    for j in range(U.shape[0]):
+        identity = (first + j + 1) % check_every != 0
+        for i in range(u.size):
+            r = mv[i]                              # rhs = M V0 + dt R_theta - dt (1 - theta) C V0 - dt K U0
+            if loaded:                             #       - theta (1 - theta) dt^2 K V0, axpy by axpy
+                r = _axpy(fused, c0, R[j, i], r)
+                r = _axpy(fused, c1, R[j + 1, i], r)
+            if damped:
+                r = _axpy(fused, c2, cv[i], r)
+            r = _axpy(fused, c3, ku[i], r)
+            r = _axpy(fused, c4, kv[i], r)
+            v0 = v[i]
+            ui = _axpy(fused, c0, v0, u[i])        # U0 + dt (1 - theta) V0
+            vi = inv_S[i] * r                      # the free velocity: S V1 = rhs
+            ui = _axpy(fused, c1, vi, ui)          # + dt theta V1
+            cvi = d[i] * vi if damped else 0.0
+            ai = (vi - v0) * c5
+            mvi = m[i] * vi
+            if identity:                           # K V1 from theta^2 dt^2 K V1 = rhs - M V1 - theta dt C V1
+                kvi = r - mvi
+                if damped:
+                    kvi = _axpy(fused, c6, cvi, kvi)
+                kvi = kvi * c7
+                kui = _axpy(fused, c0, kv[i], ku[i])
+                kui = _axpy(fused, c1, kvi, kui)
+            else:
+                kvi = k[i] * vi
+                kui = k[i] * ui
+            u[i], v[i], mv[i], ku[i], kv[i], cv[i] = ui, vi, mvi, kui, kvi, cvi
+            U[j, i], V[j, i], A[j, i], KU[j, i], KV[j, i] = ui, vi, ai, kui, kvi
+
+
+@njit(cache=True)
+def newmark_steps(fused, damped, coef, m, k, d, inv_S, R, U0, V0, A0, MV0, MA0, U, V, A, MV, Up, Vp):
+    """Newmark.step without multipliers, ``U.shape[0]`` times from (U0, V0, A0, M V0, M A0); ``R``
+    (L + 1 x n) the modal loads at the steps' ends (row 0 unused); ``coef``: [dt, dt^2 (1/2 - beta),
+    dt (1 - gamma), beta dt^2, gamma dt]. Writes U, V, A, the scheme's M V and the predictors U~, V~
+    (Up, Vp: what its contact rows are projected from) of each step."""
+    c0, c1, c2, c3, c4 = coef[0], coef[1], coef[2], coef[3], coef[4]
+    u, v, a, mv, ma = U0.copy(), V0.copy(), A0.copy(), MV0.copy(), MA0.copy()
+    for j in range(U.shape[0]):
+        for i in range(u.size):
+            ui = _axpy(fused, c0, v[i], u[i])      # predictors
+            ui = _axpy(fused, c1, a[i], ui)
+            vi = _axpy(fused, c2, a[i], v[i])
+            Up[j, i], Vp[j, i] = ui, vi
+            rhs = R[j + 1, i] - k[i] * ui          # S A1 = R1 - K U~ - C V~
+            if damped:
+                rhs = rhs - d[i] * vi
+            ai = inv_S[i] * rhs
+            ui = _axpy(fused, c3, ai, ui)
+            vi = _axpy(fused, c4, ai, vi)
+            mai = m[i] * ai
+            mvi = _axpy(fused, c2, ma[i], mv[i])    # M V += dt ((1 - gamma) M A0 + gamma M A1)
+            mvi = _axpy(fused, c4, mai, mvi)
+            u[i], v[i], a[i], mv[i], ma[i] = ui, vi, ai, mvi, mai
+            U[j, i], V[j, i], A[j, i], MV[j, i] = ui, vi, ai, mvi
+
+
+def warm_up() -> None:
+    """Compile the loops (or load them from Numba's cache) now, on arrays of the types the integrators
+    pass, so that the time loop does not pay for it."""
+    one, row, block = np.ones(1), np.zeros((2, 1)), np.zeros((1, 1))
+    moreau_jean_steps(0, 32, FUSED, True, True, np.ones(8), one, one, one, one, row, one, one, one, one, one, one,
+                      block, block.copy(), block.copy(), block.copy(), block.copy())
+    newmark_steps(FUSED, True, np.ones(5), one, one, one, one, row, one, one, one, one, one, block, block.copy(),
+                  block.copy(), block.copy(), block.copy(), block.copy())
