@@ -27,6 +27,9 @@ RUNS = {
     "modal_static_correction_elastic_stop": ("beam_stop.yaml", ["solver.method=modal", "solver.modes=10",
                                                                 "solver.t_end=0.06"]),
     "friction": ("sliding_block.yaml", ["solver.t_end=0.3"]),
+    # the steps between impacts in blocks (integrators/blocks.py), checkpoints within the run stopping them
+    "modal_blocks": ("impact_oscillator.yaml", ["solver.blocks=true", "solver.t_end=40",
+                                                "output.checkpoint_every=1234"]),
     "moving_support_reduced": ("base_excited_beam.yaml", ["solver.method=modal", "solver.modes=10",
                                                           "solver.t_end=0.8", "damping.alpha=0.5"]),
 }
@@ -60,6 +63,8 @@ def test_a_run_continued_from_its_checkpoint_is_the_uninterrupted_run(tmp_path, 
     assert continued.summary["restarted_from"]["t"] == pytest.approx(0.5 * t_end, rel=1e-9)
     assert continued.history["t"][0] == half.history["t"][-1]
     assert_same_from(full.history, continued.history)
+    if run.endswith("_blocks"):
+        assert full.summary["steps_in_blocks"] > 0 and continued.summary["steps_in_blocks"] > 0
     state = json.loads((tmp_path / "half" / "checkpoint" / "state.json").read_text())
     assert state["step"] == half.summary["steps"] and state["ranks"] == 1
     # the continued run saved its own end: it continues again (to a later t_end)
