@@ -72,6 +72,12 @@ def test_an_up_sweep_finds_period_one_then_period_two_past_the_period_doubling(t
     assert w_pd == pytest.approx(exact.period_doubling_frequency(R), abs=0.005)
     # the period-2 points alternate: two impacts of different impulse
     assert abs(rows[0.667][0]["stop.impulse"] - rows[0.667][1]["stop.impulse"]) > 1e-3 * rows[0.667][0]["stop.impulse"]
+    import csv
+
+    with open(tmp_path / "response.csv", newline="") as f:
+        marked = {r["bifurcation"] for r in csv.DictReader(f)
+                  if r["direction"] == "up" and float(r["parameters.f"]) == 0.6645}
+    assert marked == {f"period_doubling at {mark['parameters.f']:.6g}"}
     study = json.loads((tmp_path / "study.json").read_text())
     assert study["bifurcations_up"][0]["kind"] == "period_doubling"
     assert (tmp_path / "response.png").stat().st_size > 10_000

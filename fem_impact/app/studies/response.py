@@ -84,11 +84,16 @@ def _finish(case, changes, outdir, key, ordered, direction, settle, periods, ste
         orbits, note = shoot_branch(base, key, ordered, ends, rows)
         for row in rows:
             row.update(orbits.get(row[key], {}))
+    bifurcations = find_bifurcations(key, ordered, orbits)
+    for row in rows:   # response.csv says where: on the rows of the level past each crossing
+        marks = [f"{b['kind']} at {b[key]:.6g}" for b in bifurcations if b["between"][1] == row[key]]
+        if bifurcations:
+            row["bifurcation"] = "; ".join(marks)
     other = _other_direction(outdir, direction, key)
     all_rows = sorted(other + rows, key=lambda r: (r["direction"], r[key], r["point"]))
-    columns = list(all_rows[0]) if all_rows else ["direction", key, "period", "point"]
+    columns = list(dict.fromkeys(c for r in all_rows for c in r)) if all_rows else ["direction", key, "period",
+                                                                                     "point"]
     _write_rows(outdir / "response.csv", columns, all_rows)
-    bifurcations = find_bifurcations(key, ordered, orbits)
     write_json(outdir / "study.json", {"study": "response", "vary": key, "values": ordered, "direction": direction,
                                        "settle": settle, "periods": periods, "steps_per_period": steps_per_period,
                                        "tolerance": tolerance, "flight": flight, "shooting": note or "done",
