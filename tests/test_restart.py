@@ -112,6 +112,19 @@ def test_an_interrupted_run_keeps_its_last_checkpoint_and_continues_to_the_same_
     kept = tmp_path / "run.checkpoint"
     assert f"kept in {kept}: continue it with --restart {kept}" in err
     assert (out / "history.csv").read_bytes() == before           # the earlier result untouched
+    # a folder of that name that is not a checkpoint fem-impact kept is never replaced: kept beside it
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine.checkpoint").mkdir()
+    (tmp_path / "mine.checkpoint" / "state.json").write_text("{}")
+    from fem_impact.app.outdir import _keep_checkpoint
+
+    import shutil
+
+    staging = tmp_path / ".mine.checkpoint-1"
+    shutil.copytree(kept, staging / "checkpoint")
+    where, when = _keep_checkpoint(staging, tmp_path / "mine")
+    assert where.name.startswith("mine.checkpoint-") and (where / "state.json").is_file() and when.startswith("t = ")
+    assert (tmp_path / "mine.checkpoint" / "state.json").read_text() == "{}" and not staging.exists()
     assert not list(tmp_path.glob(".run.*"))                      # no debris
     saved = json.loads((kept / "state.json").read_text())
     assert 0 < saved["step"] < 200_000 and saved["step"] % 200 == 0

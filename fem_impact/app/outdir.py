@@ -255,6 +255,17 @@ def _remove_while_written(stage: Path, linger: float) -> None:
 CHECKPOINT = "checkpoint"   # (fem_impact/app/checkpoint.py writes it)
 
 
+def _is_checkpoint(folder: Path) -> bool:
+    """A checkpoint folder fem-impact wrote: state.json naming its version, rank-R.h5 files, nothing else."""
+    try:
+        names = {p.name for p in folder.iterdir()}
+        state = json.loads((folder / "state.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(state, dict) and "fem_impact_version" in state and \
+        all(n == "state.json" or (n.startswith("rank-") and n.endswith(".h5")) for n in names)
+
+
 def _keep_checkpoint(folder: Path, path: Path) -> tuple[Path, str] | None:
     """Move the last complete checkpoint written in ``folder`` to ``NAME.checkpoint`` beside the output
     folder ``path`` (an earlier checkpoint of that name is replaced, anything else is kept: the
@@ -267,7 +278,7 @@ def _keep_checkpoint(folder: Path, path: Path) -> tuple[Path, str] | None:
             return None
         when = json.loads((source / "state.json").read_text()).get("t")
         target = path.parent / f"{path.name}.checkpoint"
-        if target.exists() and (target / "state.json").is_file() and not (target / MARKER).exists():
+        if _is_checkpoint(target):   # an earlier one, kept the same way: replaced; anything else is left
             shutil.rmtree(target)
         if target.exists():
             target = path.parent / f"{path.name}.checkpoint-{time.strftime('%Y%m%d-%H%M%S')}"
