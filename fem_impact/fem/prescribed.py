@@ -54,12 +54,15 @@ class PrescribedMotion:
         return len(self.functions)
 
     def values(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """g(t), g'(t), g''(t) per pattern."""
+        """g(t), g'(t), g''(t) per pattern (the fields and the energies ask several times a step: kept)."""
+        if getattr(self, "_last", (None,))[0] == t:
+            return self._last[1]
         out = np.array([[f.time_derivative(k).at_time(t) for f in self.functions] for k in range(3)])
         if not np.all(np.isfinite(out)):
             bad = int(np.argwhere(~np.isfinite(out))[0, 1])
             raise_not_finite(self.functions[bad], t)
-        return out[0], out[1], out[2]
+        self._last = (t, (out[0], out[1], out[2]))
+        return self._last[1]
 
     def moving_dofs(self) -> np.ndarray:
         """Owned dofs whose motion is prescribed."""

@@ -54,7 +54,7 @@ def response_study(case, vary: str, outdir, down: bool = False, settle: int = 50
         raise StudyInputError(f"--flight {flight}: scheme (the case's time stepping) or events (event-driven)")
     if flight == "events":
         return _finish(case, changes, outdir, key, ordered, direction, settle, periods, steps_per_period, tolerance,
-                       *_event_levels(base, key, ordered, direction, settle, periods, tolerance, outdir, quiet),
+                       *_event_levels(base, key, ordered, direction, settle, periods, tolerance, quiet),
                        shooting, flight)
     levels, previous = [], None
     for i, f in enumerate(ordered):
@@ -98,8 +98,7 @@ def _finish(case, changes, outdir, key, ordered, direction, settle, periods, ste
                                        "settle": settle, "periods": periods, "steps_per_period": steps_per_period,
                                        "tolerance": tolerance, "flight": flight, "shooting": note or "done",
                                        f"bifurcations_{direction}": bifurcations, **case_record(case, changes)})
-    (outdir / f"response-{direction}.json").write_text(json.dumps({"rows": rows, "bifurcations": bifurcations},
-                                                                   indent=1) + "\n")
+    write_json(outdir / f"response-{direction}.json", {"rows": rows, "bifurcations": bifurcations})
     marks = bifurcations + _other_bifurcations(outdir, direction)
     chart = plot_response(all_rows, key, outdir / "response.png", marks) if all_rows else None
     return {"rows": all_rows, "key": key, "levels": list(outcomes), "chart": chart, "outdir": str(outdir),
@@ -193,7 +192,7 @@ def _other_bifurcations(outdir: Path, direction: str) -> list[dict]:
 
 
 # -- event-driven levels and shooting (the reduced model without static correction) -----------
-def _event_levels(base, key, ordered, direction, settle, periods, tolerance, outdir, quiet):
+def _event_levels(base, key, ordered, direction, settle, periods, tolerance, quiet):
     """Each level iterates the event-driven Poincare map (fem_impact/periodic/shooting.py): exact impact
     instants instead of a time step's. Returns (base, rows, ends): ``ends[f]`` the level's last state."""
     import sys
