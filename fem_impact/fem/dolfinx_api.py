@@ -35,21 +35,35 @@ for _handler in logging.root.handlers:
 Mesh = mesh.Mesh
 
 
+def _reproducible_graph_partitioner(comm, nparts, graph, ghosting):
+    from fem_impact.fem.partition import distributed_partition
+
+    offsets, ranks = distributed_partition(comm, nparts, np.asarray(graph.offsets), np.asarray(graph.array), ghosting)
+    return _cpp.graph.AdjacencyList_int32(np.ascontiguousarray(ranks, dtype=np.int32),
+                                          np.ascontiguousarray(offsets, dtype=np.int32))
+
+
+# Every mesh is distributed by fem_impact.fem.partition (PT-Scotch's partition changes from run to run).
+_PARTITIONER = mesh.create_cell_partitioner(_reproducible_graph_partitioner)
+
+
 def interval(comm: MPI.Comm, cells: int, length: float) -> Mesh:
     """A 1D mesh of ``cells`` equal cells on [0, length]."""
-    return mesh.create_interval(comm, cells, [0.0, length])
+    return mesh.create_interval(comm, cells, [0.0, length], partitioner=_PARTITIONER)
 
 
 def rectangle(comm: MPI.Comm, nx: int, ny: int, length: float, height: float, hex: bool = False) -> Mesh:
     """A triangle (``hex``: quadrilateral) mesh of [0, length] x [0, height]."""
     cell = mesh.CellType.quadrilateral if hex else mesh.CellType.triangle
-    return mesh.create_rectangle(comm, [np.array([0.0, 0.0]), np.array([length, height])], [nx, ny], cell_type=cell)
+    return mesh.create_rectangle(comm, [np.array([0.0, 0.0]), np.array([length, height])], [nx, ny], cell_type=cell,
+                                 partitioner=_PARTITIONER)
 
 
 def box(comm: MPI.Comm, n: tuple[int, int, int], size: tuple[float, float, float], hex: bool = False) -> Mesh:
     """A tetrahedron (``hex``: hexahedron) mesh of [0, Lx] x [0, Ly] x [0, Lz]."""
     cell = mesh.CellType.hexahedron if hex else mesh.CellType.tetrahedron
-    return mesh.create_box(comm, [np.zeros(3), np.array(size, dtype=float)], list(n), cell_type=cell)
+    return mesh.create_box(comm, [np.zeros(3), np.array(size, dtype=float)], list(n), cell_type=cell,
+                           partitioner=_PARTITIONER)
 
 
 def gmsh_cells_to_mesh(comm: MPI.Comm, gmsh_type: int, cells: np.ndarray, x: np.ndarray, cell_values: np.ndarray,
@@ -65,7 +79,7 @@ def gmsh_cells_to_mesh(comm: MPI.Comm, gmsh_type: int, cells: np.ndarray, x: np.
         raise ValueError(f"dolfinx has no cell for Gmsh element type {gmsh_type}") from None
     cells = np.asarray(cells, dtype=np.int64)
     cells = cells[:, gmshio.cell_perm_array(_cpp.mesh.to_type(str(domain.ufl_cell())), cells.shape[1])]
-    msh = mesh.create_mesh(comm, cells, np.asarray(x, dtype=float)[:, :gdim], domain)
+    msh = mesh.create_mesh(comm, cells, np.asarray(x, dtype=float)[:, :gdim], domain, partitioner=_PARTITIONER)
     tdim = msh.topology.dim
     entities, values = _cpp.io.distribute_entity_data(msh._mesh, tdim, cells, np.asarray(cell_values, dtype=np.int32))
     msh.topology.create_connectivity(tdim, 0)
