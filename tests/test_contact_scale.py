@@ -69,9 +69,10 @@ def test_regularized_shifts_a_singular_large_matrix_only():
     np.testing.assert_allclose(Delassus.regularized(singular).matrix, shifted)
 
 
-def _plate_against_bar(run, cells: int):
+def _plate_against_bar(run, cells: int, *extra: str, tol: float = 1e-6):
     dt = 0.5 / cells
-    common = [f"mesh.cells={cells}", f"solver.dt={dt}", "solver.t_end=2.5", "output.every=1", "output.vtk=false"]
+    common = [f"mesh.cells={cells}", f"solver.dt={dt}", "solver.t_end=2.5", "output.every=1", "output.vtk=false",
+              *extra]
     _, plate = run(PLATE, *common)
     _, bar = run(PLATE, *common, *BAR_1D)
     assert plate["floor_impulse"].sum() > 0.9 * 2 * 25.0    # the contact happened (exact: 2 rho c A v0 = 50)
@@ -79,7 +80,7 @@ def _plate_against_bar(run, cells: int):
         if name in ("t", "energy_error"):
             continue
         scale = max(np.abs(bar[name]).max(), 1e-300)
-        assert np.abs(plate[name] - bar[name]).max() <= 1e-6 * scale, name
+        assert np.abs(plate[name] - bar[name]).max() <= tol * scale, name
     return plate
 
 
@@ -88,6 +89,54 @@ def test_plate_with_441_contact_rows_is_the_1d_bar(run):
     (hexahedra: the element matrices are tensor products), so the plate's face forces sum to
     the bar's force, step by step."""
     _plate_against_bar(run, 4)
+
+
+def test_explicit_plate_with_441_rows_is_the_1d_bar_row_by_row(run):
+    """Central difference with a lumped mass: W = P M^-1 P^T is diagonal (each face node its own row),
+    so the contact step is a projection per row. The plate is the lumped 1D bar to round-off (each face
+    node a scaled copy of the bar's end), its momentum changes by the floor's impulses, and its energy
+    (with the scheme's term) never exceeds the initial one."""
+    plate = _plate_against_bar(run, 4, "solver.method=central_difference", "solver.mass=lumped", tol=1e-10)
+    dp = plate["bar_px"] - plate["bar_px"][0]
+    np.testing.assert_allclose(dp, np.cumsum(plate["floor_impulse"]), rtol=0, atol=1e-9 * 25.0)
+    energy = plate["kinetic"] + plate["strain"] + plate["scheme_energy"]
+    assert energy.max() <= energy[0] * (1 + 1e-12)
+    plateau = plate["floor_force"][(plate["t"] > 0.5) & (plate["t"] < 1.8)]   # (4 cells: +-14 % about it)
+    assert plateau.mean() == pytest.approx(25.0, rel=0.02)      # rho c A v0
+
+
+def test_diagonal_delassus_equals_the_solves():
+    """The explicit method's W on a diagonal mass: a sparse diagonal equal to P M^-1 P^T from solves
+    (each face node a row, or the face's mean: one row); rows that share a dof keep the dense W."""
+    from mpi4py import MPI
+    from scipy import sparse
+
+    from fem_impact.config.build import model_spec
+    from fem_impact.config.case import load_case
+    from fem_impact.fem.mesh import build_mesh
+    from fem_impact.fem.model import build_model
+    from fem_impact.integrators import Operators
+    from fem_impact.nonsmooth.relation import build_constraints
+
+    for coupling, rows in (("each", 441), ("mean", 1)):
+        case = load_case(PLATE, ["mesh.cells=4", "solver.mass=lumped", f"contacts.0.coupling={coupling}"])
+        model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+        cons = build_constraints(case.contacts, model)
+        ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
+        solve = ops.algebra.factorize(model.M)
+        W, G = ops.delassus(solve, diagonal=True)
+        dense = ops.project(ops.solve_columns(solve))
+        assert ops.p == rows and sparse.issparse(W)
+        assert np.abs(W.toarray() - dense).max() <= 1e-14 * np.abs(dense).max()
+        c, y = np.linspace(1.0, 2.0, rows), ops.algebra.vector()
+        G.subtract_from(y, c)
+        np.testing.assert_allclose(ops.project(y), -dense @ c, rtol=1e-13)
+    # two rows on the same dofs (the mean row twice): W has off-diagonal entries, and stays dense
+    P = sparse.csr_matrix(cons.P_local)
+    shared = Operators(model.M, model.K, model.C, model.load, sparse.hstack([P, P]).tocsr(), np.zeros(2),
+                       np.zeros(2))
+    W, _ = shared.delassus(solve, diagonal=True)
+    assert not sparse.issparse(W) and W.shape == (2, 2) and W[0, 1] == pytest.approx(W[0, 0])
 
 
 @pytest.mark.slow

@@ -471,8 +471,13 @@ class Operators:
             out[:, j] = x
         return out
 
-    def delassus(self, solve) -> tuple[np.ndarray, Columns | SolvedColumns]:
+    def delassus(self, solve, diagonal: bool = False) -> tuple[np.ndarray, Columns | SolvedColumns]:
         """``W = P A^-1 P^T`` (p x p, on every rank) and the correction ``y -= A^-1 P^T c``.
+
+        ``diagonal``: when ``A`` is diagonal (a lumped mass) and no dof is touched by two rows
+        (node-to-plane rows, no friction), W is diagonal, ``W_jj = sum_k P_jk^2 / A_kk``: it is
+        returned as a sparse diagonal, with corrections on P's dofs alone (``DiagonalColumns``).
+        Nothing of size p x p or N x p: a face of 10^4 rows costs a p-vector.
 
         ``A^-1 P^T`` is computed in blocks of columns (multi-RHS solves with the factor), so
         that memory stays N x block; it is kept (``Columns``) only while N x p is small
@@ -480,6 +485,10 @@ class Operators:
         The choice depends on global sizes only, so every rank makes the same (solves are
         collective).
         """
+        if diagonal:
+            found = self._diagonal_delassus(solve)
+            if found is not None:
+                return found
         p, N = self.p, self.algebra.sizes[1]
         keep = N * p <= KEEP_COLUMNS or not self.algebra.distributed
         if keep:
@@ -507,6 +516,28 @@ class Operators:
             X = solve.many(self.P_local[:, j0:j1].toarray())
             W[:, j0:j1] = self.project(X)
         return W, SolvedColumns(self, solve)
+
+    def _diagonal_delassus(self, solve) -> tuple[sparse.csr_matrix, DiagonalColumns] | None:
+        if not isinstance(solve, DiagonalFactor) or not self.algebra.distributed:
+            return None
+        P = self.P_local.copy()
+        P.eliminate_zeros()
+        one_row_a_dof = bool(np.all(np.diff(P.indptr) <= 1))
+        if not self.comm.allreduce(one_row_a_dof, op=MPI.LAND):
+            return None
+        w = self.algebra.allsum(np.asarray(P.multiply(P).T @ solve.inverse, dtype=float).ravel())
+        return sparse.diags(w, format="csr"), DiagonalColumns(self, solve.inverse)
+
+
+class DiagonalColumns:
+    """``X = A^-1 P^T`` for a diagonal ``A``: the corrections ``y -= X c`` touch P's dofs alone."""
+
+    def __init__(self, ops: Operators, inverse: np.ndarray):
+        self.dofs, self.Pt = ops._dofs, ops._Pt_block
+        self.scale = np.ascontiguousarray(inverse[ops._dofs])
+
+    def subtract_from(self, y: np.ndarray, c: np.ndarray) -> None:
+        y[self.dofs] -= self.scale * self.Pt.dot(c)
 
 
 class Columns:

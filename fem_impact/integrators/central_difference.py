@@ -8,7 +8,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..nonsmooth.lcp import Delassus
+from ..nonsmooth.lcp import delassus_solver
 from .base import EnergyBudget, Operators, StepState, axpy
 from .scheme import ContactScheme
 
@@ -47,6 +47,7 @@ class CentralDifference(ContactScheme):
 
     name = "central_difference"
     scheme_energy = True
+    diagonal_delassus = True   # a lumped mass and node-to-plane rows: a projection per row
 
     def __init__(self, ops: Operators, dt: float):
         if ops.static is not None:
@@ -55,8 +56,8 @@ class CentralDifference(ContactScheme):
             raise ValueError("central difference needs mass on every dof (no mass redistribution)")
         S = ops.algebra.combine((1.0, ops.M), (0.5 * dt, ops.C))
         super().__init__(ops, dt, S, impact_correction=False)
-        stops = np.diag(ops.stop_compliance)   # elastic stops: g = d0 - P U + c lam >= 0
-        self.lcp = Delassus.regularized(dt * dt * self.W + stops)
+        # elastic stops: g = d0 - P U + c lam >= 0
+        self.lcp = delassus_solver(dt * dt * self.W, ops.stop_compliance)
         self.start_matrix = None   # (built at the start if a contact needs it: it takes D)
         self.critical_dt = critical_time_step(ops)
         if dt > self.critical_dt * (1.0 + 1e-9):
@@ -79,7 +80,7 @@ class CentralDifference(ContactScheme):
         if ops.p:
             q = ops.d0 - (pu + dt * pv + 0.5 * dt * dt * pa)
             if np.any(q < 0.0):   # a contact closes in the first step
-                self.start_matrix = Delassus.regularized(0.5 * dt * dt * self.D + np.diag(ops.stop_compliance))
+                self.start_matrix = delassus_solver(0.5 * dt * dt * self.D, ops.stop_compliance)
                 force, _, _ = self.start_matrix.solve(q)
             if force.any():
                 self.H.subtract_from(self.A, force)

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from ..nonsmooth.lcp import TINY, Delassus, ImpactResult, impact_correction, solve_lcp
+from ..nonsmooth.lcp import TINY, Delassus, ImpactResult, delassus_solver, impact_correction, solve_lcp
 from .base import EnergyBudget, Operators, StepState, owned_values
 
 log = logging.getLogger(__name__)
@@ -28,6 +28,9 @@ class ContactScheme:
     """
 
     name = ""
+    # W and D as sparse diagonals where they are (Operators.delassus): the schemes whose contact
+    # step takes them that way
+    diagonal_delassus = False
     scheme_energy = False   # whether the scheme conserves an energy term beyond kinetic + strain (EnergyBudget.scheme)
 
     def __init__(self, ops: Operators, dt: float, S, impact_correction: bool = True):
@@ -42,7 +45,8 @@ class ContactScheme:
         self.solve_M = alg.factorize(ops.mass_for_solves(), spd=True)
         self.timings["factorize M"] = time.perf_counter() - clock
         clock = time.perf_counter()
-        self.W, self.G = ops.delassus(self.solve_S)   # P S^-1 P^T (p x p, every rank); S^-1 P^T
+        # P S^-1 P^T (p x p, every rank); S^-1 P^T
+        self.W, self.G = ops.delassus(self.solve_S, diagonal=self.diagonal_delassus)
         self.timings["W"] = time.perf_counter() - clock
         self._D = self._H = self._carnot = None
         static = ops.static
@@ -70,8 +74,8 @@ class ContactScheme:
     # -- operators of Carnot's correction, built on first use ------------------------------
     def _build_mass_operators(self) -> None:
         clock = time.perf_counter()
-        D, self._H = self.ops.delassus(self.solve_M)   # P M^-1 P^T; M^-1 P^T
-        self._carnot = Delassus.regularized(D)
+        D, self._H = self.ops.delassus(self.solve_M, diagonal=self.diagonal_delassus)   # P M^-1 P^T; M^-1 P^T
+        self._carnot = delassus_solver(D)
         self._D = self._carnot.matrix
         self.timings["D"] = time.perf_counter() - clock
         log.info("Carnot's correction on %d rows: D = P M^-1 P^T in %.3g s", self.ops.p, self.timings["D"])

@@ -98,6 +98,53 @@ def permuted_in_place(W: np.ndarray, order: np.ndarray) -> np.ndarray:
 
 
 
+def delassus_solver(A, shift: np.ndarray | None = None) -> Delassus | DiagonalDelassus:
+    """The LCP solver of the Delassus matrix ``A + diag(shift)``: row by row when ``A`` is a sparse
+    diagonal (``Operators.delassus(..., diagonal=True)``), else :meth:`Delassus.regularized`."""
+    from scipy import sparse
+
+    if sparse.issparse(A):
+        return DiagonalDelassus(A.diagonal() + (0.0 if shift is None else shift))
+    return Delassus.regularized(A if shift is None else A + np.diag(shift))
+
+
+class DiagonalDelassus:
+    """LCPs ``w = a x + q >= 0, x >= 0, x . w = 0`` with a diagonal ``a > 0``: the rows are
+    independent, and each is a projection, ``x = max(0, -q / a)``.
+
+    The Delassus matrix of rows that touch disjoint dofs of a diagonal step matrix (a lumped mass,
+    node-to-plane rows: the explicit method on a face of many nodes): no p x p matrix, no pivoting.
+    ``matrix`` is the sparse diagonal; the interface is :class:`Delassus`'.
+    """
+
+    def __init__(self, diagonal: np.ndarray):
+        self.diagonal = np.ascontiguousarray(diagonal, dtype=float)
+        if not np.isfinite(self.diagonal).all():
+            _check_finite(self.diagonal)
+        if np.any(self.diagonal <= 0.0):
+            raise ContactSolverError("a contact row's entry of the diagonal Delassus matrix is not positive: "
+                                     "the row touches no mass")
+        from scipy import sparse
+
+        self.matrix = sparse.diags(self.diagonal, format="csr")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.diagonal.size, self.diagonal.size)
+
+    def dot(self, x: np.ndarray) -> np.ndarray:
+        return self.diagonal * x
+
+    def solve(self, q: np.ndarray, guess: np.ndarray | None = None, rows=None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(x, w, active)`` of the LCP on ``rows`` (all when None)."""
+        a = self.diagonal if rows is None or rows is ALL else self.diagonal[rows]
+        x = np.maximum(-q / a, 0.0)
+        active = x > 0.0
+        w = np.where(active, 0.0, q)
+        return x, w, active
+
+
 class Delassus:
     """LCPs ``w = A x + q >= 0, x >= 0, x . w = 0`` in one matrix ``A``, solved exactly, many times.
 
