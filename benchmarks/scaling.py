@@ -8,8 +8,18 @@ number 0.5, the wall reached a quarter into the run. Unknowns 3 (n + 1)(n / 20 +
 ratio (serial over 2 ranks: above 1 is faster on 2), the largest peak memory of a rank, and the
 largest difference between the two histories relative to each column's scale.
 
+The explicit many-row scene (``--plate 4 12 24``, cells through the thickness; ``--plate`` alone:
+none): cases/plate_drop.yaml with central difference and a lumped mass, a 1 x 5 x 5 plate of
+hexahedra landing face-first, every face node a contact row: 3 (n + 1)(5 n + 1)^2 unknowns and
+(5 n + 1)^2 rows (n = 24: 1 098 075 unknowns, 14 641 rows), run through the whole impact (5 n
+steps at Courant 0.5, to t = 2.5). Besides the times it checks what the physics guarantees: the
+energy (with the scheme's term) never above the initial one, and the plate's momentum changed by
+the floor's impulses (the largest gap, relative to the initial momentum).
+
     python benchmarks/scaling.py [--sizes 100 200 500] [--methods moreau_jean,newmark,central_difference,modal]
-                                 [--steps 100]
+                                 [--steps 100] [--plate 4 12 24]
+
+(The reduced model runs 20 times --steps: its step takes about 0.1 ms.)
 
 The implicit methods and the reduced model stop at 72 963 unknowns unless a larger size is named
 with ``--implicit-up-to`` (a direct factorization of 10^6 3D unknowns takes minutes and > 10 GB).
@@ -30,6 +40,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")   # as the fem-impact command
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE = ROOT / "cases" / "impacting_bar.yaml"
+# Steps of a run, as a multiple of --steps: the reduced model's step takes 0.1 ms, so 100 of them would
+# time 10 ms of loop, below this machine's noise.
+STEPS_TIMES = {"modal": 20}
 METHODS = {
     "moreau_jean": [],
     "newmark": ["solver.method=newmark"],
@@ -39,8 +52,16 @@ METHODS = {
 MPIRUN = ["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2"]
 
 
+PLATE_CASE = ROOT / "cases" / "plate_drop.yaml"
+PLATE = "plate"   # the explicit many-row scene, as a "method" of one()
+
+
 def unknowns(cells: int) -> int:
     return 3 * (cells + 1) * (cells // 20 + 1) ** 2
+
+
+def plate_unknowns(cells: int) -> int:
+    return 3 * (cells + 1) * (5 * cells + 1) ** 2
 
 
 def one(method: str, cells: int, steps: int, history_file: str) -> None:
@@ -51,18 +72,32 @@ def one(method: str, cells: int, steps: int, history_file: str) -> None:
     import fem_impact as fi
 
     dt = 0.5 / cells   # c = 1, h = 1 / cells
-    overrides = [f"mesh.dim=3", f"mesh.cells={cells}", "contacts.0.coupling=mean", f"solver.dt={dt}",
-                 f"solver.t_end={steps * dt}", f"contacts.0.gap={steps / 4 * dt}", "output.vtk=false",
-                 f"output.every={steps}", *METHODS[method]]
-    result = fi.run(fi.load_case(CASE, overrides))
+    if method == PLATE:   # the whole impact: contact on [0.1, 2.1], then free
+        case = PLATE_CASE
+        overrides = [f"mesh.cells={cells}", f"solver.dt={dt}", "solver.method=central_difference",
+                     "solver.mass=lumped", "output.vtk=false", "output.every=1"]
+    else:
+        case = CASE
+        overrides = [f"mesh.dim=3", f"mesh.cells={cells}", "contacts.0.coupling=mean", f"solver.dt={dt}",
+                     f"solver.t_end={steps * dt}", f"contacts.0.gap={steps / 4 * dt}", "output.vtk=false",
+                     f"output.every={steps}", *METHODS[method]]
+    result = fi.run(fi.load_case(case, overrides))
     comm = MPI.COMM_WORLD
     peak = comm.allreduce(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, op=MPI.MAX)
     if comm.rank == 0:
         h = result.history
         np.savez(history_file, **h)
         s = result.summary
-        print("JSON" + json.dumps({"setup_s": s["setup_time_s"], "step_ms": 1e3 * s["loop_time_s"] / s["steps"],
-                                   "peak_MiB": peak, "dofs": s["dofs"], "ranks": comm.size}), flush=True)
+        data = {"setup_s": s["setup_time_s"], "step_ms": 1e3 * s["loop_time_s"] / s["steps"], "peak_MiB": peak,
+                "dofs": s["dofs"], "ranks": comm.size}
+        if method == PLATE:
+            energy = h["kinetic"] + h["strain"] + h["scheme_energy"]
+            data["energy_over_E0"] = float(energy.max() / energy[0])
+            momentum = h["bar.px"] - h["bar.px"][0]
+            data["momentum_gap"] = float(np.abs(momentum - np.cumsum(h["floor.impulse"])).max()
+                                         / abs(h["bar.px"][0]))
+            data["impulse"] = float(h["floor.impulse"].sum())
+        print("JSON" + json.dumps(data), flush=True)
 
 
 def run_child(method: str, cells: int, steps: int, ranks: int, folder: Path) -> dict:
@@ -117,6 +152,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=100, help="time steps per run (default 100)")
     parser.add_argument("--implicit-up-to", type=int, default=200, help="largest cells for the implicit methods and "
                         "the reduced model (default 200: 72 963 unknowns)")
+    parser.add_argument("--plate", type=int, nargs="*", default=[4, 12, 24],
+                        help="cells through the thickness of the explicit plate scene (default 4 12 24; none: skip it)")
     parser.add_argument("--one", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one:
@@ -136,13 +173,30 @@ def main() -> None:
             for cells in args.sizes:
                 if method != "central_difference" and cells > args.implicit_up_to:
                     continue
-                serial = run_child(method, cells, args.steps, 1, Path(folder))
-                pair = run_child(method, cells, args.steps, 2, Path(folder))
+                steps = args.steps * STEPS_TIMES.get(method, 1)
+                serial = run_child(method, cells, steps, 1, Path(folder))
+                pair = run_child(method, cells, steps, 2, Path(folder))
                 diff = difference(serial["history"], pair["history"])
                 print(f"{method:<20}{unknowns(cells):>10}{serial['setup_s']:>9.2f}{pair['setup_s']:>9.2f}"
                       f"{serial['setup_s'] / pair['setup_s']:>7.2f}{serial['step_ms']:>11.2f}{pair['step_ms']:>11.2f}"
                       f"{serial['step_ms'] / pair['step_ms']:>7.2f}{serial['peak_MiB']:>11.0f}{pair['peak_MiB']:>11.0f}"
                       f"{diff:>14.1e}", flush=True)
+        if args.plate:
+            print(f"\nExplicit plate landing face-first (cases/plate_drop.yaml, central difference, lumped mass), every "
+                  f"face node a row, the whole impact (5 n steps); E max / E0 and the momentum gap on 1 | 2 ranks",
+                  flush=True)
+            print(f"{'rows':>7}{'unknowns':>10}{'setup 1':>9}{'setup 2':>9}{'ratio':>7}{'step 1 ms':>11}"
+                  f"{'step 2 ms':>11}{'ratio':>7}{'peak 1 MiB':>11}{'peak 2 MiB':>11}{'history diff':>14}"
+                  f"{'E max / E0, 1 | 2':>32}{'momentum gap, 1 | 2':>22}", flush=True)
+        for cells in args.plate:
+            serial = run_child(PLATE, cells, 5 * cells, 1, Path(folder))
+            pair = run_child(PLATE, cells, 5 * cells, 2, Path(folder))
+            diff = difference(serial["history"], pair["history"])
+            print(f"{(5 * cells + 1) ** 2:>7}{plate_unknowns(cells):>10}{serial['setup_s']:>9.2f}{pair['setup_s']:>9.2f}"
+                  f"{serial['setup_s'] / pair['setup_s']:>7.2f}{serial['step_ms']:>11.2f}{pair['step_ms']:>11.2f}"
+                  f"{serial['step_ms'] / pair['step_ms']:>7.2f}{serial['peak_MiB']:>11.0f}{pair['peak_MiB']:>11.0f}"
+                  f"{diff:>14.1e}   {serial['energy_over_E0']:.12f} | {pair['energy_over_E0']:.12f}"
+                  f"   {serial['momentum_gap']:.1e} | {pair['momentum_gap']:.1e}", flush=True)
 
 
 if __name__ == "__main__":

@@ -195,6 +195,7 @@ class ReducedFields:
         self._previous = None   # (t, force) of the previous step, for the static part's velocity
         self._before = None     # ... and of the one before it (a step read again: a restarted run's first)
         self._blocks: dict[bytes, tuple] = {}     # rows -> (Y1, X_R, X_P rows, [t, static part])
+        self._readers: dict[bytes, object] = {}   # point_reader's, by their dofs
 
     def _block(self, rows):
         if isinstance(rows, slice):
@@ -306,6 +307,29 @@ class ReducedFields:
                 values = values + self._static_block(rows_R, rows_P, block, last)[1]
             return values
         read.block = read_block   # (L x k) for a block of steps
+        return read
+
+    def point_reader(self, dofs: np.ndarray, comm: MPI.Comm):
+        """A reader of (u, v) at a few points' dofs (n x dim, the owner's local dof, -1 elsewhere), as
+        ``at`` on every rank: their rows of the modes and static columns gathered once, so a step
+        costs no reduction (the reduced model's step is replicated; a probe's sum would be the one
+        collective of its step). Built on the first call (collective), kept for the same dofs."""
+        key = dofs.tobytes() + bytes(dofs.shape)
+        if key in self._readers:
+            return self._readers[key]
+        mine = dofs >= 0
+        picked = lambda X: allsum(comm, np.where(mine[..., None], X[np.where(mine, dofs, 0)], 0.0))  # noqa: E731
+        Y = picked(self.Y1)
+        XR, XP = (picked(self.XR), picked(self.XP)) if self.static is not None else (None, None)
+        last = [None, None]
+
+        def read(state: StepState) -> tuple[np.ndarray, np.ndarray]:
+            u, v = Y @ state.U, Y @ state.V
+            if self.static is None:
+                return u, v
+            now, rate = self._static_and_rate(XR, XP, state, last)
+            return u + now, v + rate
+        self._readers[key] = read
         return read
 
     def write(self, state: StepState) -> None:
