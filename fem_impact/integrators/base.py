@@ -179,6 +179,9 @@ def _direct_solver(A: PETSc.Mat, spd: bool) -> PETSc.KSP:
     n = A.getSize()[0]
     dense_fill = n >= MUMPS_FROM and A.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"] >= MUMPS_FILL * n
     mumps = PETSc.Sys.hasExternalPackage("mumps") and (comm.getSize() > 1 or dense_fill)
+    if mumps:
+        A = without_stored_zeros(A)
+        ksp.setOperators(A)
     if mumps and spd:
         A.setOption(PETSc.Mat.Option.SPD, True)
         pc.setType(PETSc.PC.Type.CHOLESKY)
@@ -195,6 +198,35 @@ def _direct_solver(A: PETSc.Mat, spd: bool) -> PETSc.KSP:
     ksp.setFromOptions()
     ksp.setUp()
     return ksp
+
+
+# A share of stored zeros from which a factorization gets the matrix without them.
+STORED_ZEROS = 0.25
+
+
+def without_stored_zeros(A: PETSc.Mat) -> PETSc.Mat:
+    """``A``, or a copy without its stored zeros when they are at least ``STORED_ZEROS`` of its entries.
+
+    A vector space's matrices are assembled on 3 x 3 blocks per node pair; a mass matrix has no
+    coupling between components, so two thirds of its entries are stored zeros. MUMPS orders and
+    factorizes the pattern it is given: without them it sees three decoupled components (the
+    1681-row plate's M: factorization 1.45 s -> 0.58 s, its inverse on the face 3.62 s -> 0.78 s;
+    the same values to 5e-16). (The diagonal is kept: a factorization needs every pivot.)
+    """
+    indptr, indices, values = A.getValuesCSR()
+    first = A.getOwnershipRange()[0]
+    rows = np.repeat(np.arange(first, first + indptr.size - 1), np.diff(indptr))
+    keep = (values != 0.0) | (indices == rows)
+    stored_zeros = values.size - np.count_nonzero(keep)
+    comm = A.getComm().tompi4py()
+    if comm.allreduce(stored_zeros) < STORED_ZEROS * comm.allreduce(values.size):
+        return A
+    counts = np.bincount(rows[keep] - first, minlength=indptr.size - 1)
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(PETSc.IntType)
+    B = PETSc.Mat().createAIJ(size=A.getSizes(), csr=(offsets, indices[keep].astype(PETSc.IntType), values[keep]),
+                              comm=A.getComm())
+    B.assemble()
+    return B
 
 
 class Factor:
