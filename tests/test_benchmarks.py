@@ -18,11 +18,17 @@ def test_contact_scale_runs_at_its_smallest_size():
 
 def test_scaling_runs_at_a_small_size_with_equal_histories():
     """benchmarks/scaling.py at 20 cells (252 unknowns), 12 steps, every method: serial and 2 ranks run and
-    give the same history (to 1e-9 of each column's scale; the figures of time are the benchmark's)."""
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "scaling.py"), "--sizes", "20", "--steps", "12"],
-                          capture_output=True, text=True, cwd=ROOT, timeout=600)
+    give the same history (to 1e-9 of each column's scale; the figures of time are the benchmark's); and the
+    explicit plate at 2 cells (121 face rows): the same history, E <= E0, the momentum equal to the impulses."""
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "scaling.py"), "--sizes", "20", "--steps", "12",
+                           "--plate", "2"], capture_output=True, text=True, cwd=ROOT, timeout=600)
     assert proc.returncode == 0, proc.stderr
     rows = [line.split() for line in proc.stdout.splitlines()
             if line.split()[:1] and line.split()[0] in ("moreau_jean", "newmark", "central_difference", "modal")]
     assert [r[0] for r in rows] == ["moreau_jean", "newmark", "central_difference", "modal"]
     assert all(r[1] == "252" and float(r[-1]) <= 1e-9 for r in rows)
+    plate = [line.split() for line in proc.stdout.splitlines() if line.split()[:2] == ["121", "1089"]]
+    assert len(plate) == 1
+    diff, e1, _, e2, gap1, _, gap2 = plate[0][10:]
+    assert float(diff) <= 1e-9 and float(e1) <= 1.0 + 1e-12 and float(e2) <= 1.0 + 1e-12
+    assert float(gap1) <= 1e-9 and float(gap2) <= 1e-9
