@@ -314,7 +314,7 @@ class ReducedFields:
         ``at`` on every rank: their rows of the modes and static columns gathered once, so a step
         costs no reduction (the reduced model's step is replicated; a probe's sum would be the one
         collective of its step). Built on the first call (collective), kept for the same dofs."""
-        key = dofs.tobytes() + bytes(dofs.shape)
+        key = dofs.tobytes() + str(dofs.shape).encode()
         if key in self._readers:
             return self._readers[key]
         mine = dofs >= 0
