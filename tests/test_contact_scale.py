@@ -105,6 +105,26 @@ def test_explicit_plate_with_441_rows_is_the_1d_bar_row_by_row(run):
     assert plateau.mean() == pytest.approx(25.0, rel=0.02)      # rho c A v0
 
 
+def test_diagonal_lcp_is_the_pivoting_solver_on_a_diagonal_matrix():
+    """DiagonalDelassus (a projection per row) against block pivoting on the same diagonal matrix, on all
+    rows and on a subset (Carnot's closed rows), with rows pushed, free and exactly at zero."""
+    from fem_impact.nonsmooth.lcp import DiagonalDelassus
+
+    rng = np.random.default_rng(5)
+    a = rng.uniform(0.5, 2.0, 300)
+    q = rng.normal(size=300)
+    q[:10] = 0.0
+    for rows in (None, np.sort(rng.choice(300, 120, replace=False))):
+        qq = q if rows is None else q[rows]
+        x, w, active = DiagonalDelassus(a).solve(qq, rows=rows)
+        reference = Delassus(np.diag(a)).solve(qq, rows=rows)[0]
+        np.testing.assert_allclose(x, reference, rtol=0, atol=1e-14)
+        assert np.all(x >= 0) and np.all(w >= 0) and np.all(x * w == 0)
+        np.testing.assert_allclose(w, (a if rows is None else a[rows]) * x + qq, atol=1e-14)
+    with pytest.raises(Exception, match="touches no mass"):
+        DiagonalDelassus(np.array([1.0, 0.0]))
+
+
 def test_diagonal_delassus_equals_the_solves():
     """The explicit method's W on a diagonal mass: a sparse diagonal equal to P M^-1 P^T from solves
     (each face node a row, or the face's mean: one row); rows that share a dof keep the dense W."""

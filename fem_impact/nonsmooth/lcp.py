@@ -119,8 +119,7 @@ class DiagonalDelassus:
 
     def __init__(self, diagonal: np.ndarray):
         self.diagonal = np.ascontiguousarray(diagonal, dtype=float)
-        if not np.isfinite(self.diagonal).all():
-            _check_finite(self.diagonal)
+        _check_finite(self.diagonal)
         if np.any(self.diagonal <= 0.0):
             raise ContactSolverError("a contact row's entry of the diagonal Delassus matrix is not positive: "
                                      "the row touches no mass")
