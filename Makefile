@@ -6,9 +6,11 @@ VENV        := .venv
 PY          := $(VENV)/bin/python
 CASE        ?= cases/impacting_bar.yaml
 PYTEST_ARGS ?=
+# pytest-xdist workers: the suite's tests are independent (each writes into its own tmp_path)
+TEST_WORKERS ?= 2
 APT_PACKAGES := python3-dolfinx-real python3-petsc4py-real python3-slepc4py-real python3-gmsh \
                 python3-meshio python3-h5py python3-scipy python3-matplotlib python3-yaml python3-tqdm python3-numba \
-                python3-pytest python3-hypothesis python3-venv python3-pip python3-setuptools python3-wheel \
+                python3-pytest python3-pytest-xdist python3-hypothesis python3-venv python3-pip python3-setuptools python3-wheel \
                 openmpi-bin make libopenblas0-pthread \
                 paraview xvfb xauth libegl1 libgl1-mesa-dri
 
@@ -34,10 +36,10 @@ run: setup
 	$(VENV)/bin/fem-impact run $(CASE)
 
 test: setup
-	$(PY) -m pytest -m "not slow" $(PYTEST_ARGS)
+	$(PY) -m pytest -m "not slow" -n $(TEST_WORKERS) $(PYTEST_ARGS)
 
 test-all: setup
-	$(PY) -m pytest $(PYTEST_ARGS)
+	$(PY) -m pytest -n $(TEST_WORKERS) $(PYTEST_ARGS)
 
 benchmark: setup
 	$(PY) benchmarks/full_model.py
