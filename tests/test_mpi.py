@@ -143,8 +143,9 @@ def test_a_moving_support_agrees_on_two_ranks(tmp_path, method):
 
 def mpirun(*args, repeatable: bool = False) -> subprocess.CompletedProcess:
     """``fem-impact ARGS`` on 2 ranks; ``repeatable``: with SuperLU_dist, whose arithmetic repeats from run
-    to run (MUMPS' order of operations on 2 ranks follows the timing of its messages: on a loaded machine,
-    two runs of the 2D bar parted by 1e-12 of a column, measured with the tests in two workers)."""
+    to run (MUMPS' order of operations on 2 ranks can follow the timing of its messages: with the tests in
+    two workers, the 2D bar's Moreau-Jean restart parted from the uninterrupted run by more than 1e-12 of
+    left.uy, at both levels, where an idle machine had given identical runs)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}
     if repeatable:
         env["PETSC_OPTIONS"] = (env.get("PETSC_OPTIONS", "") + " -fem_impact_pc_factor_mat_solver_type superlu_dist")
