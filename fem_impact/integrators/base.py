@@ -22,6 +22,7 @@ from scipy.linalg.blas import daxpy, dgemv
 
 from ..errors import SimulationError
 from ..parallel import allsum
+from ..fem.mumps_api import inverse_by_schur
 from ..fem.petsc_api import mumps_inverse_block
 from ..nonsmooth.lcp import permuted_in_place
 from .parameters import steps_for   # (the one definition; integrators re-exports it)
@@ -33,6 +34,12 @@ ENERGY_TOLERANCE = 1e-6
 DENSE_BLOCK = 4096  # entries: up to this size the block of P on the dofs it touches is kept dense
 KEEP_COLUMNS = 1 << 22   # entries (N x p, 32 MB): up to this size S^-1 P^T is stored; above, applied by a solve
 INVERSE_ENTRIES_FROM = 64   # contact rows: from these on, W from selected entries of A^-1 (serial MUMPS)
+# ... or from the inverse of A's Schur complement on the rows' dofs, when the factorization of A takes more
+# than this many times m^3 flops (m dofs; the dense inversion's): selected entries cost several
+# factorizations, the Schur complement about two. The 6561-row plate: S (3D elasticity) 80 + 10 s against
+# 122 s; its mass matrix (three decoupled components) 18.5 + 9.6 s against 21 s, which this ratio leaves
+# to selected entries.
+SCHUR_FLOPS = 2.0
 MUMPS_FROM = 5000    # unknowns: serial systems from this size on with 3D fill (MUMPS_FILL entries a row
 MUMPS_FILL = 30      # or more) are factorized by MUMPS (Cholesky if SPD); smaller or sparser ones by PETSc
 RHS_BLOCK = 256      # right-hand sides per multi-RHS solve (fewer on large models: N x block <= RHS_ENTRIES)
@@ -241,11 +248,18 @@ class Factor:
         self._solve(self._vec(b), self._vec(x))
 
     def inverse_block(self, dofs: np.ndarray) -> np.ndarray | None:
-        """``(A^-1)[dofs][:, dofs]`` from a serial MUMPS factor (selected inverse entries), else None."""
+        """``(A^-1)[dofs][:, dofs]`` from a serial MUMPS factor, else None: the inverse of A's Schur
+        complement on the dofs where the factorization's flops outweigh a dense inversion's
+        (``SCHUR_FLOPS``), else the selected entries of the inverse."""
         try:
             F = self.ksp.getPC().getFactorMatrix()
         except PETSc.Error:
             return None
+        if F.getType() == "mumps" and F.getComm().getSize() == 1 and \
+                F.getMumpsRinfog(3) > SCHUR_FLOPS * float(dofs.size) ** 3:
+            inverse = inverse_by_schur(self.ksp.getOperators()[0], dofs)
+            if inverse is not None:
+                return inverse
         return mumps_inverse_block(F, dofs)
 
     def many(self, B: np.ndarray) -> np.ndarray:
