@@ -255,8 +255,9 @@ class Factor:
             F = self.ksp.getPC().getFactorMatrix()
         except PETSc.Error:
             return None
-        if F.getType() == "mumps" and F.getComm().getSize() == 1 and \
-                F.getMumpsRinfog(3) > SCHUR_FLOPS * float(dofs.size) ** 3:
+        pc = self.ksp.getPC()
+        if F.getType() == "mumps" and F.getComm().getSize() == 1 and pc.getType() == PETSc.PC.Type.CHOLESKY and \
+                F.getMumpsRinfog(3) > SCHUR_FLOPS * float(dofs.size) ** 3:   # (an SPD matrix: Cholesky)
             inverse = inverse_by_schur(self.ksp.getOperators()[0], dofs)
             if inverse is not None:
                 return inverse
