@@ -251,11 +251,11 @@ class Factor:
         """``(A^-1)[dofs][:, dofs]`` from a serial MUMPS factor, else None: the inverse of A's Schur
         complement on the dofs where the factorization's flops outweigh a dense inversion's
         (``SCHUR_FLOPS``), else the selected entries of the inverse."""
+        pc = self.ksp.getPC()
         try:
-            F = self.ksp.getPC().getFactorMatrix()
+            F = pc.getFactorMatrix()
         except PETSc.Error:
             return None
-        pc = self.ksp.getPC()
         if F.getType() == "mumps" and F.getComm().getSize() == 1 and pc.getType() == PETSc.PC.Type.CHOLESKY and \
                 F.getMumpsRinfog(3) > SCHUR_FLOPS * float(dofs.size) ** 3:   # (an SPD matrix: Cholesky)
             inverse = inverse_by_schur(self.ksp.getOperators()[0], dofs)
