@@ -18,6 +18,8 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from scipy.linalg import lapack
 
+from .petsc_api import first_library
+
 _INT, _INT8, _REAL = ctypes.c_int, ctypes.c_int64, ctypes.c_double
 _P_INT, _P_REAL = ctypes.POINTER(_INT), ctypes.POINTER(_REAL)
 _LIBRARIES = ("libdmumps-5.5.so", "libdmumps.so")
@@ -51,19 +53,14 @@ class _Struc(ctypes.Structure):
     ]
 
 
+def _declare(lib) -> None:
+    lib.dmumps_c.argtypes = [ctypes.POINTER(_Struc)]
+    lib.dmumps_c.restype = None
+
+
 @functools.lru_cache(maxsize=1)
 def _library():
-    for name in (*_LIBRARIES, ctypes.util.find_library("dmumps")):
-        if not name:
-            continue
-        try:
-            lib = ctypes.CDLL(name)
-            lib.dmumps_c.argtypes = [ctypes.POINTER(_Struc)]
-            lib.dmumps_c.restype = None
-            return lib
-        except (OSError, AttributeError):
-            continue
-    return None
+    return first_library((*_LIBRARIES, ctypes.util.find_library("dmumps")), _declare)
 
 
 # MUMPS' working-space relaxation (ICNTL(14), per cent), raised and retried while a factorization

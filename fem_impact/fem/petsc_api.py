@@ -22,19 +22,29 @@ INVERSE_BLOCKING = -128
 INVERSE_ENTRIES = 1 << 25
 
 
-@functools.lru_cache(maxsize=1)
-def _library():
-    for name in (*_LIBRARIES, ctypes.util.find_library("petsc")):
+def first_library(names, declare) -> ctypes.CDLL | None:
+    """The first of the shared libraries ``names`` (None entries skipped) that loads and has the
+    functions ``declare(lib)`` sets the types of; None if none has."""
+    for name in names:
         if not name:
             continue
         try:
             lib = ctypes.CDLL(name)
-            lib.MatMumpsGetInverse.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
-            lib.MatMumpsGetInverse.restype = ctypes.c_int
+            declare(lib)
             return lib
         except (OSError, AttributeError):
             continue
     return None
+
+
+def _declare(lib) -> None:
+    lib.MatMumpsGetInverse.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+    lib.MatMumpsGetInverse.restype = ctypes.c_int
+
+
+@functools.lru_cache(maxsize=1)
+def _library():
+    return first_library((*_LIBRARIES, ctypes.util.find_library("petsc")), _declare)
 
 
 def mumps_inverse_block(factor: PETSc.Mat, dofs: np.ndarray, out: np.ndarray | None = None) -> np.ndarray | None:
