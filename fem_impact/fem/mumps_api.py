@@ -22,7 +22,9 @@ from .petsc_api import first_library
 
 _INT, _INT8, _REAL = ctypes.c_int, ctypes.c_int64, ctypes.c_double
 _P_INT, _P_REAL = ctypes.POINTER(_INT), ctypes.POINTER(_REAL)
-_LIBRARIES = ("libdmumps-5.5.so", "libdmumps.so")
+# Only a library that names the version: the structure is filled by MUMPS' first call, before its
+# version string could be read, so another version's layout must not be called at all.
+_LIBRARIES = ("libdmumps-5.5.so",)
 VERSION = "5.5"   # the layout below is this version's
 
 
@@ -60,7 +62,8 @@ def _declare(lib) -> None:
 
 @functools.lru_cache(maxsize=1)
 def _library():
-    return first_library((*_LIBRARIES, ctypes.util.find_library("dmumps")), _declare)
+    found = ctypes.util.find_library("dmumps")
+    return first_library((*_LIBRARIES, found if found and f"-{VERSION}." in found else None), _declare)
 
 
 # MUMPS' working-space relaxation (ICNTL(14), per cent), raised and retried while a factorization
