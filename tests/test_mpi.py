@@ -195,3 +195,47 @@ def test_two_runs_on_two_ranks_write_the_same_history(tmp_path):
         done = mpirun("run", str(CASES / "impacting_bar.yaml"), "-o", str(tmp_path / name), *overrides)
         assert done.returncode == 0, done.stderr
     assert (tmp_path / "a" / "history.csv").read_bytes() == (tmp_path / "b" / "history.csv").read_bytes()
+
+
+CUT_ACROSS = """
+import json, numpy as np
+from mpi4py import MPI
+from fem_impact.fem.dolfinx_api import box, gmsh_cells_to_mesh
+comm = MPI.COMM_WORLD
+out = {}
+for name in ("box", "gmsh"):
+    if name == "box":
+        msh = box(comm, (200, 10, 10), (1.0, 0.05, 0.05))
+    else:   # the same bar's hexahedra handed over as a read mesh is (Gmsh element type 5), on rank 0
+        i, j, k = np.meshgrid(np.arange(201), np.arange(11), np.arange(11), indexing="ij")
+        x = np.column_stack([i.ravel() / 200, j.ravel() / 200, k.ravel() / 200])
+        node = lambda a, b, c: (a * 11 + b) * 11 + c
+        a, b, c = (g.ravel() for g in np.meshgrid(np.arange(200), np.arange(10), np.arange(10), indexing="ij"))
+        cells = np.column_stack([node(a, b, c), node(a + 1, b, c), node(a + 1, b + 1, c), node(a, b + 1, c),
+                                 node(a, b, c + 1), node(a + 1, b, c + 1), node(a + 1, b + 1, c + 1), node(a, b + 1, c + 1)])
+        if comm.rank:
+            cells, x = cells[:0], x[:0]
+        msh = gmsh_cells_to_mesh(comm, 5, cells, x, np.ones(cells.shape[0]), 3)[0]
+    owned = msh.topology.index_map(3).size_local
+    nodes = msh.geometry.dofmap.array.reshape(-1, 8 if name == "gmsh" else 4)[:owned]
+    cx = msh.geometry.x[nodes, 0].mean(axis=1)
+    out[name] = comm.gather([owned, float(cx.min()), float(cx.max())])
+if comm.rank == 0:
+    print("JSON" + json.dumps(out))
+"""
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
+def test_a_bar_built_or_read_on_two_ranks_is_cut_straight_across_its_middle():
+    """The cells of a 200 x 10 x 10 bar (benchmarks/scaling.py's 73k unknowns) go to the ranks by coordinate bisection of their centres: each rank
+    owns the cells on one side of x = 1/2, half of them, whether the mesh is built (tetrahedra) or read.
+    (The partition without centres, runs of a breadth-first order, gave one rank cells all along it.)"""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}
+    out = subprocess.run(["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-c",
+                          CUT_ACROSS], capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    result = json.loads(out.stdout.split("JSON", 1)[1].splitlines()[0])
+    for name, per_layer in (("box", 6 * 100), ("gmsh", 100)):
+        (n0, lo0, hi0), (n1, lo1, hi1) = sorted(result[name], key=lambda r: r[1])
+        assert n0 == n1 == 100 * per_layer, name
+        assert hi0 < 0.5 < lo1, name

@@ -16,6 +16,8 @@ from dolfinx.io import gmshio
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from .partition import cell_centres, distributed_partition
+
 
 # FFCx logs every JIT compilation at INFO level on the root logger: keep it quiet.
 for _name in ("ffcx", "UFL", "FFC", "dijitso"):
@@ -36,7 +38,6 @@ Mesh = mesh.Mesh
 
 
 def _reproducible_graph_partitioner(comm, nparts, graph, ghosting):
-    from fem_impact.fem.partition import distributed_partition
 
     offsets, ranks = distributed_partition(comm, nparts, np.asarray(graph.offsets), np.asarray(graph.array), ghosting)
     return _cpp.graph.AdjacencyList_int32(np.ascontiguousarray(ranks, dtype=np.int32),
@@ -49,21 +50,41 @@ _PARTITIONER = mesh.create_cell_partitioner(_reproducible_graph_partitioner)
 
 def interval(comm: MPI.Comm, cells: int, length: float) -> Mesh:
     """A 1D mesh of ``cells`` equal cells on [0, length]."""
-    return mesh.create_interval(comm, cells, [0.0, length], partitioner=_PARTITIONER)
+    with cell_centres(_grid_centres((cells,), (length,), fastest=0)):
+        return mesh.create_interval(comm, cells, [0.0, length], partitioner=_PARTITIONER)
 
 
 def rectangle(comm: MPI.Comm, nx: int, ny: int, length: float, height: float, hex: bool = False) -> Mesh:
     """A triangle (``hex``: quadrilateral) mesh of [0, length] x [0, height]."""
     cell = mesh.CellType.quadrilateral if hex else mesh.CellType.triangle
-    return mesh.create_rectangle(comm, [np.array([0.0, 0.0]), np.array([length, height])], [nx, ny], cell_type=cell,
-                                 partitioner=_PARTITIONER)
+    centres = _grid_centres((nx, ny), (length, height), fastest=1 if hex else 0, per_square=1 if hex else 2)
+    with cell_centres(centres):
+        return mesh.create_rectangle(comm, [np.array([0.0, 0.0]), np.array([length, height])], [nx, ny],
+                                     cell_type=cell, partitioner=_PARTITIONER)
 
 
 def box(comm: MPI.Comm, n: tuple[int, int, int], size: tuple[float, float, float], hex: bool = False) -> Mesh:
     """A tetrahedron (``hex``: hexahedron) mesh of [0, Lx] x [0, Ly] x [0, Lz]."""
     cell = mesh.CellType.hexahedron if hex else mesh.CellType.tetrahedron
-    return mesh.create_box(comm, [np.zeros(3), np.array(size, dtype=float)], list(n), cell_type=cell,
-                           partitioner=_PARTITIONER)
+    with cell_centres(_grid_centres(n, size, fastest=0, per_square=1 if hex else 6)):
+        return mesh.create_box(comm, [np.zeros(3), np.array(size, dtype=float)], list(n), cell_type=cell,
+                               partitioner=_PARTITIONER)
+
+
+def _grid_centres(n: tuple[int, ...], size: tuple[float, ...], fastest: int, per_square: int = 1) -> np.ndarray:
+    """The centres of the squares (cubes) of a grid of ``n`` cells on [0, size], one row per cell in
+    the order dolfinx 0.5's ``create_interval/rectangle/box`` hand them to the partitioner: squares
+    with the index along axis ``fastest`` running fastest (the others in axis order), each split
+    into ``per_square`` consecutive cells. (tests/test_partition.py checks this order against the
+    meshes' ``original_cell_index``.)"""
+    n = tuple(int(k) for k in n)
+    axes = [fastest] + [a for a in range(len(n)) if a != fastest]
+    index = np.arange(int(np.prod(n)))
+    centre = np.empty((index.size, len(n)))
+    for a in axes:
+        centre[:, a] = (index % n[a] + 0.5) * (float(size[a]) / n[a])
+        index //= n[a]
+    return np.repeat(centre, per_square, axis=0)
 
 
 def gmsh_cells_to_mesh(comm: MPI.Comm, gmsh_type: int, cells: np.ndarray, x: np.ndarray, cell_values: np.ndarray,
@@ -79,7 +100,9 @@ def gmsh_cells_to_mesh(comm: MPI.Comm, gmsh_type: int, cells: np.ndarray, x: np.
         raise ValueError(f"dolfinx has no cell for Gmsh element type {gmsh_type}") from None
     cells = np.asarray(cells, dtype=np.int64)
     cells = cells[:, gmshio.cell_perm_array(_cpp.mesh.to_type(str(domain.ufl_cell())), cells.shape[1])]
-    msh = mesh.create_mesh(comm, cells, np.asarray(x, dtype=float)[:, :gdim], domain, partitioner=_PARTITIONER)
+    x = np.asarray(x, dtype=float)[:, :gdim]
+    with cell_centres(x[cells].mean(axis=1) if cells.size else None):
+        msh = mesh.create_mesh(comm, cells, x, domain, partitioner=_PARTITIONER)
     tdim = msh.topology.dim
     entities, values = _cpp.io.distribute_entity_data(msh._mesh, tdim, cells, np.asarray(cell_values, dtype=np.int32))
     msh.topology.create_connectivity(tdim, 0)
