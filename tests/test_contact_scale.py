@@ -197,10 +197,12 @@ def test_w_from_inverse_entries_in_place_equals_the_solves(monkeypatch, entries)
     assert np.abs(W - reference).max() <= 1e-12 * np.abs(reference).max()
 
 
-def test_w_from_the_schur_complement_and_d_from_inverse_entries_equal_the_solves(monkeypatch):
-    """441 face rows without friction: W = P S^-1 P^T from the inverse of S's Schur complement on the
-    rows' dofs (S's factorization takes 11 m^3 flops, above SCHUR_FLOPS), D = P M^-1 P^T from MUMPS'
-    inverse entries (M's three decoupled components: 1.4 m^3), each equal to the solves."""
+def test_a_condensed_step_matrix_gives_w_and_the_contact_steps_of_a_plain_factor(monkeypatch):
+    """441 face rows without friction: S factorized keeping the rows' dofs out (S's elimination takes
+    about 11 m^3 flops, above SCHUR_FLOPS). W = P S^-1 P^T is the inverse of its Schur complement
+    and D = P M^-1 P^T comes from MUMPS' inverse entries (M's three decoupled components: 1.4 m^3),
+    each equal to P A^-1 P^T from a plain factor's solves; and the contact steps, each one solve
+    with the impulse between its halves, are those of the plain factor's two solves."""
     from mpi4py import MPI
 
     from fem_impact.app.pipeline import make_integrator
@@ -209,22 +211,40 @@ def test_w_from_the_schur_complement_and_d_from_inverse_entries_equal_the_solves
     from fem_impact.fem.mesh import build_mesh
     from fem_impact.fem.model import build_model
     from fem_impact.integrators import Operators, base
+    from fem_impact.integrators.condensed import CondensedFactor
     from fem_impact.nonsmooth.relation import build_constraints
 
     monkeypatch.setattr(base, "KEEP_COLUMNS", 0)   # (6615 x 441 columns would be kept: W from them)
     routes = []
-    for name in ("inverse_by_schur", "mumps_inverse_block"):
-        original = getattr(base, name)
-        monkeypatch.setattr(base, name, lambda *a, _f=original, _n=name: routes.append(_n) or _f(*a))
-    case = load_case(PLATE, ["mesh.cells=4"])
+    original = base.mumps_inverse_block
+    monkeypatch.setattr(base, "mumps_inverse_block", lambda *a: routes.append(a[1].size) or original(*a))
+    case = load_case(PLATE, ["mesh.cells=4", "solver.dt=0.125", "contacts.0.gap=0.1875"])
     model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
     cons = build_constraints(case.contacts, model)
-    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
-    integrator = make_integrator(case, ops)
-    assert ops.p == 441 and routes == ["inverse_by_schur"]
-    for solve, route in ((integrator.solve_S, "inverse_by_schur"), (integrator.solve_M, "mumps_inverse_block")):
-        routes.clear()
-        W = ops.delassus(solve)[0]
-        assert routes == [route]
-        reference = ops.project(ops.solve_columns(solve))
+
+    def integrator(condensed: bool):
+        ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
+        if not condensed:
+            monkeypatch.setattr(ops, "condensed_dofs", lambda: None)
+        made = make_integrator(case, ops)
+        made.start(model.U0, model.V0)
+        return ops, made
+
+    ops, condensed = integrator(True)
+    assert ops.p == 441 and isinstance(condensed.solve_S, CondensedFactor) and routes == []
+    plain_ops, plain = integrator(False)
+    assert not isinstance(plain.solve_S, CondensedFactor) and routes == [441]   # (W by selected entries)
+    for W, solve in ((condensed.W, plain.solve_S), (condensed.D, plain.solve_M)):
+        reference = plain_ops.project(plain_ops.solve_columns(solve))
         assert np.abs(W - reference).max() <= 1e-12 * np.abs(reference).max()
+    assert routes == [441, 441]   # (D by selected entries, for the condensed run's M)
+    impulses = 0.0
+    for _ in range(6):   # the floor reached at the second step: contact steps, Carnot's correction
+        a, b = condensed.step(), plain.step()
+        impulses += a.impulse.sum()
+        for name in ("U", "V"):
+            x, y = getattr(a, name), getattr(b, name)
+            assert np.abs(x - y).max() <= 1e-10 * np.abs(y).max(), name
+        assert np.abs(a.impulse - b.impulse).max() <= 1e-10 * max(np.abs(b.impulse).max(), 1e-300)
+        assert abs(a.energy.total - b.energy.total) <= 1e-10 * b.energy.initial
+    assert impulses > 0.0   # (the steps were contact steps)

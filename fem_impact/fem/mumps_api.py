@@ -1,10 +1,11 @@
 """MUMPS' C interface (``dmumps_c``), for what PETSc 3.18 does not reach: a sequential
 factorization that keeps a set of variables out and returns their Schur complement
-(ICNTL(19)), with the other variables ordered as MUMPS would order them alone.
+(ICNTL(19)), with the other variables ordered as MUMPS would order them alone, and solves
+split at that set (ICNTL(26)).
 
 One place for it: the structure below is MUMPS 5.5's ``DMUMPS_STRUC_C`` (dmumps_c.h, 32-bit
 integers), and an upgrade touches this file only. Without the library, or with another version,
-:func:`inverse_by_schur` returns None and callers keep their other path.
+:meth:`SchurFactor.create` returns None and callers keep their other path.
 """
 
 from __future__ import annotations
@@ -12,11 +13,11 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import functools
+import weakref
 
 import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
-from scipy.linalg import lapack
 
 from .petsc_api import first_library
 
@@ -116,9 +117,10 @@ class _Instance:
         self._arrays.clear()
 
 
-def _ordering_around(lib, n, rows, cols, values, kept) -> np.ndarray | None:
+def _ordering_around(lib, n, rows, cols, values, kept) -> tuple[np.ndarray, float] | None:
     """A pivot order (MUMPS' PERM_IN: each variable's position, 1-based) with the variables ``kept``
-    last and the others in the order MUMPS' analysis gives them alone; None if it fails."""
+    last and the others in the order MUMPS' analysis gives them alone, and that analysis' estimate
+    of the flops of their elimination (RINFOG(1)); None if it fails."""
     inner = np.ones(n, dtype=bool)
     inner[kept] = False
     number = np.cumsum(inner) - 1   # (a variable's number among the others)
@@ -131,76 +133,100 @@ def _ordering_around(lib, n, rows, cols, values, kept) -> np.ndarray | None:
         order = np.empty(n, dtype=np.int32)
         order[inner] = np.ctypeslib.as_array(mumps.s.sym_perm, shape=(n - kept.size,))
         order[kept] = np.arange(n - kept.size + 1, n + 1)
-        return order
+        return order, float(mumps.s.rinfog[0])
     finally:
         mumps.close()
 
 
-def schur_complement(A: PETSc.Mat, kept: np.ndarray) -> np.ndarray | None:
-    """``A_kk - A_ko A_oo^-1 A_ok`` (dense, symmetric, m x m) of a serial SPD ``A`` on the variables
-    ``kept`` (sorted, 0-based), from a MUMPS factorization that leaves them out (ICNTL(19) = 1).
+class SchurFactor:
+    """A sequential MUMPS factorization of an SPD matrix that keeps the variables ``kept`` out:
+    ``complement`` is their Schur complement ``A_kk - A_ko A_oo^-1 A_ok`` (dense, symmetric, m x m),
+    and a solve splits into ``condense`` (the others' forward elimination; the reduced right-hand
+    side ``b_k - A_ko A_oo^-1 b_o``) and ``expand`` (the others from the kept ones' values),
+    MUMPS' ICNTL(19) = 1 and ICNTL(26) = 1, 2.
 
     MUMPS orders by AMD alone once it is to keep a Schur complement (the 6561-row plate's S:
     168 s); the other variables are ordered here as MUMPS' analysis orders them without the kept
-    ones (PORD on this machine), the kept ones last (80 s). None without MUMPS 5.5 or if it fails.
+    ones (PORD on this machine), the kept ones last (80 s). Build with :meth:`create`; ``close``
+    frees MUMPS' memory.
     """
-    lib = _library()
-    if lib is None or A.getComm().getSize() > 1:
-        return None
-    n, m = A.getSize()[0], kept.size
-    indptr, cols, values = A.getValuesCSR()
-    rows = np.repeat(np.arange(n, dtype=np.int32), np.diff(indptr))
-    upper = cols >= rows
-    rows, cols, values = rows[upper], cols[upper], values[upper]
-    mumps = _Instance(lib)
-    try:
+
+    @classmethod
+    def create(cls, A: PETSc.Mat, kept: np.ndarray, min_flops: float = 0.0) -> SchurFactor | None:
+        """For a serial SPD ``A`` and ``kept`` (sorted, 0-based). None without MUMPS 5.5, when it
+        fails, or when the analysis estimates the elimination of the others at fewer than
+        ``min_flops`` (checked before the factorization: a caller's threshold)."""
+        lib = _library()
+        if lib is None or A.getComm().getSize() > 1:
+            return None
+        n = A.getSize()[0]
+        indptr, cols, values = A.getValuesCSR()
+        rows = np.repeat(np.arange(n, dtype=np.int32), np.diff(indptr))
+        upper = cols >= rows
+        rows, cols, values = rows[upper], cols[upper], values[upper]
+        mumps = _Instance(lib)
         if not mumps.version.startswith(VERSION):
+            mumps.close()
             return None
-        order = _ordering_around(lib, n, rows, cols, values, kept)
-        if order is None:
+        found = _ordering_around(lib, n, rows, cols, values, kept)
+        if found is None or found[1] < min_flops:
+            mumps.close()
             return None
-        mumps.matrix(n, rows, cols, values)
-        del rows, cols, values
+        factor = cls(mumps, n, kept)
+        if not factor._factorize(rows, cols, values, found[0]):
+            factor.close()
+            return None
+        return factor
+
+    def __init__(self, mumps: _Instance, n: int, kept: np.ndarray):
+        self._mumps, self.n, self.m = mumps, n, kept.size
+        self.kept = kept
+        self.complement = np.empty((self.m, self.m))
+        self._close = weakref.finalize(self, mumps.close)   # (MUMPS' memory, when this is dropped)
+
+    def _factorize(self, rows, cols, values, order) -> bool:
+        mumps, m = self._mumps, self.m
+        mumps.matrix(self.n, rows, cols, values)
         s = mumps.s
         s.icntl[7 - 1], s.icntl[19 - 1], s.size_schur = 1, 1, m
         mumps.point("perm_in", order, _P_INT)
-        mumps.point("listvar_schur", np.ascontiguousarray(kept + 1, dtype=np.int32), _P_INT)
+        mumps.point("listvar_schur", np.ascontiguousarray(self.kept + 1, dtype=np.int32), _P_INT)
         if not mumps.run(1):
-            return None
-        schur = np.empty((m, m))
+            return False
         s.schur_lld = m
-        mumps.point("schur", schur, _P_REAL)
+        mumps.point("schur", self.complement, _P_REAL)
         if not mumps.run(2, retry=True):
-            return None
-    finally:
-        mumps.close()
-    # MUMPS' result is the lower triangle by rows (the upper one may hold its work values)
-    _mirror_lower(schur)
-    return schur
+            return False
+        # MUMPS' result is the lower triangle by rows (the upper one may hold its work values)
+        mirror_lower(self.complement)
+        self.entries = int(s.infog[29 - 1])   # entries of the factors (INFOG(29))
+        return True
+
+    def _solve(self, R: np.ndarray, reduced: np.ndarray, phase: int) -> None:
+        s = self._mumps.s
+        s.icntl[26 - 1] = phase
+        s.nrhs = 1 if R.ndim == 1 else R.shape[1]
+        s.lrhs, s.lredrhs = self.n, self.m
+        s.rhs, s.redrhs = R.ctypes.data_as(_P_REAL), reduced.ctypes.data_as(_P_REAL)
+        if not self._mumps.run(3):
+            raise RuntimeError(f"MUMPS' solve stopped with INFOG(1) = {s.infog[0]}")
+
+    def condense(self, R: np.ndarray, reduced: np.ndarray) -> None:
+        """The forward elimination of ``R`` (n, or n x k in Fortran order), in place (``expand``
+        reads it); the reduced right-hand sides into ``reduced`` (m, or m x k in Fortran order)."""
+        self._solve(R, reduced, 1)
+
+    def expand(self, R: np.ndarray, reduced: np.ndarray) -> None:
+        """The solution into ``R`` (as ``condense`` left it; zeros for a right-hand side that is zero
+        outside the kept variables) from the kept variables' values in ``reduced``."""
+        self._solve(R, reduced, 2)
+
+    def close(self) -> None:
+        """Free MUMPS' factor now (the complement array stays)."""
+        self._close()
 
 
-def inverse_by_schur(A: PETSc.Mat, dofs: np.ndarray) -> np.ndarray | None:
-    """``(A^-1)[dofs][:, dofs]`` (dense, m x m) of a serial SPD ``A`` as the inverse of its Schur
-    complement on ``dofs`` (sorted): one factorization and a dense inversion (m^3 flops), against
-    the selected entries of the inverse, which cost several factorizations when m is large
-    (``petsc_api.mumps_inverse_block``). None when it cannot be done here."""
-    S = schur_complement(A, dofs)
-    if S is None:
-        return None
-    # (LAPACK on the Fortran view of S, in place: its upper triangle is S's lower one)
-    factor, info = lapack.dpotrf(S.T, lower=0, clean=0, overwrite_a=1)
-    if info != 0:
-        return None
-    inverse, info = lapack.dpotri(factor, lower=0, overwrite_c=1)
-    if info != 0:
-        return None
-    if not np.shares_memory(inverse, S):   # (LAPACK worked on a copy after all)
-        S[...] = inverse.T
-    _mirror_lower(S)
-    return S
-
-
-def _mirror_lower(S: np.ndarray, block: int = 512) -> None:
+def mirror_lower(S: np.ndarray, block: int = 512) -> None:
     """S's upper triangle from its lower one, in place, by blocks of rows."""
     m = S.shape[0]
     for i0 in range(0, m, block):

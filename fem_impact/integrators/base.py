@@ -22,9 +22,9 @@ from scipy.linalg.blas import daxpy, dgemv
 
 from ..errors import SimulationError
 from ..parallel import allsum
-from ..fem.mumps_api import inverse_by_schur
 from ..fem.petsc_api import mumps_inverse_block
 from ..nonsmooth.lcp import permuted_in_place
+from .condensed import CondensedFactor
 from .parameters import steps_for   # (the one definition; integrators re-exports it)
 
 BLOW_UP = 100.0  # kinetic + strain energy above this many times the energy put in: the run blew up
@@ -33,13 +33,9 @@ BLOW_UP = 100.0  # kinetic + strain energy above this many times the energy put 
 ENERGY_TOLERANCE = 1e-6
 DENSE_BLOCK = 4096  # entries: up to this size the block of P on the dofs it touches is kept dense
 KEEP_COLUMNS = 1 << 22   # entries (N x p, 32 MB): up to this size S^-1 P^T is stored; above, applied by a solve
-INVERSE_ENTRIES_FROM = 64   # contact rows: from these on, W from selected entries of A^-1 (serial MUMPS)
-# ... or from the inverse of A's Schur complement on the rows' dofs, when the factorization of A takes more
-# than this many times m^3 flops (m dofs; the dense inversion's): selected entries cost several
-# factorizations, the Schur complement about two. The 6561-row plate: S (3D elasticity) 80 + 10 s against
-# 122 s; its mass matrix (three decoupled components) 18.5 + 9.6 s against 21 s, which this ratio leaves
-# to selected entries.
-SCHUR_FLOPS = 2.0
+# contact rows: from these on (serial MUMPS), W from selected entries of A^-1, or from the inverse of A's
+# Schur complement on the rows' dofs where A is factorized keeping them out (condensed.py)
+INVERSE_ENTRIES_FROM = 64
 MUMPS_FROM = 5000    # unknowns: serial systems from this size on with 3D fill (MUMPS_FILL entries a row
 MUMPS_FILL = 30      # or more) are factorized by MUMPS (Cholesky if SPD); smaller or sparser ones by PETSc
 RHS_BLOCK = 256      # right-hand sides per multi-RHS solve (fewer on large models: N x block <= RHS_ENTRIES)
@@ -89,12 +85,20 @@ class PETScAlgebra:
             S = S.copy()   # the pattern grew all the same
         return S
 
-    def factorize(self, A: PETSc.Mat, spd: bool = False) -> Factor | DiagonalFactor:
+    def factorize(self, A: PETSc.Mat, spd: bool = False, kept: np.ndarray | None = None
+                  ) -> Factor | CondensedFactor | DiagonalFactor:
         """A direct solver for ``A``, factorized now, once: ``solve(b, x)`` on arrays from ``vector()``,
         ``solve.many(B)`` on a block of columns. See ``factorize`` for the choice of solver; a
-        diagonal ``A`` (a lumped mass) is inverted entry by entry on each rank, no factorization."""
+        diagonal ``A`` (a lumped mass) is inverted entry by entry on each rank, no factorization.
+        ``kept``: the contact dofs whose block of ``A^-1`` W will take (``Operators.condensed_dofs``):
+        an SPD ``A`` that MUMPS is to factorize is then factorized keeping them out, where that pays
+        (``CondensedFactor``)."""
         if is_diagonal(A):
             return DiagonalFactor(A.getDiagonal().array_r.copy())
+        if kept is not None and spd and _mumps_for(A) and not _solver_options():
+            condensed = CondensedFactor.create(without_stored_zeros(A), kept)
+            if condensed is not None:
+                return condensed
         return Factor(_direct_solver(A, spd), self)
 
     def diagonal(self, A: PETSc.Mat) -> np.ndarray:
@@ -137,7 +141,7 @@ class DenseAlgebra:
         return sum(c * (np.diag(A) if A.ndim == 1 else A) for c, A in terms)
 
     @staticmethod
-    def factorize(A: np.ndarray, spd: bool = False) -> DenseFactor:
+    def factorize(A: np.ndarray, spd: bool = False, kept: np.ndarray | None = None) -> DenseFactor:
         return DenseFactor(A)
 
     @staticmethod
@@ -169,12 +173,23 @@ def factorize(A: PETSc.Mat, spd: bool = False) -> Callable[[PETSc.Vec, PETSc.Vec
     return _direct_solver(A, spd).solve
 
 
+def _solver_options() -> list[tuple[str, str]]:
+    """The user's PETSc options for the direct solver (``OPTIONS_PREFIX``), sorted."""
+    return sorted((k, v) for k, v in PETSc.Options().getAll().items() if k.startswith(OPTIONS_PREFIX))
+
+
 def direct_solver_settings() -> dict:
     """What decides the solver :func:`factorize` picks besides the matrix (for cache keys): the
     thresholds, whether PETSc has MUMPS, the user's options with the prefix, PETSc's version."""
-    options = sorted((k, v) for k, v in PETSc.Options().getAll().items() if k.startswith(OPTIONS_PREFIX))
     return {"mumps": PETSc.Sys.hasExternalPackage("mumps"), "mumps_from": MUMPS_FROM, "mumps_fill": MUMPS_FILL,
-            "options": options, "petsc": PETSc.Sys.getVersion()}
+            "options": _solver_options(), "petsc": PETSc.Sys.getVersion()}
+
+
+def _mumps_for(A: PETSc.Mat) -> bool:
+    """Whether ``A`` goes to MUMPS: on several ranks, or serial with 3D fill from ``MUMPS_FROM`` unknowns."""
+    n = A.getSize()[0]
+    dense_fill = n >= MUMPS_FROM and A.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"] >= MUMPS_FILL * n
+    return PETSc.Sys.hasExternalPackage("mumps") and (A.getComm().getSize() > 1 or dense_fill)
 
 
 def _direct_solver(A: PETSc.Mat, spd: bool) -> PETSc.KSP:
@@ -183,9 +198,7 @@ def _direct_solver(A: PETSc.Mat, spd: bool) -> PETSc.KSP:
     ksp.setOperators(A)
     ksp.setType(PETSc.KSP.Type.PREONLY)
     pc = ksp.getPC()
-    n = A.getSize()[0]
-    dense_fill = n >= MUMPS_FROM and A.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"] >= MUMPS_FILL * n
-    mumps = PETSc.Sys.hasExternalPackage("mumps") and (comm.getSize() > 1 or dense_fill)
+    mumps = _mumps_for(A)
     if mumps:
         A = without_stored_zeros(A)
         ksp.setOperators(A)
@@ -248,19 +261,11 @@ class Factor:
         self._solve(self._vec(b), self._vec(x))
 
     def inverse_block(self, dofs: np.ndarray) -> np.ndarray | None:
-        """``(A^-1)[dofs][:, dofs]`` from a serial MUMPS factor, else None: the inverse of A's Schur
-        complement on the dofs where the factorization's flops outweigh a dense inversion's
-        (``SCHUR_FLOPS``), else the selected entries of the inverse."""
-        pc = self.ksp.getPC()
+        """``(A^-1)[dofs][:, dofs]`` from a serial MUMPS factor (its selected inverse entries), else None."""
         try:
-            F = pc.getFactorMatrix()
+            F = self.ksp.getPC().getFactorMatrix()
         except PETSc.Error:
             return None
-        if F.getType() == "mumps" and F.getComm().getSize() == 1 and pc.getType() == PETSc.PC.Type.CHOLESKY and \
-                F.getMumpsRinfog(3) > SCHUR_FLOPS * float(dofs.size) ** 3:   # (an SPD matrix: Cholesky)
-            inverse = inverse_by_schur(self.ksp.getOperators()[0], dofs)
-            if inverse is not None:
-                return inverse
         return mumps_inverse_block(F, dofs)
 
     def many(self, B: np.ndarray) -> np.ndarray:
@@ -537,11 +542,11 @@ class Operators:
             if found is not None:
                 return found
         p, N = self.p, self.algebra.sizes[1]
-        keep = N * p <= KEEP_COLUMNS or not self.algebra.distributed
-        if keep:
+        if self._keeps_columns():
             X = self.solve_columns(solve)
             return self.project(X), Columns(X)
-        # Serial MUMPS: (A^-1) on the dofs P touches, as selected entries of the inverse.
+        # Serial MUMPS: (A^-1) on the dofs P touches, as the inverse of A's Schur complement on them
+        # (a CondensedFactor) or selected entries of the inverse.
         dofs = np.unique(self._P.indices)
         if p >= INVERSE_ENTRIES_FROM and hasattr(solve, "inverse_block"):
             block = solve.inverse_block(dofs)
@@ -563,6 +568,20 @@ class Operators:
             X = solve.many(self.P_local[:, j0:j1].toarray())
             W[:, j0:j1] = self.project(X)
         return W, SolvedColumns(self, solve)
+
+    def _keeps_columns(self) -> bool:
+        """Whether ``delassus`` stores ``A^-1 P^T`` (few rows, or a small replicated system)."""
+        return self.algebra.sizes[1] * self.p <= KEEP_COLUMNS or not self.algebra.distributed
+
+    def condensed_dofs(self) -> np.ndarray | None:
+        """The dofs of the rows, and of the tangent rows if any, where ``delassus`` is to take W from a
+        block of ``A^-1`` (a serial model, from ``INVERSE_ENTRIES_FROM`` rows, too many to store
+        ``A^-1 P^T``): the factorization of the step matrix may keep them out (``CondensedFactor``).
+        Else None."""
+        rows = self.with_tangents() if self.pt else self
+        if self.comm.size > 1 or rows.p < INVERSE_ENTRIES_FROM or rows._keeps_columns():
+            return None
+        return np.unique(rows._P.indices)
 
     def _diagonal_delassus(self, solve) -> tuple[sparse.csr_matrix, DiagonalColumns] | None:
         if not isinstance(solve, DiagonalFactor) or not self.algebra.distributed:

@@ -38,12 +38,14 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from scipy import sparse
 
 from ..errors import ContactSolverError
 from ..nonsmooth.friction import FrictionProblem
 from ..nonsmooth.lcp import TINY, Delassus, solve_lcp
 from .blocks import OpenStep, OpenSteps, diagonal
 from .base import DenseAlgebra, EnergyBudget, Operators, StepState, axpy
+from .condensed import CondensedFactor
 from .scheme import ContactScheme
 
 CHECK_EVERY = 32   # steps: K U and K V by products with K instead of from the step's identity
@@ -71,7 +73,8 @@ class MoreauJean(ContactScheme):
     rows). The impulse ``p`` is reported as S_N, ``p / dt`` as the force F_N. Mass redistribution
     (no mass on the contact nodes) is allowed; such rows get no Carnot correction.
 
-    Per step: one solve for the free velocity, a second one when some row carries an impulse,
+    Per step: one solve for the free velocity, a second one when some row carries an impulse
+    (none with a condensed factor of S: the impulse is found between the halves of the first),
     one product with M (and C); K U and K V follow from the step's own equation (products with K
     after a Carnot correction, and every CHECK_EVERY-th step, so that the balance checks the solves).
     """
@@ -100,11 +103,41 @@ class MoreauJean(ContactScheme):
         self.position_rows = np.ones(ops.p, dtype=bool) if level == "position" else self.elastic
         self.carnot_rows = ~self.elastic & ~ops.massless_rows if level == "position" else np.zeros(ops.p, bool)
         self.lcp = Delassus.regularized(self.W + compliance / (theta * dt * dt))   # factors kept over the steps
+        self._condensed = self._condensed_rows()
         self.friction = None
         if ops.pt:
             self._build_friction(compliance)
         new = self.alg.vector
         self.KU, self.KV, self.KV_prev = new(), new(), new()
+
+    def _condensed_rows(self):
+        """(S's factor, P on its kept dofs: p x m) where S was factorized keeping the rows' dofs out
+        (``CondensedFactor``): the step then solves its contact problem between the condensation and
+        the expansion of one solve (``_condensed_impulse``). Else None."""
+        solve, P = self.solve_S, self.ops._P
+        if not isinstance(solve, CondensedFactor) or not self.ops.p:
+            return None
+        where = np.searchsorted(solve.kept, P.indices)
+        if np.any(where >= solve.m) or not np.array_equal(solve.kept[np.minimum(where, solve.m - 1)], P.indices):
+            return None
+        return solve, sparse.csr_matrix((P.data, where, P.indptr), shape=(P.shape[0], solve.m))
+
+    def _condensed_impulse(self, st: StepState, t1: float, rhs: np.ndarray, V: np.ndarray):
+        """The free velocity's solve and the impulse in one solve with the condensed factor: its
+        values on the rows' dofs first (``begin``), the impulse from them, its correction
+        ``S_C^-1 P_C^T impulse`` on those values (condensed.py), then the rest (``finish``)."""
+        factor, P_kept = self._condensed
+        v_kept = factor.begin(rhs)
+        pv_free = P_kept @ v_kept
+        impulse = self._impulse(st, pv_free, t1)
+        pv, jump = pv_free, 0.0
+        if np.count_nonzero(impulse):
+            v_kept -= factor.dense(P_kept.T @ impulse)
+            self.ops.subtract_transpose(rhs, impulse)   # the step's equation with the impulse, for K V1
+            Wp = self.W.dot(impulse)
+            pv, jump = pv_free - Wp, float(np.abs(Wp).max())
+        factor.finish(v_kept, V)
+        return impulse, pv, jump
 
     def _build_friction(self, compliance: np.ndarray) -> None:
         """The frictional one-step problem on ``[P; P_T]`` (docs/theory.md s. 11).
@@ -233,24 +266,27 @@ class MoreauJean(ContactScheme):
         axpy(rhs, -theta * (1.0 - theta) * dt * dt, self.KV_prev)
         axpy(U, dt * (1.0 - theta), V)   # U0 + dt (1 - theta) V0; the theta V1 part below
         np.copyto(A, V)                  # V0, for the mean acceleration (V1 - V0) / dt
-        self.solve_S(rhs, V)             # the free velocity
 
         p = ops.p
         impulse = np.zeros(p)
         pu, pv = st.normal_displacement, st.normal_velocity
         jump = 0.0   # the largest change of a normal velocity the impulse made
         tangential = pt = None
-        if p and self.friction is not None:
-            impulse, tangential, pv, pt, jump = self._frictional_impulse(st, t1, rhs)
-        elif p:
-            pv_free = ops.project_many(V)[0]
-            impulse = self._impulse(st, pv_free, t1)
-            pv = pv_free
-            if np.count_nonzero(impulse):
-                self.G.subtract_from(V, impulse)
-                ops.subtract_transpose(rhs, impulse)   # the step's equation with the impulse, for K V1
-                Wp = self.W.dot(impulse)
-                pv, jump = pv_free - Wp, float(np.abs(Wp).max())
+        if self._condensed is not None and self.friction is None:   # one solve, the impulse between its halves
+            impulse, pv, jump = self._condensed_impulse(st, t1, rhs, V)
+        else:
+            self.solve_S(rhs, V)         # the free velocity
+            if p and self.friction is not None:
+                impulse, tangential, pv, pt, jump = self._frictional_impulse(st, t1, rhs)
+            elif p:
+                pv_free = ops.project_many(V)[0]
+                impulse = self._impulse(st, pv_free, t1)
+                pv = pv_free
+                if np.count_nonzero(impulse):
+                    self.G.subtract_from(V, impulse)
+                    ops.subtract_transpose(rhs, impulse)   # the step's equation with the impulse, for K V1
+                    Wp = self.W.dot(impulse)
+                    pv, jump = pv_free - Wp, float(np.abs(Wp).max())
         axpy(U, dt * theta, V)
         if ops.C is not None:   # C V1 of the step's equation (before Carnot's correction): its damping work
             alg.mult(ops.C, V, self.CV)

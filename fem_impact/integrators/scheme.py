@@ -39,7 +39,8 @@ class ContactScheme:
         self.S = S
         self.timings: dict[str, float] = {}   # seconds of the setup's stages (benchmarks read them)
         clock = time.perf_counter()
-        self.solve_S = alg.factorize(S, spd=True)  # (M, C, K symmetric, M positive definite)
+        # (M, C, K symmetric, M positive definite; the contact dofs kept out where W takes S^-1 on them)
+        self.solve_S = alg.factorize(S, spd=True, kept=ops.condensed_dofs())
         self.timings["factorize S"] = time.perf_counter() - clock
         clock = time.perf_counter()
         self.solve_M = alg.factorize(ops.mass_for_solves(), spd=True)
