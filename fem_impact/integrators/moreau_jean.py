@@ -38,14 +38,12 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from scipy import sparse
 
 from ..errors import ContactSolverError
 from ..nonsmooth.friction import FrictionProblem
 from ..nonsmooth.lcp import TINY, Delassus, solve_lcp
 from .blocks import OpenStep, OpenSteps, diagonal
 from .base import DenseAlgebra, EnergyBudget, Operators, StepState, axpy
-from .condensed import CondensedFactor
 from .scheme import ContactScheme
 
 CHECK_EVERY = 32   # steps: K U and K V by products with K instead of from the step's identity
@@ -103,40 +101,20 @@ class MoreauJean(ContactScheme):
         self.position_rows = np.ones(ops.p, dtype=bool) if level == "position" else self.elastic
         self.carnot_rows = ~self.elastic & ~ops.massless_rows if level == "position" else np.zeros(ops.p, bool)
         self.lcp = Delassus.regularized(self.W + compliance / (theta * dt * dt))   # factors kept over the steps
-        self._condensed = self._condensed_rows()
         self.friction = None
         if ops.pt:
             self._build_friction(compliance)
         new = self.alg.vector
         self.KU, self.KV, self.KV_prev = new(), new(), new()
 
-    def _condensed_rows(self):
-        """(S's factor, P on its kept dofs: p x m) where S was factorized keeping the rows' dofs out
-        (``CondensedFactor``): the step then solves its contact problem between the condensation and
-        the expansion of one solve (``_condensed_impulse``). Else None."""
-        solve, P = self.solve_S, self.ops._P
-        if not isinstance(solve, CondensedFactor) or not self.ops.p:
-            return None
-        where = np.searchsorted(solve.kept, P.indices)
-        if np.any(where >= solve.m) or not np.array_equal(solve.kept[np.minimum(where, solve.m - 1)], P.indices):
-            return None
-        return solve, sparse.csr_matrix((P.data, where, P.indptr), shape=(P.shape[0], solve.m))
-
     def _condensed_impulse(self, st: StepState, t1: float, rhs: np.ndarray, V: np.ndarray):
-        """The free velocity's solve and the impulse in one solve with the condensed factor: its
-        values on the rows' dofs first (``begin``), the impulse from them, its correction
-        ``S_C^-1 P_C^T impulse`` on those values (condensed.py), then the rest (``finish``)."""
-        factor, P_kept = self._condensed
-        v_kept = factor.begin(rhs)
-        pv_free = P_kept @ v_kept
-        impulse = self._impulse(st, pv_free, t1)
+        """The free velocity and the impulse in one solve with the condensed factor of S."""
+        pv_free, impulse = self._condensed_solve(rhs, V, lambda pv: self._impulse(st, pv, t1))
         pv, jump = pv_free, 0.0
         if np.count_nonzero(impulse):
-            v_kept -= factor.dense(P_kept.T @ impulse)
             self.ops.subtract_transpose(rhs, impulse)   # the step's equation with the impulse, for K V1
             Wp = self.W.dot(impulse)
             pv, jump = pv_free - Wp, float(np.abs(Wp).max())
-        factor.finish(v_kept, V)
         return impulse, pv, jump
 
     def _build_friction(self, compliance: np.ndarray) -> None:

@@ -139,20 +139,29 @@ class Newmark(ContactScheme):
         axpy(U, dt * dt * (0.5 - beta), A)
         axpy(V, dt * (1.0 - gamma), A)
         self._evaluate_load(t1)
-        self._free_acceleration(U, V, self.solve_S, A)
+        rhs = self._free_rhs(U, V)
 
         # Position-level multipliers: g = d0 - P U_free + beta dt^2 W lam0 >= 0, lam0 >= 0.
         # (Small arrays below: .dot and count_nonzero cost half of @ and .any().)
         p, bdt2, gdt = ops.p, beta * dt * dt, gamma * dt
         lam0 = np.zeros(p)
         if p:
-            pu_pred, pv_pred, pa = ops.project_many(U, V, A)
             offset = ops.static.offset(t1) if ops.static else 0.0
-            q = ops.d0 - offset - (pu_pred + bdt2 * pa)
-            lam0 = self.lcp.solve(q, guess=st.force > 0.0)[0]
+            guess = st.force > 0.0
+            if self._condensed is not None:   # one solve, the multipliers between its halves
+                pu_pred, pv_pred = ops.project_many(U, V)
+                q_pred = ops.d0 - offset - pu_pred
+                pa, lam0 = self._condensed_solve(rhs, A, lambda pa: self.lcp.solve(q_pred - bdt2 * pa, guess=guess)[0])
+            else:
+                self.solve_S(rhs, A)
+                pu_pred, pv_pred, pa = ops.project_many(U, V, A)
+                lam0 = self.lcp.solve(ops.d0 - offset - (pu_pred + bdt2 * pa), guess=guess)[0]
+                if np.count_nonzero(lam0):
+                    self.G.subtract_from(A, lam0)
             if np.count_nonzero(lam0):
-                self.G.subtract_from(A, lam0)
                 pa = pa - self.W.dot(lam0)
+        else:
+            self.solve_S(rhs, A)
         axpy(U, bdt2, A)
         axpy(V, gdt, A)   # V* (before the impact correction)
         if ops.C is not None:

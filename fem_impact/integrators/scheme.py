@@ -7,9 +7,11 @@ import logging
 import time
 
 import numpy as np
+from scipy import sparse
 
 from ..nonsmooth.lcp import TINY, Delassus, ImpactResult, delassus_solver, impact_correction, solve_lcp
 from .base import EnergyBudget, Operators, StepState, owned_values
+from .condensed import CondensedFactor
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +51,7 @@ class ContactScheme:
         # P S^-1 P^T (p x p, every rank); S^-1 P^T
         self.W, self.G = ops.delassus(self.solve_S, diagonal=self.diagonal_delassus)
         self.timings["W"] = time.perf_counter() - clock
+        self._condensed = self._condensed_rows()
         self._D = self._H = self._carnot = None
         static = ops.static
         rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
@@ -105,7 +108,11 @@ class ContactScheme:
     # -- pieces of a step ----------------------------------------------------------------
     def _free_acceleration(self, U: np.ndarray, V: np.ndarray, solve, out: np.ndarray,
                            massless_at_rest: bool = False) -> None:
-        """``out = solve(R - K U - C V)`` with the load in ``self.R``; C V is kept in ``self.CV``.
+        """``out = solve(R - K U - C V)`` (``_free_rhs``)."""
+        solve(self._free_rhs(U, V, massless_at_rest), out)
+
+    def _free_rhs(self, U: np.ndarray, V: np.ndarray, massless_at_rest: bool = False) -> np.ndarray:
+        """``R - K U - C V`` into ``self.rhs``, with the load in ``self.R``; C V is kept in ``self.CV``.
 
         ``massless_at_rest``: a zero right-hand side on the massless dofs (for the solve with M,
         whose unit diagonal there is a placeholder; a step matrix S holds their equation).
@@ -118,7 +125,33 @@ class ContactScheme:
             rhs -= self.CV
         if massless_at_rest:
             rhs[ops.massless] = 0.0
-        solve(rhs, out)
+        return rhs
+
+    def _condensed_rows(self):
+        """(S's factor, P on its kept dofs: p x m) where S was factorized keeping the rows' dofs out
+        (``CondensedFactor``): a step then solves its contact problem between the halves of one
+        solve (``_condensed_solve``). Else None."""
+        solve, P = self.solve_S, self.ops._P
+        if not isinstance(solve, CondensedFactor) or not self.ops.p:
+            return None
+        where = np.searchsorted(solve.kept, P.indices)
+        if np.any(where >= solve.m) or not np.array_equal(solve.kept[np.minimum(where, solve.m - 1)], P.indices):
+            return None
+        return solve, sparse.csr_matrix((P.data, where, P.indptr), shape=(P.shape[0], solve.m))
+
+    def _condensed_solve(self, rhs: np.ndarray, x: np.ndarray, contact) -> tuple[np.ndarray, np.ndarray]:
+        """``x = S^-1 (rhs - P^T lam)`` with ``lam = contact(P S^-1 rhs)``, in one solve with the
+        condensed factor (``self._condensed``): the values on the rows' dofs first (``begin``),
+        ``lam`` from them, its change ``S_C^-1 P_C^T lam`` of those values, then the rest
+        (``finish``; docs/theory.md s. 3.2). Returns ``P S^-1 rhs`` and ``lam``."""
+        factor, P_kept = self._condensed
+        x_kept = factor.begin(rhs)
+        free = P_kept @ x_kept
+        lam = contact(free)
+        if np.count_nonzero(lam):
+            x_kept -= factor.dense(P_kept.T @ lam)
+        factor.finish(x_kept, x)
+        return free, lam
 
     def _evaluate_load(self, t: float) -> None:
         """R(t) into ``self.R`` (the previous one is kept in ``self.R_prev``)."""
