@@ -38,7 +38,6 @@ Mesh = mesh.Mesh
 
 
 def _reproducible_graph_partitioner(comm, nparts, graph, ghosting):
-
     offsets, ranks = distributed_partition(comm, nparts, np.asarray(graph.offsets), np.asarray(graph.array), ghosting)
     return _cpp.graph.AdjacencyList_int32(np.ascontiguousarray(ranks, dtype=np.int32),
                                           np.ascontiguousarray(offsets, dtype=np.int32))

@@ -28,11 +28,11 @@ from scipy.linalg import lapack
 
 from ..fem.mumps_api import SchurFactor, mirror_lower
 
-# The condensed factorization is taken where factorizing A takes more than this many times m^3 flops
-# (m kept dofs; the dense factorizations of S_C): W then costs about one factorization, against several
-# for MUMPS' selected inverse entries. The 6561-row plate: S (3D elasticity) 4.3 m^3; its mass matrix
-# (three decoupled components) 0.5 m^3, which this ratio leaves to selected entries (21 s, against 28 s
-# through the complement).
+# The condensed factorization is taken where eliminating the other dofs takes more than this many times
+# m^3 flops (m kept dofs; the dense factorizations of S_C take m^3): W then costs about one factorization,
+# against several for MUMPS' selected inverse entries. The plate's S (3D elasticity) took 11, 6.1 and
+# 4.3 m^3 at 441, 1681 and 6561 rows; with friction's tangent rows (3 dofs a node) 0.16 m^3 at 6561,
+# which this ratio leaves to a plain factor and selected entries (as a mass matrix, 0.5 to 1.4 m^3).
 SCHUR_FLOPS = 2.0
 
 
@@ -114,10 +114,17 @@ class CondensedFactor:
         if dofs.size == self.m and np.array_equal(dofs, self.kept):
             inverse, self._inverse = self._inverse, None
             return inverse
-        where = np.searchsorted(self.kept, dofs)
-        if np.any(where >= self.m) or not np.array_equal(self.kept[np.minimum(where, self.m - 1)], dofs):
+        where = self.positions(dofs)
+        if where is None:
             raise ValueError("inverse_block: dofs outside the kept ones")
         return self._inverse[np.ix_(where, where)]
+
+    def positions(self, dofs: np.ndarray) -> np.ndarray | None:
+        """The positions of ``dofs`` among the kept dofs; None if one is not kept."""
+        where = np.searchsorted(self.kept, dofs)
+        if np.any(where >= self.m) or not np.array_equal(self.kept[np.minimum(where, self.m - 1)], dofs):
+            return None
+        return where
 
     def _invert(self) -> np.ndarray:
         inverse = np.array(self.cholesky.T, order="C", copy=True)   # (C order: the Fortran view is the factor)

@@ -134,8 +134,8 @@ class ContactScheme:
         solve, P = self.solve_S, self.ops._P
         if not isinstance(solve, CondensedFactor) or not self.ops.p:
             return None
-        where = np.searchsorted(solve.kept, P.indices)
-        if np.any(where >= solve.m) or not np.array_equal(solve.kept[np.minimum(where, solve.m - 1)], P.indices):
+        where = solve.positions(P.indices)
+        if where is None:
             return None
         return solve, sparse.csr_matrix((P.data, where, P.indptr), shape=(P.shape[0], solve.m))
 
