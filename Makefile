@@ -6,7 +6,8 @@ VENV        := .venv
 PY          := $(VENV)/bin/python
 CASE        ?= cases/impacting_bar.yaml
 PYTEST_ARGS ?=
-# pytest-xdist workers: the suite's tests are independent (each writes into its own tmp_path)
+# pytest-xdist workers: the suite's tests are independent (each writes into its own tmp_path); a module
+# marked xdist_group runs in one worker (--dist loadgroup), its module fixtures once
 TEST_WORKERS ?= 2
 APT_PACKAGES := python3-dolfinx-real python3-petsc4py-real python3-slepc4py-real python3-gmsh \
                 python3-meshio python3-h5py python3-scipy python3-matplotlib python3-yaml python3-tqdm python3-numba \
@@ -36,10 +37,10 @@ run: setup
 	$(VENV)/bin/fem-impact run $(CASE)
 
 test: setup
-	$(PY) -m pytest -m "not slow" -n $(TEST_WORKERS) $(PYTEST_ARGS)
+	$(PY) -m pytest -m "not slow" -n $(TEST_WORKERS) --dist loadgroup $(PYTEST_ARGS)
 
 test-all: setup
-	$(PY) -m pytest -n $(TEST_WORKERS) $(PYTEST_ARGS)
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadgroup $(PYTEST_ARGS)
 
 benchmark: setup
 	$(PY) benchmarks/full_model.py

@@ -21,6 +21,10 @@ import pytest
 
 from conftest import run_cli
 
+# One worker takes the whole module (make test runs --dist loadgroup):
+# its module fixture runs some fifty command lines (34 s), once, not once in each worker.
+pytestmark = pytest.mark.xdist_group("bad_input")
+
 # The impacting bar (cases/impacting_bar.yaml) on a tiny mesh for a few steps.
 GOOD = """\
 name: bad

@@ -22,6 +22,10 @@ import pytest
 
 from conftest import CASES, ROOT
 
+# One worker takes the whole module (make test runs --dist loadgroup):
+# its module fixtures run the command line (5 s), once, not once in each worker.
+pytestmark = pytest.mark.xdist_group("outdir_safety")
+
 SMALL = ["--set", "mesh.cells=10", "--set", "solver.dt=0.01", "--set", "solver.t_end=0.05", "--set", "output.every=1"]
 
 

@@ -31,6 +31,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+# One worker takes the whole module (make test runs --dist loadgroup):
+# its module fixtures run sweeps (7 s), once, not once in each worker.
+pytestmark = pytest.mark.xdist_group("vibrodrive")
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from conftest import CASES, ROOT, read_history, run_case_file, run_cli  # noqa: E402
 
