@@ -10,8 +10,8 @@ correction where the method has one). For each size and coupling it prints:
 the factorization of S, the building of W = P S^-1 P^T and D = P M^-1 P^T, the whole setup
 (case, mesh, assembly, factorizations, W, D, the LCP matrices), the median time of a contact
 step, and the peak memory of the process (each configuration runs in a process of its own).
-Targets (issue 10): at 1681 rows a step costs at most 2x, the setup at most 3x the one-row
-plate's; 6561 rows runs within 24 GiB.
+Targets (issues 10 and 21): at 1681 and at 6561 rows a step costs at most 2x, the setup at most
+3x the one-row plate's; 6561 rows runs within 24 GiB.
 
     python benchmarks/contact_scale.py [--sizes 2 4 8 16] [--steps 12] [--quick]
 """
