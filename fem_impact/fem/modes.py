@@ -41,6 +41,9 @@ RIGID = 1e-11
 SHIFT = 1e-8
 #: The count check looks below ``(1 - COUNT_MARGIN)`` times the highest eigenvalue found.
 COUNT_MARGIN = 1e-6
+#: Eigenvalues within this fraction of each other are one multiple eigenvalue (round-off apart: a
+#: square-section cantilever of hexahedra gives its two first bending modes 5e-11 apart).
+CLUSTER = 1e-8
 #: SLEPc's convergence tolerance (the default of :func:`compute_modes`) and iteration limit.
 TOLERANCE = 1e-10
 MAX_ITERATIONS = 1000
@@ -174,6 +177,8 @@ def compute_modes(model, n: int, tol: float | None = None, check_count: bool = T
                              f"iterations (SLEPc reason {reason}); ask for fewer modes or a looser tolerance")
         log.info("modes: %d of %d converged in %d iterations (shift %.3g)", converged, n,
                  eps.getIterationNumber(), shift)
+        if converged > n:   # (SLEPc usually converges a few more than asked for)
+            _warn_split_cluster(eps.getEigenvalue(n - 1).real, eps.getEigenvalue(n).real, n, scale)
 
         vec = K.createVecs()[0]
         X = np.empty((vec.getLocalSize(), n))
@@ -185,6 +190,18 @@ def compute_modes(model, n: int, tol: float | None = None, check_count: bool = T
     finally:
         K.destroy()
         M.destroy()
+
+
+def _warn_split_cluster(last: float, next_: float, n: int, scale: float) -> None:
+    """Warn when the n-th eigenvalue and the next are one multiple eigenvalue (``CLUSTER``): the n
+    modes then hold only part of its subspace, and which part is decided by round-off (a reduced
+    model built on them changes from machine to machine). Said when the modes are computed, not
+    when they are read from the cache."""
+    if abs(next_ - last) <= CLUSTER * max(abs(last), RIGID * scale):
+        f = np.sqrt(max(last, 0.0)) / (2.0 * np.pi)
+        log.warning("modes: the %d modes asked for end inside a multiple eigenvalue (modes %d and %d both "
+                    "at %.6g Hz): which of its vectors are kept is decided by round-off; ask for more "
+                    "modes, all of that frequency", n, n, n + 1, f)
 
 
 def _finish(model, comm, K, M, X, free, n_local, scale, shift, check_count) -> Modes:
