@@ -177,8 +177,6 @@ def compute_modes(model, n: int, tol: float | None = None, check_count: bool = T
                              f"iterations (SLEPc reason {reason}); ask for fewer modes or a looser tolerance")
         log.info("modes: %d of %d converged in %d iterations (shift %.3g)", converged, n,
                  eps.getIterationNumber(), shift)
-        if converged > n:   # (SLEPc usually converges a few more than asked for)
-            _warn_split_cluster(eps.getEigenvalue(n - 1).real, eps.getEigenvalue(n).real, n, scale)
 
         vec = K.createVecs()[0]
         X = np.empty((vec.getLocalSize(), n))
@@ -192,16 +190,17 @@ def compute_modes(model, n: int, tol: float | None = None, check_count: bool = T
         M.destroy()
 
 
-def _warn_split_cluster(last: float, next_: float, n: int, scale: float) -> None:
-    """Warn when the n-th eigenvalue and the next are one multiple eigenvalue (``CLUSTER``): the n
-    modes then hold only part of its subspace, and which part is decided by round-off (a reduced
-    model built on them changes from machine to machine). Said when the modes are computed, not
-    when they are read from the cache."""
-    if abs(next_ - last) <= CLUSTER * max(abs(last), RIGID * scale):
-        f = np.sqrt(max(last, 0.0)) / (2.0 * np.pi)
-        log.warning("modes: the %d modes asked for end inside a multiple eigenvalue (modes %d and %d both "
-                    "at %.6g Hz): which of its vectors are kept is decided by round-off; ask for more "
-                    "modes, all of that frequency", n, n, n + 1, f)
+def warn_if_split(modes: Modes, n: int) -> None:
+    """Warn when the first ``n`` of ``modes`` end inside a multiple eigenvalue (modes n and n + 1
+    within ``CLUSTER``): they then hold only part of its subspace, and which part is decided by
+    round-off (a reduced model built on them changes from machine to machine)."""
+    if n >= modes.n:
+        return
+    last, following = float(modes.omega2[n - 1]), float(modes.omega2[n])
+    if abs(following - last) <= CLUSTER * max(abs(last), RIGID * modes.scale):
+        log.warning("modes: the %d modes kept end inside a multiple eigenvalue (modes %d and %d both at "
+                    "%.6g Hz): which of its vectors are kept is decided by round-off; keep more modes, "
+                    "all of that frequency", n, n, n + 1, np.sqrt(max(last, 0.0)) / (2.0 * np.pi))
 
 
 def _finish(model, comm, K, M, X, free, n_local, scale, shift, check_count) -> Modes:

@@ -24,7 +24,7 @@ from ..integrators import Operators, StepState
 from ..integrators.base import direct_solver_settings, factorize
 from .specs import ReductionSpec
 from .model import Model, load_factor
-from .modes import ModeCountError, Modes, compute_modes, free_dof_count, solver_settings
+from .modes import ModeCountError, Modes, compute_modes, free_dof_count, solver_settings, warn_if_split
 from ..parallel import allsum
 
 log = logging.getLogger(__name__)
@@ -466,6 +466,7 @@ def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tup
                                                        f"{int(modes.rigid.sum())} rigid-body modes: keep them all "
                                                        f"(modes >= {int(modes.rigid.sum())}), or add supports")
         columns = _flexibility(model, cons, modes, scene, reused)
+    warn_if_split(modes, n1)
     red = build_reduced(model, cons, modes, n1, spec.static_correction, spec.alpha, spec.beta, spec.dt, columns)
     if reused:
         log.info("reused from the cache (%s): %s", cache.cache_dir(), " and ".join(sorted(reused)))
