@@ -199,7 +199,6 @@ class SchurFactor:
             return False
         # MUMPS' result is the lower triangle by rows (the upper one may hold its work values)
         mirror_lower(self.complement)
-        self.entries = int(s.infog[29 - 1])   # entries of the factors (INFOG(29))
         return True
 
     def _solve(self, R: np.ndarray, reduced: np.ndarray, phase: int) -> None:

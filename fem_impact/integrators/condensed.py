@@ -62,7 +62,6 @@ class CondensedFactor:
     def __init__(self, factor: SchurFactor, cholesky: np.ndarray):
         self.factor, self.cholesky = factor, cholesky
         self.kept, self.n, self.m = factor.kept, factor.n, factor.m
-        self.entries = factor.entries
         self._R = np.empty(self.n)
         self._reduced = np.empty(self.m)
         self._inverse: np.ndarray | None = None
