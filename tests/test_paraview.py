@@ -2,13 +2,15 @@
 
 ParaView runs as a subprocess with small scripts written to tmp_path that print JSON; reading
 data needs no display. Rendering ``view.py`` does: Debian's ParaView renders through X, so
-that part runs under ``xvfb-run`` (skipped without it).
+that part runs on a private Xvfb (skipped without it).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import select
 import shutil
 import subprocess
 import xml.etree.ElementTree as ET
@@ -19,7 +21,7 @@ import pytest
 from conftest import CASES, read_history, run_case_file
 
 PVPYTHON = shutil.which("pvpython")
-XVFB_RUN = shutil.which("xvfb-run")
+XVFB = shutil.which("Xvfb")
 needs_pvpython = pytest.mark.skipif(
     PVPYTHON is None, reason="pvpython not found (Debian package `paraview`; `make setup` installs it)")
 
@@ -52,11 +54,38 @@ print("JSON" + json.dumps(out))
 '''
 
 
-def pvpython(*args, timeout=120, xvfb=False):
-    cmd = [PVPYTHON, *args]
-    if xvfb:
-        cmd = [XVFB_RUN, "-a", PVPYTHON, "--force-offscreen-rendering", *args]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+def pvpython(*args, timeout=120):
+    return subprocess.run([PVPYTHON, *args], capture_output=True, text=True, timeout=timeout)
+
+
+@contextlib.contextmanager
+def private_display():
+    """A virtual X display of this test's own: ``DISPLAY`` for the body.
+
+    ``-noreset``: an X server resets when its last client disconnects, and refuses connections while it
+    does; ParaView connects, disconnects and connects again while it starts, so on a busy machine its
+    second connection fell into the reset ("bad X server connection", an abort in CreateAWindow).
+    ``-displayfd``: the server picks a free display itself and reports it once it accepts connections
+    (``xvfb-run -a`` guesses a number, and two started at once may take the same one)."""
+    read, write = os.pipe()
+    server = subprocess.Popen([XVFB, "-displayfd", str(write), "-screen", "0", "1280x1024x24", "-nolisten", "tcp",
+                               "-noreset"], pass_fds=(write,), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    os.close(write)
+    try:
+        number = b""
+        while not number.endswith(b"\n"):
+            ready, _, _ = select.select([read], [], [], 60)
+            chunk = os.read(read, 16) if ready else b""
+            if not chunk:
+                server.kill()
+                raise RuntimeError(f"Xvfb did not start: {server.communicate()[1].decode()[-500:]}")
+            number += chunk
+        yield f":{number.decode().strip()}"
+    finally:
+        os.close(read)
+        if server.poll() is None:
+            server.terminate()
+            server.wait(timeout=30)
 
 
 @pytest.fixture(scope="module")
@@ -116,22 +145,18 @@ def test_paraview_reads_the_series(runs, tmp_path):
 
 
 @needs_pvpython
-@pytest.mark.skipif(XVFB_RUN is None, reason="xvfb-run not found (Debian package `xvfb`): Debian's ParaView "
-                                             "renders through X, so view.py needs a (virtual) display")
+@pytest.mark.skipif(XVFB is None, reason="Xvfb not found (Debian package `xvfb`): Debian's ParaView renders "
+                                         "through X, so view.py needs a (virtual) display")
 @pytest.mark.parametrize("dim", [1, 2])
 def test_view_script_renders_a_screenshot(runs, tmp_path, dim):
     from PIL import Image
 
     png = tmp_path / "view.png"
-    cmd = [XVFB_RUN, "-a", PVPYTHON, "--force-offscreen-rendering", str(runs[dim] / "view.py"),
+    cmd = [PVPYTHON, "--force-offscreen-rendering", str(runs[dim] / "view.py"),
            "--screenshot", str(png), "--time", "0.3", "--size", "600x250"]
-    # Debian's ParaView 5.11 under Xvfb now and then (about 1 start in 20 here) aborts while
-    # creating its GLX window, before the script does anything: try again then.
-    for _ in range(3):
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=tmp_path,
-                              env={**os.environ, "DISPLAY": ""})
-        if not (proc.returncode in (134, -6) and "CreateAWindow" in proc.stderr):
-            break
+    with private_display() as display:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180, cwd=tmp_path,
+                              env={**os.environ, "DISPLAY": display})
     assert proc.returncode == 0, proc.stderr[-3000:]
     img = np.asarray(Image.open(png).convert("RGB")).astype(int)
     assert img.shape == (250, 600, 3)

@@ -12,7 +12,7 @@ The script loads ``results.pvd`` from its own folder, applies *Warp By Vector* o
 with the run's magnification, colours by the magnitude of ``v`` (or another field) with
 one colour range over all time steps, draws the contact forces as arrows whose tips sit
 on the nodes, the undeformed outline in grey and the time. Debian's ParaView renders
-through X: headless, run ``xvfb-run -a pvpython --force-offscreen-rendering view.py
+through X: headless, run ``xvfb-run -a -s -noreset pvpython --force-offscreen-rendering view.py
 --screenshot view.png``.
 
 The default magnification is the one of ``fem-impact animate``: the largest displacement
@@ -139,7 +139,7 @@ _TEMPLATE = r'''"""ParaView view of this fem-impact run (written by fem-impact @
     pvpython view.py --screenshot view.png [--time T] [--size 1200x500]
     pvpython view.py --animation frames.png    every frame (frames.0000.png, ...) or .avi
 
-Headless (no display): xvfb-run -a pvpython --force-offscreen-rendering view.py --screenshot view.png
+Headless (no display): xvfb-run -a -s -noreset pvpython --force-offscreen-rendering view.py --screenshot view.png
 
 The shape is results.pvd warped by u x SCALE (Warp By Vector), coloured by the magnitude of
 COLOR with one range over all time steps; contact forces are red arrows ending at the nodes
@@ -214,7 +214,7 @@ if not IN_GUI and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISP
         "XOpenGL" in view.GetRenderWindow().GetClassName():
     # Debian's ParaView renders through X only: without a display the first render would crash
     sys.exit("view.py: no display, and this ParaView renders through X; run\n"
-             "  xvfb-run -a pvpython --force-offscreen-rendering view.py --screenshot view.png")
+             "  xvfb-run -a -s -noreset pvpython --force-offscreen-rendering view.py --screenshot view.png")
 view.OrientationAxesVisibility = 1
 view.Background = [1.0, 1.0, 1.0]
 try:                       # ParaView >= 5.10: the background is the palette's unless told otherwise
