@@ -84,9 +84,10 @@ def test_a_run_continued_from_its_checkpoint_is_the_uninterrupted_run(tmp_path, 
 def test_a_restart_that_does_not_fit_is_refused(tmp_path):
     case = fi.load_case(CASES / "impacting_bar.yaml", ["output.vtk=false", "solver.t_end=0.5"])
     fi.run(case, tmp_path / "done")
-    with pytest.raises(CaseError, match="the checkpoint does not fit this case: its dt is 0.002, the case's 0.001"):
+    with pytest.raises(CaseError, match=r"the checkpoint does not fit this case: .*solver.dt \(checkpoint 0.002, "
+                                        r"case 0.001\)"):
         fi.run(case.with_changes({"solver.dt": 0.001, "solver.t_end": 1.0}), restart=tmp_path / "done")
-    with pytest.raises(CaseError, match="its method is 'newmark', the case's 'moreau_jean'"):
+    with pytest.raises(CaseError, match=r"solver.method \(checkpoint 'newmark', case 'moreau_jean'\)"):
         fi.run(case.with_changes({"solver.method": "moreau_jean", "solver.t_end": 1.0}), restart=tmp_path / "done")
     with pytest.raises(CaseError, match="the checkpoint is at t = 0.5, not before the case's t_end = 0.5"):
         fi.run(case, restart=tmp_path / "done")
@@ -152,22 +153,23 @@ def test_a_checkpoint_is_read_back_by_the_dofs_numbers_when_the_mesh_is_distribu
     by them. Here the dofs come back in another order: every vector follows it, the rest stays."""
     from mpi4py import MPI
 
-    from fem_impact.app.checkpoint import load
+    from fem_impact.app.checkpoint import Damaged, open_checkpoint, read_parts
 
     case = fi.load_case(CASES / "impacting_bar.yaml", ["output.vtk=false", "solver.t_end=0.5", "mesh.dim=2",
                                                        "mesh.cells=20"])
-    fi.run(case, tmp_path / "run")
-    meta = {"method": "newmark"}
-    _, same = load(tmp_path / "run", MPI.COMM_WORLD, meta, keys=("method",))
+    result = fi.run(case, tmp_path / "run")
+    saved = open_checkpoint(tmp_path / "run", MPI.COMM_WORLD)
+    now = {"dofs": result.summary["dofs"], "modes": None}
     import h5py
 
     with h5py.File(tmp_path / "run" / "checkpoint" / "rank-0.h5") as f:
         keys = f["dof_keys"][()]
+    same = read_parts(saved, MPI.COMM_WORLD, now, keys)
     order = np.random.default_rng(3).permutation(keys.size)
-    _, moved = load(tmp_path / "run", MPI.COMM_WORLD, meta, keys=("method",), dof_keys=keys[order])
+    moved = read_parts(saved, MPI.COMM_WORLD, now, keys[order])
     assert np.array_equal(moved["integrator"]["U"], same["integrator"]["U"][order])
     assert np.array_equal(moved["integrator"]["V"], same["integrator"]["V"][order])
     assert np.array_equal(moved["integrator"]["state"][2]["gap"], same["integrator"]["state"][2]["gap"])  # (p rows)
     assert moved["integrator"]["state"][2]["U"] == ("alias", "U")
-    with pytest.raises(CaseError, match="its dofs are not this case's"):
-        load(tmp_path / "run", MPI.COMM_WORLD, meta, keys=("method",), dof_keys=keys + 10**9)
+    with pytest.raises(Damaged, match="its dofs are not this case's"):
+        read_parts(saved, MPI.COMM_WORLD, now, keys + 10**9)
