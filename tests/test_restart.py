@@ -5,6 +5,7 @@ keeps its last checkpoint beside its output folder and continues from it to the 
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -173,3 +174,101 @@ def test_a_checkpoint_is_read_back_by_the_dofs_numbers_when_the_mesh_is_distribu
     assert moved["integrator"]["state"][2]["U"] == ("alias", "U")
     with pytest.raises(Damaged, match="its dofs are not this case's"):
         read_parts(saved, MPI.COMM_WORLD, now, keys + 10**9)
+
+
+# -- a restart under a changed case: applied consistently, or refused naming the keys ------------------
+# The step of a load switched between the checkpoint's time tc and the next step's, tc + dt: 0 up to tc,
+# 1 from tc + dt on, exactly (min and max of the linear ramp)
+def switch(tc: float, dt: float) -> str:
+    return f"max(0, min(1, (t - {tc + 0.5 * dt!r})/{0.25 * dt!r}))"
+
+
+BAR = ["output.vtk=false", "mesh.cells=50", "solver.method=moreau_jean", "solver.dt=0.01", "solver.t_end=0.05"]
+BLOCK = ["output.vtk=false", "solver.t_end=0.05"]
+BEAM = ["output.vtk=false", "mesh.cells=10", "solver.t_end=0.05", "solver.dt=0.01"]
+# the reduced model: modes: auto with a loose tolerance, so that the output's rate decides the count
+MODAL = ["output.vtk=false", "mesh.cells=100", "solver.method=modal", "solver.t_end=0.05", "solver.dt=0.01",
+         "solver.tolerance=0.3"]
+
+
+@pytest.fixture(scope="module")
+def checkpoints(tmp_path_factory):
+    """Short runs whose checkpoints (at t = 0.05) the tests below continue under changed cases."""
+    folder = tmp_path_factory.mktemp("checkpoints")
+    made = {}
+    for name, case, changes in (("bar", "impacting_bar.yaml", BAR), ("block", "sliding_block.yaml", BLOCK),
+                                ("beam", "base_excited_beam.yaml", BEAM), ("modal", "impacting_bar.yaml", MODAL)):
+        made[name] = (fi.load_case(CASES / case, changes), folder / name)
+        fi.run(made[name][0], folder / name)
+    return made
+
+
+@pytest.mark.parametrize("which, changes, reference, keys", [
+    # an added force on the bar's free end: the reference switches it on after the checkpoint
+    ("bar", {"loads": [{"nodes": "right", "force": [-1.0]}]},
+     {"loads": [{"nodes": "right", "force": [f"-1.0*{switch(0.05, 0.01)}"]}]}, ["loads.0.nodes", "loads.0.force.0"]),
+    # the block's gravity doubled through the parameter its load uses (friction: the warm start goes on)
+    ("block", {"parameters.g": 20.0},
+     {"loads.0.acceleration": [0.0, f"-(g*(1 - {switch(0.05, 0.002)}) + 20*{switch(0.05, 0.002)})"]},
+     ["parameters.g"]),
+    # gravity on a beam shaken by its support, which takes the load on its held nodes: the reactions too
+    ("beam", {"loads": [{"body": "all", "acceleration": [0.0, -9.81]}]},
+     {"loads": [{"body": "all", "acceleration": [0.0, f"-9.81*{switch(0.05, 0.01)}"]}]},
+     ["loads.0.body", "loads.0.acceleration.0", "loads.0.acceleration.1"]),
+])
+def test_a_restart_under_changed_loads_is_the_run_that_switched_them_at_the_checkpoint(tmp_path, checkpoints, which,
+                                                                                       changes, reference, keys):
+    """Loads are the run's time inputs: a restart continues the saved state under the case's loads from
+    the checkpoint's time on (the step from it starts from the load the saved run had there), which is
+    the uninterrupted run whose loads switch between the checkpoint's step and the next, to round-off,
+    its energy budget included (the external work goes on)."""
+    case, saved = checkpoints[which]
+    longer = case.with_changes({"solver.t_end": 0.2})
+    continued = fi.run(longer.with_changes(changes), tmp_path / "continued", restart=saved)
+    switched = fi.run(longer.with_changes(reference), tmp_path / "switched")
+    assert_same_from(switched.history, continued.history)
+    unchanged = fi.run(longer, tmp_path / "unchanged", restart=saved)
+    assert not np.allclose(unchanged.history["external_work"], continued.history["external_work"])
+    assert continued.summary["restarted_from"]["changed"] == keys and unchanged.summary["restarted_from"]["changed"] == []
+
+
+@pytest.mark.parametrize("which, change, named", [
+    ("bar", "solver.level=velocity", "solver.level"),
+    ("bar", "solver.theta=1", "solver.theta"),
+    ("bar", "solver.method=newmark", "solver.method"),
+    ("bar", "solver.dt=0.005", "solver.dt"),
+    ("bar", "solver.mass=lumped", "solver.mass"),
+    ("bar", "material.rho=2", "material.rho"),
+    ("bar", "material.area=2", "material.area"),
+    ("bar", "material.E=2", "material.E"),
+    ("bar", "mesh.length=2", "mesh.length"),
+    ("bar", "mesh.cells=60", "mesh.cells"),
+    ("bar", "damping.alpha=1", "damping.alpha"),
+    ("bar", "contacts.0.stiffness=1000", "contacts.0.stiffness"),
+    ("bar", "contacts.0.gap=0.2", "contacts.0.gap"),
+    ("bar", "supports=[{nodes: right, fix: [x]}]", "supports.0.nodes"),
+    ("bar", "initial.velocity=[-2.0]", "initial.velocity.0"),
+    ("block", "contacts.0.friction=0", "contacts.0.friction"),
+    ("block", "mesh.elements=hex", "mesh.elements"),
+    ("block", "parameters.v0=3", "parameters.v0"),    # (used by the initial velocity, not by a load)
+])
+def test_a_restart_refuses_a_change_of_what_its_state_depends_on_naming_the_key(checkpoints, which, change, named):
+    """The model, its constraints, the method and its keys and the initial state: the saved state belongs
+    to them, so a restart that changes one is refused before anything runs, naming every key that differs."""
+    case, saved = checkpoints[which]
+    changed = case.with_changes(["solver.t_end=0.2", change])
+    with pytest.raises(CaseError, match=rf"the checkpoint does not fit this case: .*{re.escape(named)} \(checkpoint "):
+        fi.run(changed, restart=saved)
+
+
+def test_a_restart_of_the_reduced_model_keeps_its_modes_and_its_static_correction_its_loads(checkpoints):
+    """The reduced model's state is its kept modes' coordinates: a restart whose modes: auto would keep
+    another count is refused (the count to give is named); its static correction holds the saved loads'
+    quasi-static response at the checkpoint's time, so a changed load is refused there."""
+    case, saved = checkpoints["modal"]
+    with pytest.raises(CaseError, match=r"state.json: the checkpoint's model has \d+ modes kept by the reduced model, "
+                                        r"this case's \d+ .*give solver.modes: \d+"):
+        fi.run(case.with_changes(["solver.t_end=0.2", "output.every=1"]), restart=saved)
+    with pytest.raises(CaseError, match="loads.0.nodes: the reduced model's static correction holds the response to "
+                                        "the saved run's loads"):
+        fi.run(case.with_changes(["solver.t_end=0.2", "loads=[{nodes: right, force: [-1.0]}]"]), restart=saved)
