@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -272,3 +273,117 @@ def test_a_restart_of_the_reduced_model_keeps_its_modes_and_its_static_correctio
     with pytest.raises(CaseError, match="loads.0.nodes: the reduced model's static correction holds the response to "
                                         "the saved run's loads"):
         fi.run(case.with_changes(["solver.t_end=0.2", "loads=[{nodes: right, force: [-1.0]}]"]), restart=saved)
+
+
+# -- a damaged checkpoint: one line naming the file, for --restart and for initial: {from: ...} ---------
+def _state(folder):
+    return folder / "checkpoint" / "state.json"
+
+
+def _rank(folder):
+    return folder / "checkpoint" / "rank-0.h5"
+
+
+def _edit_state(change):
+    def damage(folder):
+        state = json.loads(_state(folder).read_text())
+        change(state)
+        _state(folder).write_text(json.dumps(state))
+    return damage
+
+
+def _edit_rank(change):
+    def damage(folder):
+        import h5py
+
+        with h5py.File(_rank(folder), "r+") as f:
+            change(f)
+    return damage
+
+
+def _longer_U(f):
+    U = f["integrator/U"][()]
+    del f["integrator/U"]
+    f["integrator/U"] = np.zeros(U.size + 3)
+
+
+def _flipped_byte(folder):
+    import h5py
+
+    with h5py.File(_rank(folder)) as f:
+        at = f["integrator/U"].id.get_chunk_info(0).byte_offset
+    data = bytearray(_rank(folder).read_bytes())
+    data[at + 20] ^= 0xFF
+    _rank(folder).write_bytes(bytes(data))
+
+
+DAMAGES = {
+    "state.json truncated": ("state.json", lambda d: _state(d).write_bytes(_state(d).read_bytes()[:100])),
+    "state.json empty": ("state.json", lambda d: _state(d).write_bytes(b"")),
+    "state.json a list": ("state.json", lambda d: _state(d).write_text("[1, 2]")),
+    "state.json binary": ("state.json", lambda d: _state(d).write_bytes(bytes(range(256)) * 2)),
+    "t: abc": ("state.json", _edit_state(lambda s: s.update(t="abc"))),
+    "t: null": ("state.json", _edit_state(lambda s: s.update(t=None))),
+    "t edited": ("rank-0.h5", _edit_state(lambda s: s.update(t=0.02))),   # (the rank file's t and digest)
+    "step edited": ("rank-0.h5", _edit_state(lambda s: s.update(step=3))),
+    "no t": ("state.json", _edit_state(lambda s: s.pop("t"))),
+    "no model": ("state.json", _edit_state(lambda s: s.pop("model"))),
+    "no format": ("state.json", _edit_state(lambda s: s.pop("format"))),
+    "rank-0.h5 missing": ("rank-0.h5", lambda d: _rank(d).unlink()),
+    "rank-0.h5 truncated": ("rank-0.h5", lambda d: _rank(d).write_bytes(_rank(d).read_bytes()[:2000])),
+    "rank-0.h5 empty": ("rank-0.h5", lambda d: _rank(d).write_bytes(b"")),
+    "rank-0.h5 random": ("rank-0.h5", lambda d: _rank(d).write_bytes(np.random.default_rng(1).bytes(5000))),
+    "integrator deleted": ("rank-0.h5", _edit_rank(lambda f: f.__delitem__("integrator"))),
+    "U deleted": ("rank-0.h5", _edit_rank(lambda f: f.__delitem__("integrator/U"))),
+    "U of another length": ("rank-0.h5", _edit_rank(_longer_U)),
+    "a byte of U flipped": ("rank-0.h5", _flipped_byte),
+    "the state's t edited": ("rank-0.h5", _edit_rank(lambda f: f["integrator/state"].attrs.__setitem__("t", 0.02))),
+}
+
+
+@pytest.mark.parametrize("how", ["--restart", "initial.from"])
+@pytest.mark.parametrize("damage", list(DAMAGES))
+def test_a_damaged_checkpoint_is_refused_in_one_line_naming_its_file(tmp_path, checkpoints, damage, how):
+    """Whatever is wrong with a checkpoint's files (cut short, empty, not what they should hold, edited, of
+    another length), a restart and a run from it refuse it before the time loop, naming the file."""
+    case, saved = checkpoints["bar"]
+    folder = tmp_path / "damaged"
+    shutil.copytree(saved, folder)
+    file, damage = DAMAGES[damage]
+    damage(folder)
+    with pytest.raises(CaseError) as refused:
+        if how == "--restart":
+            fi.run(case.with_changes({"solver.t_end": 0.2}), tmp_path / "out", restart=folder)
+        else:
+            fi.run(case.with_changes({"initial": {"from": str(folder)}}), tmp_path / "out")
+    message = str(refused.value)
+    assert str(folder / "checkpoint" / file) in message and message.isprintable(), message
+    assert message.startswith(how) if how == "--restart" else "initial.from" in message
+    assert not (tmp_path / "out").exists()
+
+
+def test_initial_from_a_relative_folder_without_a_checkpoint_names_the_line_and_where_it_starts(tmp_path):
+    (tmp_path / "cases").mkdir()
+    text = (CASES / "impacting_bar.yaml").read_text().replace("  velocity: [-1.0]", "  from: ../runs/first")
+    (tmp_path / "cases" / "bar.yaml").write_text("\n".join(line for line in text.splitlines()
+                                                          if not line.startswith("reference")))
+    case = fi.load_case(tmp_path / "cases" / "bar.yaml", ["output.vtk=false", "mesh.cells=20"])
+    line = next(i for i, text in enumerate((tmp_path / "cases" / "bar.yaml").read_text().splitlines(), 1)
+                if "from:" in text)
+    with pytest.raises(CaseError, match=rf"bar.yaml:{line}: initial.from: {re.escape(str(tmp_path))}/runs/first: no "
+                                        rf"checkpoint there .*\(the relative path '../runs/first' starts at "
+                                        rf"{re.escape(str(tmp_path / 'cases'))}\)"):
+        fi.run(case)
+
+
+def test_initial_from_takes_another_model_on_the_same_unknowns_and_refuses_other_modes(tmp_path, checkpoints):
+    """initial: {from: DIR} starts a new run from a saved state: the model may differ where the unknowns
+    mean the same (the full model's nodal values on the same mesh), not where they do not (the reduced
+    model's modal coordinates, when its modes change with the material)."""
+    case, saved = checkpoints["bar"]
+    stiffer = fi.run(case.with_changes({"initial": {"from": str(saved)}, "material.E": 2.0}))
+    assert stiffer.summary["steps"] == 5
+    case, saved = checkpoints["modal"]
+    with pytest.raises(CaseError, match=r"initial.from: .*state.json: its unknowns are not this case's: material.E "
+                                        r"\(checkpoint 1.0, case 2.0\)"):
+        fi.run(case.with_changes({"initial": {"from": str(saved)}, "material.E": 2.0}))

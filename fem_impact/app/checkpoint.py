@@ -431,8 +431,8 @@ def _write(group, tree: dict) -> None:
 def _write_value(group, name: str, value) -> None:
     if value is None:
         group.attrs[name] = "__none__"
-    elif isinstance(value, np.ndarray):
-        group.create_dataset(name, data=value)
+    elif isinstance(value, np.ndarray):   # (with a checksum: a damaged block of data is found on reading)
+        group.create_dataset(name, data=value, fletcher32=bool(value.size))
     elif isinstance(value, tuple):
         kind = value[0]
         sub = group.create_group(name)
@@ -526,7 +526,7 @@ class Checkpoints:
             f.attrs.update(format=FORMAT, rank=comm.rank, ranks=comm.size, t=meta["t"], step=meta["step"],
                            state_digest=_digest(meta))
             if self.dof_keys is not None:
-                f.create_dataset("dof_keys", data=self.dof_keys)
+                f.create_dataset("dof_keys", data=self.dof_keys, fletcher32=bool(self.dof_keys.size))
             for name, part in self.parts.items():
                 _write(f.create_group(name), capture(part))
         comm.barrier()

@@ -311,7 +311,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             system.U0, system.V0 = checkpoint.initial_state(case.initial.source, comm, model_keys,
                                                             is_reduced(solver), built, system.U0, dof_keys)
         except checkpoint.Damaged as err:
-            raise case.error(("initial", "from"), f"{err.file}: {err.message}") from None
+            raise case.error(("initial", "from"), f"{err.file}: {err.message}{_relative_note(case, err)}") from None
     if restart is not None:
         try:
             trees = checkpoint.read_parts(saved, comm, built, dof_keys)
@@ -422,6 +422,14 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     summary["outdir"] = str(outdir.resolve()) if outdir is not None else None
     columns = None if outdir is not None else comm.bcast(history.columns_data(), root=0)
     return Result(summary, outdir.resolve() if outdir is not None else None, columns)
+
+
+def _relative_note(case: Case, err) -> str:
+    """Where a relative ``initial.from`` starts, when no checkpoint was found there."""
+    written = (case.source.get("initial") or {}).get("from") if isinstance(case.source, dict) else None
+    if not isinstance(written, str) or os.path.isabs(written) or Path(err.file) != case.initial.source:
+        return ""
+    return f" (the relative path {written!r} starts at {case.base_dir})"
 
 
 def _open_restart(restart, case: Case, comm) -> tuple:
