@@ -311,7 +311,8 @@ def _flipped_byte(folder):
     import h5py
 
     with h5py.File(_rank(folder)) as f:
-        at = f["integrator/U"].id.get_chunk_info(0).byte_offset
+        U = f["integrator/U"]
+        at = U.id.get_offset() if U.chunks is None else U.id.get_chunk_info(0).byte_offset
     data = bytearray(_rank(folder).read_bytes())
     data[at + 20] ^= 0xFF
     _rank(folder).write_bytes(bytes(data))
