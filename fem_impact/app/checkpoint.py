@@ -48,6 +48,7 @@ import numpy as np
 from .._version import __version__
 from ..errors import CaseError
 from ..integrators.base import EnergyBudget, StepState
+from ..integrators.parameters import REDUCED
 
 FORMAT = 2
 FOLDER = "checkpoint"
@@ -109,7 +110,7 @@ def unknowns_keys(model: dict, reduced: bool) -> dict:
     them alike): the method family, the mesh; for the reduced model also what its modes depend on."""
     scene = ("mesh.",) + (("material.", "materials.", "solver.mass", "supports.") if reduced else ())
     out = {key: value for key, value in model.items() if key.startswith(scene)}
-    out["solver.method"] = "modal" if reduced else "a full model's"
+    out["solver.method"] = REDUCED if reduced else "a full model's"
     return out
 
 
@@ -769,7 +770,7 @@ def initial_state(path, comm, model: dict, reduced: bool, now: dict, U0, dof_key
 
 def reduced_of(state: dict) -> bool:
     """Whether a checkpoint's run was of the reduced model."""
-    return state.get("model", {}).get("solver.method") == "modal"
+    return state.get("model", {}).get("solver.method") == REDUCED
 
 
 def _redistributed(folder: Path, state: dict, mine: dict, dof_keys: np.ndarray) -> dict:

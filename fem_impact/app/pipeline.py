@@ -201,8 +201,10 @@ def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
         Run even when the size estimate is beyond the limits (:mod:`fem_impact.app.limits`).
     restart : path-like, optional
         Continue the run saved in this folder (a run's output folder, or a checkpoint folder) from
-        its last checkpoint to the case's ``t_end`` (:mod:`fem_impact.app.checkpoint`): the same
-        case (method, dt, mesh) on as many MPI ranks. The history then starts at the checkpoint's time.
+        its last checkpoint to the case's ``t_end`` (:mod:`fem_impact.app.checkpoint`), on as many
+        MPI ranks: the same model, method and initial state (a change of any is refused, naming the
+        keys); the case's loads (and the parameters they use) apply from the checkpoint's time on,
+        its output settings to the new folder. The history then starts at the checkpoint's time.
 
     Raises
     ------
@@ -436,6 +438,7 @@ def _open_restart(restart, case: Case, comm) -> tuple:
     """The checkpoint to continue (``checkpoint.Saved``) and the keys of the loads that changed since it:
     a case whose model, method or initial state differ from the checkpoint's, or that ends before it, is
     refused naming the keys (CaseError)."""
+    from ..integrators.parameters import is_reduced
     from . import checkpoint
 
     try:
@@ -447,7 +450,7 @@ def _open_restart(restart, case: Case, comm) -> tuple:
     if differ:
         same_unknowns = not checkpoint.differences(
             checkpoint.unknowns_keys(state["model"], checkpoint.reduced_of(state)),
-            checkpoint.unknowns_keys(checkpoint.model_keys(case), case.solver.method == "modal"))
+            checkpoint.unknowns_keys(checkpoint.model_keys(case), is_reduced(case.solver)))
         hint = (f"; to start the changed case from the checkpoint's state, give it initial: {{from: {saved.folder}}}"
                 if same_unknowns and not all(key.startswith("initial.") for key in differ) else "")
         raise CaseError(where, None, None, f"the checkpoint does not fit this case: its state depends on keys the "
@@ -457,7 +460,7 @@ def _open_restart(restart, case: Case, comm) -> tuple:
         raise CaseError(where, "solver.t_end", None, f"the checkpoint is at t = {saved.t:.6g}, not before the case's "
                                                      f"t_end = {case.solver.t_end:.6g}: raise solver.t_end to continue")
     changed = checkpoint.differing(state["loads"], checkpoint.load_keys(case))
-    if changed and case.solver.method == "modal" and case.solver.static_correction:
+    if changed and is_reduced(case.solver) and case.solver.static_correction:
         raise CaseError(where, changed[0], None,
                         f"the reduced model's static correction holds the response to the saved run's loads, also "
                         f"at the checkpoint's time: a restart cannot change them ({', '.join(changed)} differ). "
@@ -494,7 +497,9 @@ def describe(summary: dict) -> str:
     """The one-paragraph report printed at the end of a run."""
     restarted = summary.get("restarted_from")
     run_steps = summary["steps"] - (restarted["step"] if restarted else 0)
-    start = f" from t = {restarted['t']:.4g} s (restarted from {restarted['folder']})" if restarted else ""
+    start = f" from t = {restarted['t']:.4g} s (restarted from {restarted['folder']}" + (
+        f", under changed loads: {', '.join(restarted['changed'])})" if restarted.get("changed") else ")") \
+        if restarted else ""
     return (
         f"{summary['case']}: {run_steps} steps of {summary['dt']:.4g} s{start} to t = {summary['t_end']:.4g} s, "
         f"{summary['dofs']} unknowns, {summary['constraints']} contact rows, {summary['method']} "
