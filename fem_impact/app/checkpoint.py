@@ -621,7 +621,7 @@ def _read_state(file: Path, comm) -> dict:
         raise Damaged(file, f"cannot be read ({err.strerror or err})") from None
     except UnicodeDecodeError:
         raise Damaged(file, "is not text: a checkpoint's state.json is JSON (the checkpoint is damaged)") from None
-    except ValueError as err:
+    except (ValueError, RecursionError) as err:   # (RecursionError: nested beyond what Python reads)
         what = "empty" if not text.strip() else f"not valid JSON ({getattr(err, 'msg', err)} at line " \
                                                  f"{getattr(err, 'lineno', '?')}): truncated or damaged"
         raise Damaged(file, f"is {what}; the checkpoint cannot be read") from None

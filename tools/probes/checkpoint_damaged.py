@@ -81,6 +81,7 @@ DAMAGES = {
     "state.json empty": ("state.json", _cut("state.json", 0)),
     "state.json a list": ("state.json", lambda d: (d / "state.json").write_text("[0.05, 5]\n")),
     "state.json binary": ("state.json", lambda d: (d / "state.json").write_bytes(os.urandom(400))),
+    "state.json nested too deep": ("state.json", lambda d: (d / "state.json").write_text("[" * 10**5 + "]" * 10**5)),
     "t: abc": ("state.json", _set_t("abc")),
     "t: null": ("state.json", _set_t(None)),
     "t: -1": ("state.json", _set_t(-1.0)),
