@@ -389,3 +389,12 @@ def test_initial_from_takes_another_model_on_the_same_unknowns_and_refuses_other
     with pytest.raises(CaseError, match=r"initial.from: .*state.json: its unknowns are not this case's: material.E "
                                         r"\(checkpoint 1.0, case 2.0\)"):
         fi.run(case.with_changes({"initial": {"from": str(saved)}, "material.E": 2.0}))
+
+
+def test_initial_from_under_a_support_the_saved_run_had_not_holds_its_nodes_at_rest(checkpoints):
+    """The case's supports hold their dofs from the start, as they do the case's own initial fields: a
+    saved state moving there is not carried over (a held node of unit placeholder mass would drift on)."""
+    case, saved = checkpoints["bar"]
+    held = fi.run(case.with_changes({"initial": {"from": str(saved)}, "solver.t_end": 0.2,
+                                     "supports": [{"nodes": "right", "fix": ["x"]}]}))
+    assert not held.history["right.ux"].any() and not held.history["right.vx"].any()

@@ -314,6 +314,9 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                                                             is_reduced(solver), built, system.U0, dof_keys)
         except checkpoint.Damaged as err:
             raise case.error(("initial", "from"), f"{err.file}: {err.message}{_relative_note(case, err)}") from None
+        if dof_keys is not None:   # (the case's supports hold their dofs at rest, as its own initial fields)
+            system.U0[model.fixed] = 0.0
+            system.V0[model.fixed] = 0.0
     if restart is not None:
         try:
             trees = checkpoint.read_parts(saved, comm, built, dof_keys)
