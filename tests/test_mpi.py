@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -146,11 +147,20 @@ def mpirun(*args, repeatable: bool = False) -> subprocess.CompletedProcess:
     to run (MUMPS' order of operations on 2 ranks can follow the timing of its messages: with the tests in
     two workers, the 2D bar's Moreau-Jean restart parted from the uninterrupted run by more than 1e-12 of
     left.uy, at both levels, where an idle machine had given identical runs)."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}
+    env = mpirun_environment()
     if repeatable:
         env["PETSC_OPTIONS"] = (env.get("PETSC_OPTIONS", "") + " -fem_impact_pc_factor_mat_solver_type superlu_dist")
-    return subprocess.run(["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-m",
-                           "fem_impact", *args], capture_output=True, text=True, env=env)
+    return subprocess.run(mpirun_command(*args), capture_output=True, text=True, env=env)
+
+
+def mpirun_command(*args) -> list[str]:
+    return ["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-m", "fem_impact", *args]
+
+
+def mpirun_environment() -> dict:
+    """This process's environment without MPI's own variables (this pytest process initialized MPI: a child
+    mpirun would think it is nested)."""
+    return {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "OPAL_"))}
 
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
@@ -182,6 +192,35 @@ def test_a_run_restarted_on_two_ranks_is_the_uninterrupted_run(tmp_path, method)
     assert_same_from(whole.history, continued.history, tol=1e-12, digits=12)
     serial = run_cli("run", case, "-o", str(tmp_path / "serial"), *common, "--restart", str(tmp_path / "half"))
     assert serial.returncode == 2 and "written on 2 MPI rank(s), this run has 1" in serial.stderr
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
+def test_a_damaged_checkpoint_of_two_ranks_is_refused_by_every_rank_at_once(tmp_path):
+    """A file missing, cut short or of another time on one rank: every rank checks its files and the ranks
+    agree before any goes on, so the run ends at once with one line naming the file and status 2 (a rank
+    that stopped alone would leave the others waiting in the first collective call), for a restart and
+    for a run from the checkpoint."""
+    case = str(CASES / "impacting_bar.yaml")
+    common = ["--set", "mesh.cells=20", "--set", "solver.dt=0.01", "--set", "output.vtk=false", "-q"]
+    done = mpirun("run", case, "-o", str(tmp_path / "saved"), *common, "--set", "solver.t_end=0.05")
+    assert done.returncode == 0, done.stderr
+    damages = [("rank-1.h5", lambda c: (c / "rank-1.h5").unlink()),   # (rank 1 alone finds it)
+               ("rank-0.h5", lambda c: (c / "rank-0.h5").write_bytes((c / "rank-0.h5").read_bytes()[:1000])),
+               ("rank-0.h5", lambda c: (c / "state.json").write_text((c / "state.json").read_text().replace(
+                   '"t": 0.05', '"t": 0.03')))]   # (an edited t: not the rank files' time)
+    for name, damage in damages:
+        folder = tmp_path / f"damaged-{len(list(tmp_path.iterdir()))}"
+        shutil.copytree(tmp_path / "saved", folder)
+        damage(folder / "checkpoint")
+        for args in (["--restart", str(folder)], ["--set", f"initial={{from: {folder}}}"]):
+            start = time.monotonic()
+            refused = subprocess.run(["timeout", "120", *mpirun_command("run", case, "-o", str(tmp_path / "out"),
+                                                                        *common, "--set", "solver.t_end=0.1", *args)],
+                                     capture_output=True, text=True, env=mpirun_environment())
+            ours = [line for line in refused.stderr.splitlines() if line.startswith("fem-impact:")]
+            assert refused.returncode == 2 and time.monotonic() - start < 100, refused.stderr
+            assert len(ours) == 1 and str(folder / "checkpoint" / name) in ours[0], refused.stderr
+            assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")

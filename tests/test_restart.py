@@ -5,6 +5,8 @@ keeps its last checkpoint beside its output folder and continues from it to the 
 from __future__ import annotations
 
 import json
+import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -84,9 +86,10 @@ def test_a_run_continued_from_its_checkpoint_is_the_uninterrupted_run(tmp_path, 
 def test_a_restart_that_does_not_fit_is_refused(tmp_path):
     case = fi.load_case(CASES / "impacting_bar.yaml", ["output.vtk=false", "solver.t_end=0.5"])
     fi.run(case, tmp_path / "done")
-    with pytest.raises(CaseError, match="the checkpoint does not fit this case: its dt is 0.002, the case's 0.001"):
+    with pytest.raises(CaseError, match=r"the checkpoint does not fit this case: .*solver.dt \(checkpoint 0.002, "
+                                        r"case 0.001\)"):
         fi.run(case.with_changes({"solver.dt": 0.001, "solver.t_end": 1.0}), restart=tmp_path / "done")
-    with pytest.raises(CaseError, match="its method is 'newmark', the case's 'moreau_jean'"):
+    with pytest.raises(CaseError, match=r"solver.method \(checkpoint 'newmark', case 'moreau_jean'\)"):
         fi.run(case.with_changes({"solver.method": "moreau_jean", "solver.t_end": 1.0}), restart=tmp_path / "done")
     with pytest.raises(CaseError, match="the checkpoint is at t = 0.5, not before the case's t_end = 0.5"):
         fi.run(case, restart=tmp_path / "done")
@@ -152,22 +155,246 @@ def test_a_checkpoint_is_read_back_by_the_dofs_numbers_when_the_mesh_is_distribu
     by them. Here the dofs come back in another order: every vector follows it, the rest stays."""
     from mpi4py import MPI
 
-    from fem_impact.app.checkpoint import load
+    from fem_impact.app.checkpoint import Damaged, open_checkpoint, read_parts
 
     case = fi.load_case(CASES / "impacting_bar.yaml", ["output.vtk=false", "solver.t_end=0.5", "mesh.dim=2",
                                                        "mesh.cells=20"])
-    fi.run(case, tmp_path / "run")
-    meta = {"method": "newmark"}
-    _, same = load(tmp_path / "run", MPI.COMM_WORLD, meta, keys=("method",))
+    result = fi.run(case, tmp_path / "run")
+    saved = open_checkpoint(tmp_path / "run", MPI.COMM_WORLD)
+    now = {"dofs": result.summary["dofs"], "modes": None}
     import h5py
 
     with h5py.File(tmp_path / "run" / "checkpoint" / "rank-0.h5") as f:
         keys = f["dof_keys"][()]
+    same = read_parts(saved, MPI.COMM_WORLD, now, keys)
     order = np.random.default_rng(3).permutation(keys.size)
-    _, moved = load(tmp_path / "run", MPI.COMM_WORLD, meta, keys=("method",), dof_keys=keys[order])
+    moved = read_parts(saved, MPI.COMM_WORLD, now, keys[order])
     assert np.array_equal(moved["integrator"]["U"], same["integrator"]["U"][order])
     assert np.array_equal(moved["integrator"]["V"], same["integrator"]["V"][order])
     assert np.array_equal(moved["integrator"]["state"][2]["gap"], same["integrator"]["state"][2]["gap"])  # (p rows)
     assert moved["integrator"]["state"][2]["U"] == ("alias", "U")
-    with pytest.raises(CaseError, match="its dofs are not this case's"):
-        load(tmp_path / "run", MPI.COMM_WORLD, meta, keys=("method",), dof_keys=keys + 10**9)
+    with pytest.raises(Damaged, match="its dofs are not this case's"):
+        read_parts(saved, MPI.COMM_WORLD, now, keys + 10**9)
+
+
+# -- a restart under a changed case: applied consistently, or refused naming the keys ------------------
+# The step of a load switched between the checkpoint's time tc and the next step's, tc + dt: 0 up to tc,
+# 1 from tc + dt on, exactly (min and max of the linear ramp)
+def switch(tc: float, dt: float) -> str:
+    return f"max(0, min(1, (t - {tc + 0.5 * dt!r})/{0.25 * dt!r}))"
+
+
+BAR = ["output.vtk=false", "mesh.cells=50", "solver.method=moreau_jean", "solver.dt=0.01", "solver.t_end=0.05"]
+BLOCK = ["output.vtk=false", "solver.t_end=0.05"]
+BEAM = ["output.vtk=false", "mesh.cells=10", "solver.t_end=0.05", "solver.dt=0.01"]
+# the reduced model: modes: auto with a loose tolerance, so that the output's rate decides the count
+MODAL = ["output.vtk=false", "mesh.cells=100", "solver.method=modal", "solver.t_end=0.05", "solver.dt=0.01",
+         "solver.tolerance=0.3"]
+
+
+@pytest.fixture(scope="module")
+def checkpoints(tmp_path_factory):
+    """Short runs whose checkpoints (at t = 0.05) the tests below continue under changed cases."""
+    folder = tmp_path_factory.mktemp("checkpoints")
+    made = {}
+    for name, case, changes in (("bar", "impacting_bar.yaml", BAR), ("block", "sliding_block.yaml", BLOCK),
+                                ("beam", "base_excited_beam.yaml", BEAM), ("modal", "impacting_bar.yaml", MODAL)):
+        made[name] = (fi.load_case(CASES / case, changes), folder / name)
+        fi.run(made[name][0], folder / name)
+    return made
+
+
+@pytest.mark.parametrize("which, changes, reference, keys", [
+    # an added force on the bar's free end: the reference switches it on after the checkpoint
+    ("bar", {"loads": [{"nodes": "right", "force": [-1.0]}]},
+     {"loads": [{"nodes": "right", "force": [f"-1.0*{switch(0.05, 0.01)}"]}]}, ["loads.0.nodes", "loads.0.force.0"]),
+    # the block's gravity doubled through the parameter its load uses (friction: the warm start goes on)
+    ("block", {"parameters.g": 20.0},
+     {"loads.0.acceleration": [0.0, f"-(g*(1 - {switch(0.05, 0.002)}) + 20*{switch(0.05, 0.002)})"]},
+     ["parameters.g"]),
+    # gravity on a beam shaken by its support, which takes the load on its held nodes: the reactions too
+    ("beam", {"loads": [{"body": "all", "acceleration": [0.0, -9.81]}]},
+     {"loads": [{"body": "all", "acceleration": [0.0, f"-9.81*{switch(0.05, 0.01)}"]}]},
+     ["loads.0.body", "loads.0.acceleration.0", "loads.0.acceleration.1"]),
+])
+def test_a_restart_under_changed_loads_is_the_run_that_switched_them_at_the_checkpoint(tmp_path, checkpoints, which,
+                                                                                       changes, reference, keys):
+    """Loads are the run's time inputs: a restart continues the saved state under the case's loads from
+    the checkpoint's time on (the step from it starts from the load the saved run had there), which is
+    the uninterrupted run whose loads switch between the checkpoint's step and the next, to round-off,
+    its energy budget included (the external work goes on)."""
+    case, saved = checkpoints[which]
+    longer = case.with_changes({"solver.t_end": 0.2})
+    continued = fi.run(longer.with_changes(changes), tmp_path / "continued", restart=saved)
+    switched = fi.run(longer.with_changes(reference), tmp_path / "switched")
+    assert_same_from(switched.history, continued.history)
+    unchanged = fi.run(longer, tmp_path / "unchanged", restart=saved)
+    assert not np.allclose(unchanged.history["external_work"], continued.history["external_work"])
+    assert continued.summary["restarted_from"]["changed"] == keys
+    assert unchanged.summary["restarted_from"]["changed"] == []
+
+
+@pytest.mark.parametrize("which, change, named", [
+    ("bar", "solver.level=velocity", "solver.level"),
+    ("bar", "solver.theta=1", "solver.theta"),
+    ("bar", "solver.method=newmark", "solver.method"),
+    ("bar", "solver.dt=0.005", "solver.dt"),
+    ("bar", "solver.mass=lumped", "solver.mass"),
+    ("bar", "material.rho=2", "material.rho"),
+    ("bar", "material.area=2", "material.area"),
+    ("bar", "material.E=2", "material.E"),
+    ("bar", "mesh.length=2", "mesh.length"),
+    ("bar", "mesh.cells=60", "mesh.cells"),
+    ("bar", "damping.alpha=1", "damping.alpha"),
+    ("bar", "contacts.0.stiffness=1000", "contacts.0.stiffness"),
+    ("bar", "contacts.0.gap=0.2", "contacts.0.gap"),
+    ("bar", "supports=[{nodes: right, fix: [x]}]", "supports.0.nodes"),
+    ("bar", "initial.velocity=[-2.0]", "initial.velocity.0"),
+    ("block", "contacts.0.friction=0", "contacts.0.friction"),
+    ("block", "mesh.elements=hex", "mesh.elements"),
+    ("block", "parameters.v0=3", "parameters.v0"),    # (used by the initial velocity, not by a load)
+])
+def test_a_restart_refuses_a_change_of_what_its_state_depends_on_naming_the_key(checkpoints, which, change, named):
+    """The model, its constraints, the method and its keys and the initial state: the saved state belongs
+    to them, so a restart that changes one is refused before anything runs, naming every key that differs."""
+    case, saved = checkpoints[which]
+    changed = case.with_changes(["solver.t_end=0.2", change])
+    with pytest.raises(CaseError, match=rf"the checkpoint does not fit this case: .*{re.escape(named)} \(checkpoint "):
+        fi.run(changed, restart=saved)
+
+
+def test_a_restart_of_the_reduced_model_keeps_its_modes_and_its_static_correction_its_loads(checkpoints):
+    """The reduced model's state is its kept modes' coordinates: a restart whose modes: auto would keep
+    another count is refused (the count to give is named); its static correction holds the saved loads'
+    quasi-static response at the checkpoint's time, so a changed load is refused there."""
+    case, saved = checkpoints["modal"]
+    with pytest.raises(CaseError, match=r"state.json: the checkpoint's model has \d+ modes kept by the reduced model, "
+                                        r"this case's \d+ .*give solver.modes: \d+"):
+        fi.run(case.with_changes(["solver.t_end=0.2", "output.every=1"]), restart=saved)
+    with pytest.raises(CaseError, match="loads.0.nodes: the reduced model's static correction holds the response to "
+                                        "the saved run's loads"):
+        fi.run(case.with_changes(["solver.t_end=0.2", "loads=[{nodes: right, force: [-1.0]}]"]), restart=saved)
+
+
+# -- a damaged checkpoint: one line naming the file, for --restart and for initial: {from: ...} ---------
+def _state(folder):
+    return folder / "checkpoint" / "state.json"
+
+
+def _rank(folder):
+    return folder / "checkpoint" / "rank-0.h5"
+
+
+def _edit_state(change):
+    def damage(folder):
+        state = json.loads(_state(folder).read_text())
+        change(state)
+        _state(folder).write_text(json.dumps(state))
+    return damage
+
+
+def _edit_rank(change):
+    def damage(folder):
+        import h5py
+
+        with h5py.File(_rank(folder), "r+") as f:
+            change(f)
+    return damage
+
+
+def _longer_U(f):
+    U = f["integrator/U"][()]
+    del f["integrator/U"]
+    f["integrator/U"] = np.zeros(U.size + 3)
+
+
+def _flipped_byte(folder):
+    import h5py
+
+    with h5py.File(_rank(folder)) as f:
+        U = f["integrator/U"]
+        at = U.id.get_offset() if U.chunks is None else U.id.get_chunk_info(0).byte_offset
+    data = bytearray(_rank(folder).read_bytes())
+    data[at + 20] ^= 0xFF
+    _rank(folder).write_bytes(bytes(data))
+
+
+DAMAGES = {
+    "state.json truncated": ("state.json", lambda d: _state(d).write_bytes(_state(d).read_bytes()[:100])),
+    "state.json empty": ("state.json", lambda d: _state(d).write_bytes(b"")),
+    "state.json a list": ("state.json", lambda d: _state(d).write_text("[1, 2]")),
+    "state.json binary": ("state.json", lambda d: _state(d).write_bytes(bytes(range(256)) * 2)),
+    "t: abc": ("state.json", _edit_state(lambda s: s.update(t="abc"))),
+    "t: null": ("state.json", _edit_state(lambda s: s.update(t=None))),
+    "t edited": ("rank-0.h5", _edit_state(lambda s: s.update(t=0.02))),   # (the rank file's t and digest)
+    "step edited": ("rank-0.h5", _edit_state(lambda s: s.update(step=3))),
+    "no t": ("state.json", _edit_state(lambda s: s.pop("t"))),
+    "no model": ("state.json", _edit_state(lambda s: s.pop("model"))),
+    "no format": ("state.json", _edit_state(lambda s: s.pop("format"))),
+    "rank-0.h5 missing": ("rank-0.h5", lambda d: _rank(d).unlink()),
+    "rank-0.h5 truncated": ("rank-0.h5", lambda d: _rank(d).write_bytes(_rank(d).read_bytes()[:2000])),
+    "rank-0.h5 empty": ("rank-0.h5", lambda d: _rank(d).write_bytes(b"")),
+    "rank-0.h5 random": ("rank-0.h5", lambda d: _rank(d).write_bytes(np.random.default_rng(1).bytes(5000))),
+    "integrator deleted": ("rank-0.h5", _edit_rank(lambda f: f.__delitem__("integrator"))),
+    "U deleted": ("rank-0.h5", _edit_rank(lambda f: f.__delitem__("integrator/U"))),
+    "U of another length": ("rank-0.h5", _edit_rank(_longer_U)),
+    "a byte of U flipped": ("rank-0.h5", _flipped_byte),
+    "the state's t edited": ("rank-0.h5", _edit_rank(lambda f: f["integrator/state"].attrs.__setitem__("t", 0.02))),
+}
+
+
+@pytest.mark.parametrize("how", ["--restart", "initial.from"])
+@pytest.mark.parametrize("damage", list(DAMAGES))
+def test_a_damaged_checkpoint_is_refused_in_one_line_naming_its_file(tmp_path, checkpoints, damage, how):
+    """Whatever is wrong with a checkpoint's files (cut short, empty, not what they should hold, edited, of
+    another length), a restart and a run from it refuse it before the time loop, naming the file."""
+    case, saved = checkpoints["bar"]
+    folder = tmp_path / "damaged"
+    shutil.copytree(saved, folder)
+    file, damage = DAMAGES[damage]
+    damage(folder)
+    with pytest.raises(CaseError) as refused:
+        if how == "--restart":
+            fi.run(case.with_changes({"solver.t_end": 0.2}), tmp_path / "out", restart=folder)
+        else:
+            fi.run(case.with_changes({"initial": {"from": str(folder)}}), tmp_path / "out")
+    message = str(refused.value)
+    assert str(folder / "checkpoint" / file) in message and message.isprintable(), message
+    assert message.startswith(how) if how == "--restart" else "initial.from" in message
+    assert not (tmp_path / "out").exists()
+
+
+def test_initial_from_a_relative_folder_without_a_checkpoint_names_the_line_and_where_it_starts(tmp_path):
+    (tmp_path / "cases").mkdir()
+    text = (CASES / "impacting_bar.yaml").read_text().replace("  velocity: [-1.0]", "  from: ../runs/first")
+    (tmp_path / "cases" / "bar.yaml").write_text("\n".join(line for line in text.splitlines()
+                                                          if not line.startswith("reference")))
+    case = fi.load_case(tmp_path / "cases" / "bar.yaml", ["output.vtk=false", "mesh.cells=20"])
+    line = next(i for i, text in enumerate((tmp_path / "cases" / "bar.yaml").read_text().splitlines(), 1)
+                if "from:" in text)
+    with pytest.raises(CaseError, match=rf"bar.yaml:{line}: initial.from: {re.escape(str(tmp_path))}/runs/first: no "
+                                        rf"checkpoint there .*\(the relative path '../runs/first' starts at "
+                                        rf"{re.escape(str(tmp_path / 'cases'))}\)"):
+        fi.run(case)
+
+
+def test_initial_from_takes_another_model_on_the_same_unknowns_and_refuses_other_modes(tmp_path, checkpoints):
+    """initial: {from: DIR} starts a new run from a saved state: the model may differ where the unknowns
+    mean the same (the full model's nodal values on the same mesh), not where they do not (the reduced
+    model's modal coordinates, when its modes change with the material)."""
+    case, saved = checkpoints["bar"]
+    stiffer = fi.run(case.with_changes({"initial": {"from": str(saved)}, "material.E": 2.0}))
+    assert stiffer.summary["steps"] == 5
+    case, saved = checkpoints["modal"]
+    with pytest.raises(CaseError, match=r"initial.from: .*state.json: its unknowns are not this case's: material.E "
+                                        r"\(checkpoint 1.0, case 2.0\)"):
+        fi.run(case.with_changes({"initial": {"from": str(saved)}, "material.E": 2.0}))
+
+
+def test_initial_from_under_a_support_the_saved_run_had_not_holds_its_nodes_at_rest(checkpoints):
+    """The case's supports hold their dofs from the start, as they do the case's own initial fields: a
+    saved state moving there is not carried over (a held node of unit placeholder mass would drift on)."""
+    case, saved = checkpoints["bar"]
+    held = fi.run(case.with_changes({"initial": {"from": str(saved)}, "solver.t_end": 0.2,
+                                     "supports": [{"nodes": "right", "fix": ["x"]}]}))
+    assert not held.history["right.ux"].any() and not held.history["right.vx"].any()

@@ -32,6 +32,8 @@ class NodalFields:
     so observers never need to know which model produced a step.
     """
 
+    __checkpoint__ = ()   # (no state of its own: a checkpoint's part all the same, as the reduced model's reader)
+
     def __init__(self, cons: Constraints):
         self.cons = cons
 
@@ -407,6 +409,7 @@ class ImpactLog:
     """
 
     COLUMNS = ("t", "contact", "impulse", "speed", "rows")
+    __checkpoint__ = ("_open", "_rows", "_approach")   # the impacts under way (a restart continues them)
 
     def __init__(self, cons: Constraints):
         self.cons = cons

@@ -201,8 +201,10 @@ def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
         Run even when the size estimate is beyond the limits (:mod:`fem_impact.app.limits`).
     restart : path-like, optional
         Continue the run saved in this folder (a run's output folder, or a checkpoint folder) from
-        its last checkpoint to the case's ``t_end`` (:mod:`fem_impact.app.checkpoint`): the same
-        case (method, dt, mesh) on as many MPI ranks. The history then starts at the checkpoint's time.
+        its last checkpoint to the case's ``t_end`` (:mod:`fem_impact.app.checkpoint`), on as many
+        MPI ranks: the same model, method and initial state (a change of any is refused, naming the
+        keys); the case's loads (and the parameters they use) apply from the checkpoint's time on,
+        its output settings to the new folder. The history then starts at the checkpoint's time.
 
     Raises
     ------
@@ -261,12 +263,16 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     """The pipeline; ``out`` is the claimed output folder, or None to write nothing."""
     outdir = out.path if out is not None else None
     check_limits(case, outdir, comm, force)
+    saved = changed = None
+    if restart is not None:   # (its state.json checked against the case before anything is built)
+        saved, changed = _open_restart(restart, case, comm)
     # dolfinx and PETSc load in about a second: only once the case file is known to be sound.
     from ..config.build import model_spec
     from ..fem.mesh import build_mesh
     from ..fem.model import build_model
-    from ..integrators import EnergyWatch, integrate, steps_for
+    from ..integrators import EnergyWatch, integrate, is_reduced, steps_for
     from ..nonsmooth.relation import build_constraints, check_initial_state
+    from . import checkpoint
     from .outdir import install_signal_handlers
     from .output import BodyMomenta, HistoryWriter, ImpactLog, Progress, RunStatistics, VTKWriter, find_probes
 
@@ -279,6 +285,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     check_initial_state(cons, model)
     probes = find_probes(case, model)
     system = model_of(case)(case, model, cons)
+    if changed:   # a restart under other loads: from the checkpoint's load at its time to the case's after it
+        system.operators.load = checkpoint.ChangedLoad(system.operators.load)
     integrator = make_integrator(case, system.operators)
     fields = system.fields
     if model.motion is not None:   # moving supports: the run seen as the whole structure's
@@ -286,35 +294,39 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     n_steps = steps_for(solver.t_end, solver.dt)
     # What a checkpoint holds: the state of every part of the run that carries one from step to step.
     raw = integrator.integrator if model.motion is not None else integrator
-    parts = {"integrator": raw, "fields": system.fields}
+    impacts = ImpactLog(cons)
+    watch = EnergyWatch(stop_on_energy_gain)
+    parts = {"integrator": raw, "fields": system.fields, "watch": watch, "impacts": impacts}
     if model.motion is not None:
         parts["motion"] = integrator
-    watch = EnergyWatch(stop_on_energy_gain)
-    parts["watch"] = watch
-    meta = {"case": case.name, "method": solver.method, "scheme": raw.name, "dt": solver.dt, "dofs": model.dofs}
+    model_keys = checkpoint.model_keys(case)
+    # What the model built is, beyond the case's keys: its dofs, and the count of modes the reduced model kept.
+    built = {"dofs": model.dofs, "modes": system.summary["modes"]}
+    meta = {"case": case.name, "method": solver.method, "scheme": raw.name, "dt": solver.dt, **built,
+            "model": model_keys, "loads": checkpoint.load_keys(case)}
     t0, restarted = 0.0, None
     # The full model's vectors are saved with their dofs' partition-independent numbers: a restart on as
     # many ranks may find the mesh distributed otherwise (the reduced model's state is replicated).
-    from ..integrators import is_reduced
-
     dof_keys = None if is_reduced(solver) else model.dof_keys()
-    if case.initial.source is not None:   # initial.from: the saved run's last state, as this run's start
-        from .checkpoint import initial_state
-
-        system.U0, system.V0 = initial_state(case.initial.source, comm, meta, system.U0, system.V0, dof_keys)
+    if case.initial.source is not None and restart is None:   # initial.from: the saved run's last state
+        try:
+            system.U0, system.V0 = checkpoint.initial_state(case.initial.source, comm, model_keys,
+                                                            is_reduced(solver), built, system.U0, dof_keys)
+        except checkpoint.Damaged as err:
+            raise case.error(("initial", "from"), f"{err.file}: {err.message}{_relative_note(case, err)}") from None
+        if dof_keys is not None:   # (the case's supports hold their dofs at rest, as its own initial fields)
+            system.U0[model.fixed] = 0.0
+            system.V0[model.fixed] = 0.0
     if restart is not None:
-        from .checkpoint import load as load_checkpoint, restore
-
-        saved, state = load_checkpoint(restart, comm, meta, dof_keys=dof_keys)
-        if saved["t"] >= solver.t_end * (1 - 1e-12):
-            raise CaseError(f"--restart {restart}", "solver.t_end", None,
-                            f"the checkpoint is at t = {saved['t']:.6g}, not before the case's t_end = "
-                            f"{solver.t_end:.6g}: raise solver.t_end to continue")
-        integrator.start(system.U0, system.V0, 0.0)   # (allocates what the state then overwrites)
-        for name, part in parts.items():
-            restore(part, state[name])
-        restored_impacts = state.get("impacts")
-        t0, restarted = saved["t"], {"folder": str(Path(restart).resolve()), "t": saved["t"], "step": saved["step"]}
+        try:
+            trees = checkpoint.read_parts(saved, comm, built, dof_keys)
+            integrator.start(system.U0, system.V0, 0.0)   # (allocates what the state then overwrites)
+            checkpoint.restore_parts(parts, trees, saved, comm)
+        except checkpoint.Damaged as err:
+            raise CaseError(f"--restart {err.file}", None, None, err.message) from None
+        t0 = saved.t
+        restarted = {"folder": str(Path(restart).resolve()), "t": saved.t, "step": saved.step,
+                     "changed": changed}
     blocks = block_stepper(case, integrator, n_steps)
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
@@ -325,16 +337,11 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                                 scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name,
                                 reactions=model.motion.names if model.motion else ())
         stats = RunStatistics(cons)
-        impacts = ImpactLog(cons)
         observers = [history, stats, impacts]
         vtk = None
         if case.output.vtk and stage is not None:
             vtk = VTKWriter(stage, model, fields, case.output.every, n_steps, case.output.format)
             observers.append(vtk)
-        parts["impacts"] = impacts
-        if restarted is not None and restored_impacts is not None:   # (an impact under way goes on)
-            restore(impacts, restored_impacts)
-            impacts.events = []
         if hasattr(fields, "write"):   # the reduced model's fields remember the previous step
             observers.append(fields)
         if stage is not None:   # last: it saves the state every other observer has updated
@@ -422,6 +429,49 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     return Result(summary, outdir.resolve() if outdir is not None else None, columns)
 
 
+def _relative_note(case: Case, err) -> str:
+    """Where a relative ``initial.from`` starts, when no checkpoint was found there."""
+    written = (case.source.get("initial") or {}).get("from") if isinstance(case.source, dict) else None
+    if not isinstance(written, str) or os.path.isabs(written) or Path(err.file) != case.initial.source:
+        return ""
+    return f" (the relative path {written!r} starts at {case.base_dir})"
+
+
+def _open_restart(restart, case: Case, comm) -> tuple:
+    """The checkpoint to continue (``checkpoint.Saved``) and the keys of the loads that changed since it:
+    a case whose model, method or initial state differ from the checkpoint's, or that ends before it, is
+    refused naming the keys (CaseError)."""
+    from ..integrators.parameters import is_reduced
+    from . import checkpoint
+
+    try:
+        saved = checkpoint.open_checkpoint(restart, comm)
+    except checkpoint.Damaged as err:
+        raise CaseError(f"--restart {err.file}", None, None, err.message) from None
+    state, where = saved.state, f"--restart {restart}"
+    differ = checkpoint.differences(state["model"], checkpoint.model_keys(case))
+    if differ:
+        same_unknowns = not checkpoint.differences(
+            checkpoint.unknowns_keys(state["model"], checkpoint.reduced_of(state)),
+            checkpoint.unknowns_keys(checkpoint.model_keys(case), is_reduced(case.solver)))
+        hint = (f"; to start the changed case from the checkpoint's state, give it initial: {{from: {saved.folder}}}"
+                if same_unknowns and not all(key.startswith("initial.") for key in differ) else "")
+        raise CaseError(where, None, None, f"the checkpoint does not fit this case: its state depends on keys the "
+                                           f"case changes: {', '.join(differ)}. A restart continues the saved run "
+                                           f"under the case's loads, solver.t_end and output only{hint}")
+    if saved.t >= case.solver.t_end * (1 - 1e-12):
+        raise CaseError(where, "solver.t_end", None, f"the checkpoint is at t = {saved.t:.6g}, not before the case's "
+                                                     f"t_end = {case.solver.t_end:.6g}: raise solver.t_end to continue")
+    changed = checkpoint.differing(state["loads"], checkpoint.load_keys(case))
+    if changed and is_reduced(case.solver) and case.solver.static_correction:
+        raise CaseError(where, changed[0], None,
+                        f"the reduced model's static correction holds the response to the saved run's loads, also "
+                        f"at the checkpoint's time: a restart cannot change them ({', '.join(changed)} differ). "
+                        f"Continue with the saved loads, or start a new run from the checkpoint's state with "
+                        f"initial: {{from: {saved.folder}}}")
+    return saved, changed
+
+
 def energy_warning(summary: dict) -> str | None:
     """One line when the run created energy (printed on stderr at the end of a run), else None."""
     if summary.get("energy_created_at") is None:
@@ -450,7 +500,9 @@ def describe(summary: dict) -> str:
     """The one-paragraph report printed at the end of a run."""
     restarted = summary.get("restarted_from")
     run_steps = summary["steps"] - (restarted["step"] if restarted else 0)
-    start = f" from t = {restarted['t']:.4g} s (restarted from {restarted['folder']})" if restarted else ""
+    start = f" from t = {restarted['t']:.4g} s (restarted from {restarted['folder']}" + (
+        f", under changed loads: {', '.join(restarted['changed'])})" if restarted.get("changed") else ")") \
+        if restarted else ""
     return (
         f"{summary['case']}: {run_steps} steps of {summary['dt']:.4g} s{start} to t = {summary['t_end']:.4g} s, "
         f"{summary['dofs']} unknowns, {summary['constraints']} contact rows, {summary['method']} "

@@ -209,12 +209,17 @@ class MotionView:
     kinetic and strain energy with the supports' motion, their work as external work and the
     reactions (``StepState.reaction``); everything else is the integrator's own."""
 
+    # (a checkpoint's: fem_impact/app/checkpoint.py; the reaction of the last state, which a restart under
+    # other loads reports again as the saved run did)
+    __checkpoint__ = ("_x0", "_damping", "_phi", "_t", "_reaction")
+
     def __init__(self, integrator, motion: PrescribedMotion, fields, comm):
         self.integrator, self.motion, self.fields, self.comm = integrator, motion, fields, comm
         self._x0 = 0.0
         self._damping = 0.0       # D_s so far
         self._phi = 0.0           # its integrand at the previous step
         self._t = 0.0
+        self._reaction = None     # at the last state
 
     def __getattr__(self, name):   # dt, name, scheme_energy, friction, ...: the integrator's
         return getattr(self.integrator, name)
@@ -251,6 +256,7 @@ class MotionView:
         e.initial += self._x0
         e.external_work += kinetic + strain - self._x0 + self._damping
         e.damping_loss += self._damping
+        self._reaction = reaction
         return replace(state, energy=e, reaction=reaction)
 
     def start(self, U0, V0, t0: float = 0.0):
@@ -260,4 +266,8 @@ class MotionView:
         return self._state(self.integrator.step(), first=False)
 
     def restored(self):
-        return self._state(self.integrator.restored(), first=False)   # (a step of length 0: nothing booked)
+        saved = self._reaction
+        state = self._state(self.integrator.restored(), first=False)   # (a step of length 0: nothing booked)
+        if saved is not None:   # (the loads on the held dofs at that time were the saved run's)
+            state.reaction = self._reaction = saved
+        return state

@@ -190,6 +190,8 @@ class ReducedFields:
     and the static part of the previous step is kept, not recomputed.
     """
 
+    __checkpoint__ = ("_previous", "_before")   # the steps the static part's velocity differences from
+
     def __init__(self, Y1: np.ndarray, XR: np.ndarray | None, XP: np.ndarray | None, static, cons: Constraints, dt):
         self.Y1, self.XR, self.XP, self.static, self.cons, self.dt = Y1, XR, XP, static, cons, dt
         self._previous = None   # (t, force) of the previous step, for the static part's velocity

@@ -739,6 +739,8 @@ class EnergyWatch:
     writing ever larger numbers (and then NaN).
     """
 
+    __checkpoint__ = ("scale", "created", "created_at", "max_ratio")   # (what it found so far: a restart goes on)
+
     def __init__(self, stop_on_energy_gain: bool = False, tolerance: float = ENERGY_TOLERANCE,
                  blow_up: float = BLOW_UP):
         self.stop, self.tolerance, self.factor = stop_on_energy_gain, tolerance, blow_up

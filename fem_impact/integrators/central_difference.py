@@ -46,6 +46,7 @@ class CentralDifference(ContactScheme):
     """
 
     name = "central_difference"
+    __checkpoint__ = ContactScheme.__checkpoint__ + ("_stop_force",)   # (the force of the step before, for the stops)
     scheme_energy = True
     diagonal_delassus = True   # a lumped mass and node-to-plane rows: a projection per row
 

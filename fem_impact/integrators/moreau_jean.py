@@ -79,6 +79,10 @@ class MoreauJean(ContactScheme):
 
     name = "moreau_jean"
     takes_friction = True   # Coulomb friction: a cone problem on [P; P_T] (_build_friction)
+    # K U and K V (kept by the step), P U of the dynamic part; with friction the last impulses and the
+    # friction solver's warm start (its guess), and the solver's extremes over the run (the summary's)
+    __checkpoint__ = ContactScheme.__checkpoint__ + ("KU", "KV", "_pu_dyn", "r_prev", "friction", "friction_residual",
+                                                     "friction_sweeps", "friction_retries")
 
     def __init__(self, ops: Operators, dt: float, theta: float = 0.5, level: str = "position"):
         if not 0.5 <= theta <= 1.0:
@@ -101,7 +105,8 @@ class MoreauJean(ContactScheme):
         self.position_rows = np.ones(ops.p, dtype=bool) if level == "position" else self.elastic
         self.carnot_rows = ~self.elastic & ~ops.massless_rows if level == "position" else np.zeros(ops.p, bool)
         self.lcp = Delassus.regularized(self.W + compliance / (theta * dt * dt))   # factors kept over the steps
-        self.friction = None
+        self.friction = self.r_prev = None
+        self.friction_residual, self.friction_sweeps, self.friction_retries = 0.0, 0, 0
         if ops.pt:
             self._build_friction(compliance)
         new = self.alg.vector

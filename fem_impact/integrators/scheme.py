@@ -30,6 +30,10 @@ class ContactScheme:
     """
 
     name = ""
+    # The state a checkpoint saves (fem_impact/app/checkpoint.py): what a step reads of the one before
+    # (the state vectors, the products M V, M A, C V and the load R at its time, the StepState with its
+    # energy budget) and the start time; the rest the restarted run builds from its case.
+    __checkpoint__ = ("t0", "U", "V", "A", "MV", "MA", "R", "CV", "state")
     # W and D as sparse diagonals where they are (Operators.delassus): the schemes whose contact
     # step takes them that way
     diagonal_delassus = False
@@ -282,9 +286,7 @@ class ContactScheme:
         self.U[:] = owned_values(U0)
         self.V[:] = owned_values(V0)
         ops.load.evaluate(t0, self.R)
-        # Work terms only where there is a load or damping (collective: every rank calls it).
-        self.loaded = ops.load.time_dependent or bool(self.alg.allsum(np.array([float(np.any(self.R))]))[0])
-        self.track_du = self.loaded or ops.C is not None
+        self._track_work()
         move = ops.equilibrate_massless(self.U, self.R)   # (collective: every rank calls it)
         if move:
             log.info("mass redistribution: the massless contact nodes start in static equilibrium "
@@ -313,8 +315,17 @@ class ContactScheme:
         pv, energy.impact_loss = self._apply_corrections(res, pv)
         return res.force, res.lam1.copy(), pu, pv
 
+    def _track_work(self) -> None:
+        """Work terms only where there is a load (R at the state's time, or one that varies) or damping
+        (collective: every rank calls it)."""
+        ops = self.ops
+        self.loaded = ops.load.time_dependent or bool(self.alg.allsum(np.array([float(np.any(self.R))]))[0])
+        self.track_du = self.loaded or ops.C is not None
+
     def restored(self) -> StepState:
-        """The state restored from a checkpoint, to go on from (fem_impact/app/checkpoint.py)."""
+        """The state restored from a checkpoint, to go on from (fem_impact/app/checkpoint.py), under the
+        case's load (collective)."""
+        self._track_work()
         return self.state
 
     # -- many steps at a time between contacts (blocks.py, docs/theory.md s. 8.8) ---------------
