@@ -1152,6 +1152,7 @@ def _validated(data: dict, case_path: Path | None, folder: Path, lines, override
     check_numbers(case)
     _check_section(case)
     _check_friction(case)
+    _check_moving_supports(case)
     _check_set_parameters(case, changed)
     _check_reference(case, changed)
     return case
@@ -1208,6 +1209,21 @@ def _check_friction(case: Case) -> None:
             raise case.error(("contacts", i, "friction"),
                              f"solver.method {case.solver.method} cannot take friction (its contact step is an "
                              "LCP on normal forces only): use solver.method: moreau_jean")
+
+
+def _check_moving_supports(case: Case) -> None:
+    """The reduced model holds a support's quasi-static motion in its static correction: the
+    fixed-base modes alone carry only the share their mass takes part in (docs/theory.md s. 2.4)."""
+    from ..integrators import is_reduced
+
+    if not is_reduced(case.solver) or case.solver.static_correction:
+        return
+    for i, support in enumerate(case.supports):
+        if any(not (f.is_constant and f.at_time(0.0) == 0.0) for f in support.displacement or ()):
+            raise case.error(("solver", "static_correction"),
+                             f"supports[{i}] moves (displacement), and the reduced model holds a support's motion "
+                             "in its static correction (the fixed-base modes alone leave most of it out): set "
+                             "solver.static_correction: true, or use the full model (solver.method: moreau_jean)")
 
 
 def _check_set_parameters(case: Case, changed) -> None:
