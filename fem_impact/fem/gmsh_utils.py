@@ -111,6 +111,7 @@ def _extract(path: str) -> tuple[dict, dict]:
         raise MshError("no physical groups (name the bodies and node groups in the .geo/.py script)")
     dim = max(d for d, _ in groups)
     names = {(d, t): model.getPhysicalName(d, t) or f"group_{d}_{t}" for d, t in groups}
+    _check_unique_names(names, dim)
     meta = {"dim": dim, "bodies": {}, "node_group_names": []}
     if dim < 1:
         return {"x": x}, meta
@@ -153,6 +154,22 @@ def _extract(path: str) -> tuple[dict, dict]:
         arrays[f"group{len(meta['node_group_names'])}"] = group
         meta["node_group_names"].append(name)
     return arrays, meta
+
+
+def _check_unique_names(names: dict, dim: int) -> None:
+    """Bodies (groups of the top dimension) and node groups (the lower ones) are looked up by name:
+    two groups of one kind with the same name would be one of them silently (MshError)."""
+    for kind, same_kind in (("bodies", lambda d: d == dim), ("node groups", lambda d: d < dim)):
+        seen: dict[str, tuple[int, int]] = {}
+        for (d, t), name in sorted(names.items()):
+            if not same_kind(d):
+                continue
+            if name in seen:
+                (d0, t0) = seen[name]
+                raise MshError(f"two physical groups are named '{name}' (dimension {d0} tag {t0}, dimension {d} tag "
+                               f"{t}): fem-impact finds {kind} by name, so each needs its own (or make them one "
+                               "physical group)")
+            seen[name] = (d, t)
 
 
 def _child(path: str, out: str) -> None:
