@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import math
 import subprocess
 import sys
 import tempfile
@@ -27,6 +29,42 @@ def write_msh(path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     gmsh.write(str(path))
     return path
+
+
+def length_option(minimum: float = 0.0, inclusive: bool = False):
+    """An argparse ``type`` for a length in m (or another real): finite and above ``minimum`` (or at
+    least it, ``inclusive``); what is not is refused naming the option (status 2), never a traceback."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(value) or value < minimum or (value == minimum and not inclusive):
+            raise argparse.ArgumentTypeError(f"must be a number {'>=' if inclusive else '>'} {minimum:g}, "
+                                             f"got {text}")
+        return value
+    return parse
+
+
+def output_option(text: str) -> Path:
+    """An argparse ``type`` for a mesh script's output: a .msh file (Gmsh picks the format by the
+    extension), not a folder."""
+    path = Path(text)
+    if path.suffix.lower() != ".msh":
+        raise argparse.ArgumentTypeError(f"write a .msh file, got {text!r}")
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a folder: give the .msh file to write")
+    return path
+
+
+def run_script(parser: argparse.ArgumentParser, build, argv=None):
+    """Parse a mesh script's options and ``build(args)``: a ValueError of ``build`` (options that do not
+    fit together) is the parser's error, one line naming them (status 2), and no file is written."""
+    args = parser.parse_args(argv)
+    try:
+        return args, build(args)
+    except ValueError as err:
+        parser.error(str(err))
 
 
 class MshError(Exception):
