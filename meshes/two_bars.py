@@ -21,12 +21,12 @@ or another one with e.g.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import add_named_groups, length_option, output_option, run_script, write_msh
+from fem_impact.fem.gmsh_utils import (ScriptParser, add_named_groups, length_option, output_option, run_script,
+                                       write_msh)
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "two_bars.msh"
@@ -65,7 +65,7 @@ def build(length: float = 1.0, gap: float = 0.1, cells: int = 100, output: Path 
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--length", type=length_option(), default=1.0, help="length L of each bar (default 1)")
     parser.add_argument("--gap", type=length_option(), default=0.1, help="distance between the bars (default 0.1)")
     parser.add_argument("--cells", type=int, default=100, help="elements per bar (default 100)")

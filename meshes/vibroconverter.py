@@ -43,13 +43,13 @@ and point a case to it with ``--set mesh.file=/tmp/fine.msh``.
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import add_named_groups, length_option, output_option, run_script, write_msh
+from fem_impact.fem.gmsh_utils import (ScriptParser, add_named_groups, length_option, output_option, run_script,
+                                       write_msh)
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "vibroconverter.msh"
@@ -112,7 +112,7 @@ def build(length: float = 0.1, split: float = 0.5, h: float | None = None, eleme
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--length", type=length_option(),
                         default=0.1, help="total length L in m (default 0.1: f1 = 25.9 kHz "
                         "in steel)")

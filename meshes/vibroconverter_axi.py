@@ -22,13 +22,13 @@ case to it with ``--set mesh.file=/tmp/horn.msh``.
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import add_named_groups, length_option, output_option, run_script, write_msh
+from fem_impact.fem.gmsh_utils import (ScriptParser, add_named_groups, length_option, output_option, run_script,
+                                       write_msh)
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "vibroconverter_axi.msh"
@@ -92,7 +92,7 @@ def build(length: float = 0.1, split: float = 0.5, r_large: float = 0.01, r_smal
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--length", type=length_option(), default=0.1, metavar="M",
                         help="total length L in m (default 0.1: f1 = c/(2L) = 25.9 kHz in steel)")
     parser.add_argument("--split", type=length_option(), default=0.5, metavar="FRACTION",

@@ -44,13 +44,13 @@ file's: change them in both places.
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import add_named_groups, length_option, output_option, run_script, write_msh
+from fem_impact.fem.gmsh_utils import (ScriptParser, add_named_groups, length_option, output_option, run_script,
+                                       write_msh)
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "vibrodrive.msh"
@@ -201,7 +201,7 @@ def build(length: float = 0.04, piezo_length: float = 0.01, width: float = 0.01,
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--length", type=length_option(),
                         default=0.04, help="rod length L in m (default 0.04)")
     parser.add_argument("--piezo-length", type=length_option(),

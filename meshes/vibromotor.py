@@ -24,12 +24,11 @@ case file's: a changed geometry may need them changed too.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import length_option, output_option, run_script
+from fem_impact.fem.gmsh_utils import ScriptParser, length_option, output_option, run_script
 
 W, H, L, T = 10e-3, 10e-3, 30e-3, 10e-3
 DEFAULT_OUTPUT = Path(__file__).with_name("vibromotor.msh")
@@ -89,7 +88,7 @@ def build(path: Path, h: float, driver_width: float = W, driver_height: float = 
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], add_help=False)
+    parser = ScriptParser(description=__doc__.splitlines()[0], add_help=False)
     parser.add_argument("-h", "--h", type=length_option(), default=1e-3, metavar="M",
                         help="element size in m (default 1 mm)")
     parser.add_argument("--driver-width", type=length_option(), default=W, metavar="M",

@@ -57,6 +57,14 @@ def output_option(text: str) -> Path:
     return path
 
 
+class ScriptParser(argparse.ArgumentParser):
+    """A mesh script's options: a bad one is a single line (``SCRIPT: error: ...; see --help``, status 2),
+    not argparse's usage block."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
 def run_script(parser: argparse.ArgumentParser, build, argv=None):
     """Parse a mesh script's options and ``build(args)``: a ValueError of ``build`` (options that do not
     fit together) is the parser's error, one line naming them (status 2), and no file is written."""
