@@ -182,3 +182,20 @@ def test_a_node_held_still_by_one_support_and_moved_by_another_is_refused():
     axi["mesh"]["hypothesis"] = "axisymmetric"
     with pytest.raises(CaseError, match=r"supports\[0\].displacement: moves the x component of .* the symmetry axis"):
         fi.run(fi.Case.from_dict(axi))
+
+
+def test_the_reduction_study_of_a_moving_support_leaves_out_the_plain_truncation_with_a_warning(tmp_path, caplog):
+    """The study runs each n1 with and without static correction; without is refused for a moving support,
+    so the study goes on with the rest (it stopped with status 2 after the full run) and says why."""
+    from fem_impact.app.studies import reduction_table
+
+    data = {"name": "pushed", "mesh": {"shape": "bar", "dim": 1, "length": 1.0, "cells": 20},
+            "material": {"E": 1.0, "rho": 1.0, "nu": 0.0, "area": 1.0},
+            "supports": [{"nodes": "left", "fix": ["x"], "displacement": ["0.01*t"]}],
+            "contacts": [{"name": "wall", "type": "obstacle", "nodes": "right", "normal": [1.0], "gap": 0.0}],
+            "solver": {"dt": 0.025, "t_end": 0.5}, "output": {"vtk": False, "probes": {"middle": [0.5]}}}
+    with caplog.at_level("WARNING"):
+        rows = reduction_table(fi.Case.from_dict(data), modes=(4,), outdir=tmp_path / "reduction")
+    assert [(r["model"], r["modes"], r["static_correction"]) for r in rows] == [("full", None, None),
+                                                                                ("modal", 4, True)]
+    assert "modal-4-plain: not run: supports[0] moves" in caplog.text
