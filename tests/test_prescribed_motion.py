@@ -199,3 +199,20 @@ def test_the_reduction_study_of_a_moving_support_leaves_out_the_plain_truncation
     assert [(r["model"], r["modes"], r["static_correction"]) for r in rows] == [("full", None, None),
                                                                                 ("modal", 4, True)]
     assert "modal-4-plain: not run: supports[0] moves" in caplog.text
+
+
+def test_a_contact_on_a_component_its_support_holds_at_the_constant_0_is_taken():
+    """The table's base moves in y and holds x at "0": a stop on the right side along x (its corner on the
+    base, mean coupling) is taken, as with a support without motion, and is open at rest; along y it is
+    refused (its gap would move with the base)."""
+    data = {"name": "table", "mesh": {"shape": "bar", "dim": 2, "length": 1.0, "height": 0.2, "cells": 10},
+            "material": {"E": 1.0, "rho": 1.0, "nu": 0.3, "area": 1.0}, "damping": {"alpha": 4.0},
+            "supports": [{"nodes": "bottom", "fix": ["x", "y"], "displacement": ["0", "1e-3"]}],
+            "contacts": [{"name": "stop", "type": "obstacle", "nodes": "right", "normal": [1.0, 0.0], "gap": 1e-4,
+                          "coupling": "mean"}],
+            "solver": {"dt": 0.02, "t_end": 12.0}, "output": {"vtk": False, "probes": {"top": [0.5, 0.2]}}}
+    h = fi.run(fi.Case.from_dict(data)).history
+    assert h["top.uy"][-1] == pytest.approx(1e-3, rel=1e-6) and h["stop.gap"][-1] == pytest.approx(1e-4, rel=1e-6)
+    data["contacts"][0]["normal"] = [0.0, 1.0]
+    with pytest.raises(CaseError, match=r"contacts\[0\].nodes: acts on nodes whose motion a support prescribes"):
+        fi.run(fi.Case.from_dict(data))

@@ -65,14 +65,22 @@ class PrescribedMotion:
         return self._last[1]
 
     def moving_dofs(self) -> np.ndarray:
-        """Owned dofs whose motion is prescribed (the rows of the patterns that hold an entry)."""
-        return np.flatnonzero(self.patterns.getnnz(axis=1))
+        """Owned dofs that a support moves: the rows of the patterns that hold an entry, but for a
+        motion that is the constant 0 (its dofs are held still, as a support without motion holds them)."""
+        still = [k for k, f in enumerate(self.functions) if is_still(f)]
+        moving = self.patterns[:, [k for k in range(self.count) if k not in still]]
+        return np.flatnonzero(moving.getnnz(axis=1))
 
     def view(self, integrator, fields, comm) -> tuple[MotionView, MovingFields]:
         """The run as the whole structure: an integrator whose states carry its energies and
         reactions, and fields with the supports' motion added."""
         moving = MovingFields(fields, self, comm)
         return MotionView(integrator, self, fields, comm), moving
+
+
+def is_still(function) -> bool:
+    """Whether a support's motion is the constant 0."""
+    return function.is_constant and function.at_time(0.0) == 0.0
 
 
 def raise_not_finite(function, t):
@@ -165,7 +173,7 @@ def _check_held_still(spec, node_set, bs, dim, n_local, functions, columns, owne
         mask[axis] = True
         still.append(("the symmetry axis of the axisymmetric model (its radial displacement is 0)", mask))
     for f, column, (i, comp) in zip(functions, columns, owners):
-        if f.is_constant and f.at_time(0.0) == 0.0:
+        if is_still(f):
             continue
         for what, mask in still:
             shared = comm.allreduce(int(np.count_nonzero(mask & (column > 0.0))))

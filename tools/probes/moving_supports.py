@@ -352,6 +352,28 @@ def _agreeing(ctx):
     return _judged(problems)
 
 
+@probe("moving-supports", "2D table, a side stop along x on nodes whose x the base holds at '0': runs, open at rest")
+def _side_stop(ctx):
+    data = _table(2, "moreau_jean", "A")
+    data["contacts"] = [{"name": "stop", "type": "obstacle", "nodes": "right", "normal": [1.0, 0.0], "gap": 1e-4,
+                         "coupling": "mean"}]
+    h, bad = _solved(ctx, data)
+    if bad:
+        return bad
+    problems = []
+    _close("top's displacement at rest", h["top.uy"][-1], A, 1e-6, problems)
+    _close("stop's gap at rest", h["stop.gap"][-1], 1e-4, 1e-6, problems)
+    return _judged(problems)
+
+
+@probe("moving-supports", "2D table, a side stop along y on nodes the base drives in y: refused")
+def _side_stop_driven(ctx):
+    data = _table(2, "moreau_jean", "A")
+    data["contacts"] = [{"name": "stop", "type": "obstacle", "nodes": "right", "normal": [0.0, 1.0], "gap": 1e-4,
+                         "coupling": "mean"}]
+    return _refused(ctx, data, "contacts[0].nodes", "prescribes")
+
+
 @probe("moving-supports", "two supports moving one dof: refused")
 def _two_motions(ctx):
     data = _rod(2, "left", "moreau_jean", gap=0.0, t_end=0.1)
