@@ -21,12 +21,12 @@ or another one with e.g.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import add_named_groups, write_msh
+from fem_impact.fem.gmsh_utils import (ScriptParser, add_named_groups, length_option, output_option, run_script,
+                                       write_msh)
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "two_bars.msh"
@@ -34,8 +34,9 @@ DEFAULT_OUTPUT = HERE / "two_bars.msh"
 
 def build(length: float = 1.0, gap: float = 0.1, cells: int = 100, output: Path = DEFAULT_OUTPUT) -> Path:
     """Mesh the two bars and write them to ``output``; returns the path written."""
-    if length <= 0 or gap < 0 or cells < 1:
-        raise ValueError("need length > 0, gap >= 0 and cells >= 1")
+    if not (length > 0 and gap >= 0 and cells >= 1):
+        raise ValueError(f"need length > 0, gap >= 0 and cells >= 1; got length {length:g}, gap {gap:g}, "
+                         f"cells {cells}")
     if gap == 0:
         raise ValueError("gap = 0 would make the two bars share a point; give gap > 0")
     output = Path(output)
@@ -64,14 +65,13 @@ def build(length: float = 1.0, gap: float = 0.1, cells: int = 100, output: Path 
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--length", type=float, default=1.0, help="length L of each bar (default 1)")
-    parser.add_argument("--gap", type=float, default=0.1, help="distance between the bars (default 0.1)")
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--length", type=length_option(), default=1.0, help="length L of each bar (default 1)")
+    parser.add_argument("--gap", type=length_option(), default=0.1, help="distance between the bars (default 0.1)")
     parser.add_argument("--cells", type=int, default=100, help="elements per bar (default 100)")
-    parser.add_argument("-o", "--output", type=Path, default=DEFAULT_OUTPUT,
+    parser.add_argument("-o", "--output", type=output_option, default=DEFAULT_OUTPUT,
                         help=f"output .msh file (default {DEFAULT_OUTPUT.name} next to this script)")
-    args = parser.parse_args(argv)
-    path = build(args.length, args.gap, args.cells, args.output)
+    args, path = run_script(parser, lambda a: build(a.length, a.gap, a.cells, a.output), argv)
     print(f"wrote {path}: two bars of length {args.length:g}, gap {args.gap:g}, {args.cells} cells each")
 
 

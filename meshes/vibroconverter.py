@@ -43,13 +43,13 @@ and point a case to it with ``--set mesh.file=/tmp/fine.msh``.
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import add_named_groups, write_msh
+from fem_impact.fem.gmsh_utils import (ScriptParser, add_named_groups, length_option, output_option, run_script,
+                                       write_msh)
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "vibroconverter.msh"
@@ -81,8 +81,9 @@ def build(length: float = 0.1, split: float = 0.5, h: float | None = None, eleme
     Returns a dict with ``path``, ``h`` (the element size asked for), ``cells`` (per segment)
     and ``f1_hz`` (``c / (2 L)``, exact for split = 0.5 or equal areas).
     """
-    if length <= 0 or not 0 < split < 1:
-        raise ValueError("need length > 0 and 0 < split < 1")
+    if not (length > 0 and 0 < split < 1):
+        raise ValueError(f"need length > 0 and 0 < split < 1 (the step's position, a fraction of the length); got "
+                         f"length {length:g}, split {split:g}")
     if h is None:
         h = element_size(length, wave_speed, elements_per_wavelength, f_max)
     elif h <= 0:
@@ -111,24 +112,29 @@ def build(length: float = 0.1, split: float = 0.5, h: float | None = None, eleme
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--length", type=float, default=0.1, help="total length L in m (default 0.1: f1 = 25.9 kHz "
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--length", type=length_option(),
+                        default=0.1, help="total length L in m (default 0.1: f1 = 25.9 kHz "
                         "in steel)")
-    parser.add_argument("--split", type=float, default=0.5, help="position of the step as a fraction of L "
+    parser.add_argument("--split", type=length_option(),
+                        default=0.5, help="position of the step as a fraction of L "
                         "(default 0.5: the nodal plane of mode 1)")
-    parser.add_argument("--elements-per-wavelength", "-n", type=float, default=10.0,
+    parser.add_argument("--elements-per-wavelength", "-n", type=length_option(),
+                        default=10.0,
                         help="elements per wavelength at f_max (default 10)")
-    parser.add_argument("--f-max", type=float, default=None,
+    parser.add_argument("--f-max", type=length_option(),
+                        default=None,
                         help=f"highest frequency the scene needs, Hz (default the {DEFAULT_MODE}th mode, "
                              f"{DEFAULT_MODE} c / (2 L))")
-    parser.add_argument("--h", type=float, default=None, help="element size in m (overrides the two above)")
-    parser.add_argument("--wave-speed", type=float, default=STEEL_WAVE_SPEED,
+    parser.add_argument("--h", type=length_option(),
+                        default=None, help="element size in m (overrides the two above)")
+    parser.add_argument("--wave-speed", type=length_option(),
+                        default=STEEL_WAVE_SPEED,
                         help=f"sqrt(E / rho) in m/s (default steel, {STEEL_WAVE_SPEED:.2f})")
-    parser.add_argument("-o", "--output", type=Path, default=DEFAULT_OUTPUT,
+    parser.add_argument("-o", "--output", type=output_option, default=DEFAULT_OUTPUT,
                         help=f"output .msh file (default {DEFAULT_OUTPUT.name} next to this script)")
-    args = parser.parse_args(argv)
-    info = build(args.length, args.split, args.h, args.elements_per_wavelength, args.f_max, args.wave_speed,
-                 args.output)
+    args, info = run_script(parser, lambda a: build(a.length, a.split, a.h, a.elements_per_wavelength, a.f_max,
+                                                    a.wave_speed, a.output), argv)
     n1, n2 = info["cells"]
     print(f"wrote {info['path']}: stepped horn L = {args.length:g} m, step at {args.split * args.length:g} m, "
           f"{n1} + {n2} elements (h <= {info['h']:.4g} m); f1 = c/(2L) = {info['f1_hz']:.5g} Hz")

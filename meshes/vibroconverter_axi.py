@@ -14,17 +14,21 @@ Quadrilaterals of side ``h`` (the 1D mesh's element size: ``--h``, default 1 mm 
 1D mesh's 50 + 50 elements), transfinite on each rectangle. Regenerate the committed mesh with
 
     .venv/bin/python meshes/vibroconverter_axi.py
+
+or another horn, e.g. ``meshes/vibroconverter_axi.py --length 0.12 --r-large 0.015 --r-small 0.006
+-o /tmp/horn.msh`` (lengths in m; ``--help`` lists the options and their defaults), and point the
+case to it with ``--set mesh.file=/tmp/horn.msh``.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import add_named_groups, write_msh
+from fem_impact.fem.gmsh_utils import (ScriptParser, add_named_groups, length_option, output_option, run_script,
+                                       write_msh)
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "vibroconverter_axi.msh"
@@ -33,8 +37,18 @@ DEFAULT_OUTPUT = HERE / "vibroconverter_axi.msh"
 def build(length: float = 0.1, split: float = 0.5, r_large: float = 0.01, r_small: float = 0.005, h: float = 1e-3,
           output: Path = DEFAULT_OUTPUT) -> dict:
     """Mesh the horn's meridian section; returns ``path`` and the quadrilateral count ``cells``."""
-    if not (length > 0 and 0 < split < 1 and r_large > r_small > 0 and h > 0):
-        raise ValueError("need length > 0, 0 < split < 1, r_large > r_small > 0 and h > 0")
+    if not length > 0:
+        raise ValueError(f"the length must be > 0 m, got {length:g}")
+    if not 0 < split < 1:
+        raise ValueError(f"split (the step's position, a fraction of the length) must lie between 0 and 1, "
+                         f"got {split:g}")
+    if not r_large > r_small > 0:
+        raise ValueError(f"the small radius ({r_small:g} m) must be > 0 and below the large one ({r_large:g} m)")
+    if not h > 0:
+        raise ValueError(f"the element size h must be > 0 m, got {h:g}")
+    if h > min(split * length, (1 - split) * length, r_small):
+        raise ValueError(f"h = {h:g} m is longer than a segment or the small radius: give h <= "
+                         f"{min(split * length, (1 - split) * length, r_small):g}")
     l1 = split * length
 
     def count(size: float) -> int:
@@ -78,13 +92,22 @@ def build(length: float = 0.1, split: float = 0.5, r_large: float = 0.01, r_smal
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--h", type=float, default=1e-3, help="element size in m (default 1 mm)")
-    parser.add_argument("-o", "--output", type=Path, default=DEFAULT_OUTPUT,
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--length", type=length_option(), default=0.1, metavar="M",
+                        help="total length L in m (default 0.1: f1 = c/(2L) = 25.9 kHz in steel)")
+    parser.add_argument("--split", type=length_option(), default=0.5, metavar="FRACTION",
+                        help="the step's position as a fraction of L, between 0 and 1 (default 0.5)")
+    parser.add_argument("--r-large", type=length_option(), default=0.01, metavar="M",
+                        help="radius of the large segment (the drive end) in m (default 0.01: D = 20 mm)")
+    parser.add_argument("--r-small", type=length_option(), default=0.005, metavar="M",
+                        help="radius of the small segment (the tip) in m, below --r-large (default 0.005: D = 10 mm)")
+    parser.add_argument("--h", type=length_option(), default=1e-3, metavar="M", help="element size in m (default 1 mm)")
+    parser.add_argument("-o", "--output", type=output_option, default=DEFAULT_OUTPUT,
                         help=f"output .msh file (default {DEFAULT_OUTPUT.name} next to this script)")
-    args = parser.parse_args(argv)
-    info = build(h=args.h, output=args.output)
-    print(f"wrote {info['path']}: the stepped horn's meridian section, {info['cells']} quadrilaterals (h = {args.h:g} m)")
+    args, info = run_script(parser, lambda a: build(a.length, a.split, a.r_large, a.r_small, a.h, a.output), argv)
+    print(f"wrote {info['path']}: the stepped horn's meridian section, L = {args.length:g} m, step at "
+          f"{args.split * args.length:g} m, radii {args.r_large:g} and {args.r_small:g} m, {info['cells']} "
+          f"quadrilaterals (h = {args.h:g} m)")
 
 
 if __name__ == "__main__":

@@ -44,13 +44,13 @@ file's: change them in both places.
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import add_named_groups, write_msh
+from fem_impact.fem.gmsh_utils import (ScriptParser, add_named_groups, length_option, output_option, run_script,
+                                       write_msh)
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = HERE / "vibrodrive.msh"
@@ -201,29 +201,40 @@ def build(length: float = 0.04, piezo_length: float = 0.01, width: float = 0.01,
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--length", type=float, default=0.04, help="rod length L in m (default 0.04)")
-    parser.add_argument("--piezo-length", type=float, default=0.01, help="stack length Lp in m (default 0.01)")
-    parser.add_argument("--width", type=float, default=0.01, help="width w of rod and stack in m (default 0.01)")
-    parser.add_argument("--alpha", type=float, default=30.0, help="inclination of the faces to the guide, degrees "
+    parser = ScriptParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--length", type=length_option(),
+                        default=0.04, help="rod length L in m (default 0.04)")
+    parser.add_argument("--piezo-length", type=length_option(),
+                        default=0.01, help="stack length Lp in m (default 0.01)")
+    parser.add_argument("--width", type=length_option(),
+                        default=0.01, help="width w of rod and stack in m (default 0.01)")
+    parser.add_argument("--alpha", type=length_option(),
+                        default=30.0, help="inclination of the faces to the guide, degrees "
                         "(default 30)")
-    parser.add_argument("--gap", type=float, default=2e-6, help="initial gap between tip and face along the "
+    parser.add_argument("--gap", type=length_option(),
+                        default=2e-6, help="initial gap between tip and face along the "
                         "normal, m (default 2e-6)")
-    parser.add_argument("--slider-length", type=float, default=0.03, help="m (default 0.03)")
-    parser.add_argument("--slider-height", type=float, default=0.004, help="slider height at its left end, m "
+    parser.add_argument("--slider-length", type=length_option(),
+                        default=0.03, help="m (default 0.03)")
+    parser.add_argument("--slider-height", type=length_option(),
+                        default=0.004, help="slider height at its left end, m "
                         "(default 0.004)")
-    parser.add_argument("--elements-per-wavelength", "-n", type=float, default=10.0,
+    parser.add_argument("--elements-per-wavelength", "-n", type=length_option(),
+                        default=10.0,
                         help="elements per shear wavelength at f_max (default 10)")
-    parser.add_argument("--f-max", type=float, default=None,
+    parser.add_argument("--f-max", type=length_option(),
+                        default=None,
                         help=f"highest frequency the scene needs, Hz (default {DEFAULT_MODE} f1)")
-    parser.add_argument("--h", type=float, default=None, help="steel element size in m (overrides -n and --f-max)")
-    parser.add_argument("--refine", type=float, default=4.0, help="element size ratio away from / at the contact "
+    parser.add_argument("--h", type=length_option(),
+                        default=None, help="steel element size in m (overrides -n and --f-max)")
+    parser.add_argument("--refine", type=length_option(),
+                        default=4.0, help="element size ratio away from / at the contact "
                         "(default 4)")
-    parser.add_argument("-o", "--output", type=Path, default=DEFAULT_OUTPUT,
+    parser.add_argument("-o", "--output", type=output_option, default=DEFAULT_OUTPUT,
                         help=f"output .msh file (default {DEFAULT_OUTPUT.name} next to this script)")
-    args = parser.parse_args(argv)
-    info = build(args.length, args.piezo_length, args.width, args.alpha, args.gap, args.slider_length,
-                 args.slider_height, args.elements_per_wavelength, args.f_max, args.h, args.refine, args.output)
+    args, info = run_script(parser, lambda a: build(a.length, a.piezo_length, a.width, a.alpha, a.gap, a.slider_length,
+                                                    a.slider_height, a.elements_per_wavelength, a.f_max, a.h,
+                                                    a.refine, a.output), argv)
     print(f"wrote {info['path']}: rod {args.length:g} m + stack {args.piezo_length:g} m, width {args.width:g} m, "
           f"faces at {args.alpha:g} deg, gap {args.gap:g} m; h = {info['h']:.3g} m (stack {info['h_piezo']:.3g} m, "
           f"contact {info['h_contact']:.3g} m, {info['face_nodes']} nodes per face), {info['nodes']} nodes; "

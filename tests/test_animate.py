@@ -94,6 +94,37 @@ def test_a_1d_run_renders(rod, tmp_path):
     assert np.abs(f[0][20:80] - f[-1][20:80]).sum() > 0
 
 
+@pytest.mark.parametrize("dim", [1, 2])
+def test_a_run_written_as_xdmf_animates_as_its_vtk_twin(strip, rod, tmp_path, dim):
+    """``output.format: xdmf`` (results.xdmf + results.h5): animate reads it, where it asked for output.vtk,
+    and gets the frames of the same run written as VTK; a truncated results.h5 is one line, status 2."""
+    from fem_impact.app.animate import load_series
+
+    twin, cells = (strip, 20) if dim == 2 else (rod, 40)
+    out = tmp_path / "xdmf"
+    run_case_file(CASES / "impacting_bar.yaml", out, f"mesh.dim={dim}", f"mesh.cells={cells}", *SHORT,
+                  "output.format=xdmf")
+    assert not (out / "results.pvd").exists()
+    a, b = load_series(out, "v"), load_series(twin, "v")
+    assert np.array_equal(a.times, b.times) and a.dim == b.dim == dim
+    assert (a.grid.n_points, a.grid.n_cells) == (b.grid.n_points, b.grid.n_cells)
+    order = lambda g: np.lexsort(np.round(np.asarray(g.points), 9).T)   # noqa: E731 (VTU's points carry round-off)
+    ka, kb = order(a.grid), order(b.grid)
+    assert np.allclose(np.asarray(a.grid.points)[ka], np.asarray(b.grid.points)[kb], atol=1e-14)
+    scale = np.abs(b.u).max()
+    assert np.allclose(a.u[:, ka], b.u[:, kb], rtol=0, atol=1e-6 * scale)   # (VTU: ASCII, XDMF: binary)
+    assert np.allclose(a.scalar[:, ka], b.scalar[:, kb], rtol=0, atol=1e-6 * np.abs(b.scalar).max())
+    gif = tmp_path / "x.gif"
+    proc = run_cli("animate", str(out), "-o", str(gif), "--size", "320x192")
+    assert proc.returncode == 0 and f"wrote {gif} (11 frames" in proc.stdout, proc.stderr
+    h5 = out / "results.h5"
+    h5.write_bytes(h5.read_bytes()[: h5.stat().st_size // 2])
+    proc = run_cli("animate", str(out), "-o", str(tmp_path / "y.gif"))
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and "results.xdmf" in lines[0] and "cannot read" in lines[0]
+    assert not (tmp_path / "y.gif").exists()
+
+
 @pytest.mark.mpi
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
 def test_the_pieces_of_a_two_rank_run_join_into_the_serial_mesh(strip, tmp_path):

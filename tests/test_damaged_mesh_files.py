@@ -214,3 +214,57 @@ def test_meshes_fem_impact_cannot_take(tmp_path, kind, said):
         fem_impact.run(fem_impact.load_case(tmp_path / "case.yaml"))
     assert error.value.key == "mesh.file"
     assert f"cannot read Gmsh file {tmp_path / 'bars.msh'}: {said}" in str(error.value)
+
+
+def _renamed(text: str, renames: dict[str, str]) -> str:
+    """``text`` with the $PhysicalNames entries ``"old"`` given the names ``"new"`` (the rest unchanged)."""
+    head, _, rest = text.partition("$PhysicalNames")
+    names, _, tail = rest.partition("$EndPhysicalNames")
+    for old, new in renames.items():
+        names = names.replace(f'"{old}"', f'"{new}"')
+    return f"{head}$PhysicalNames{names}$EndPhysicalNames{tail}"
+
+
+@pytest.mark.parametrize("renames, name, kind", [
+    ({"bar_b": "bar_a"}, "bar_a", "bodies"),
+    ({"right": "left"}, "left", "node groups"),
+    ({"corner": "left"}, "left", "node groups"),
+])
+def test_two_physical_groups_of_one_name_are_refused_naming_the_file_and_the_name(tmp_path, renames, name, kind):
+    """Two bodies, or two node groups (of one dimension or two), named alike in the file: one of them was
+    taken silently (a body's cells then had no material: no mass, no stiffness). Refused, naming the file and
+    the name; a body and a node group of one name are told apart (bodies and node groups are looked up apart)."""
+    import fem_impact
+
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        a, b = gmsh.model.occ.addRectangle(0, 0, 0, 1, 0.5), gmsh.model.occ.addRectangle(1, 0, 0, 1, 0.5)
+        gmsh.model.occ.fragment([(2, a)], [(2, b)])
+        gmsh.model.occ.synchronize()
+        for dim, tags, group in ((2, [a], "bar_a"), (2, [b], "bar_b"), (0, [1], "corner")):
+            gmsh.model.setPhysicalName(dim, gmsh.model.addPhysicalGroup(dim, tags), group)
+        for group, x in (("left", 0.0), ("right", 2.0)):
+            ends = gmsh.model.getEntitiesInBoundingBox(x - 1e-6, -1e-6, -1e-6, x + 1e-6, 0.5 + 1e-6, 1e-6, 1)
+            gmsh.model.setPhysicalName(1, gmsh.model.addPhysicalGroup(1, [t for _, t in ends]), group)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.25)
+        gmsh.model.mesh.generate(2)
+        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
+        gmsh.write(str(tmp_path / "good.msh"))
+    finally:
+        gmsh.finalize()
+    good = (tmp_path / "good.msh").read_text()
+    (tmp_path / "bars.msh").write_text(_renamed(good, renames))
+    case = ("mesh: {file: MESH}\nmaterial: {E: 1.0, rho: 1.0, area: 1.0}\nsupports: [{nodes: left, fix: all}]\n"
+            "solver: {dt: 0.1, t_end: 0.2}\noutput: {vtk: false}\n")
+    (tmp_path / "case.yaml").write_text("name: twins\n" + case.replace("MESH", "bars.msh"))
+    with pytest.raises(fem_impact.CaseError) as error:
+        fem_impact.run(fem_impact.load_case(tmp_path / "case.yaml"))
+    assert error.value.key == "mesh.file"
+    message = str(error.value)
+    assert f"cannot read Gmsh file {tmp_path / 'bars.msh'}: two physical groups are named '{name}'" in message
+    assert f"finds {kind} by name" in message
+    # a node group named as a body is no clash
+    (tmp_path / "shared.msh").write_text(_renamed(good, {"corner": "bar_a"}))
+    (tmp_path / "shared.yaml").write_text("name: shared\n" + case.replace("MESH", "shared.msh"))
+    fem_impact.run(fem_impact.load_case(tmp_path / "shared.yaml"))

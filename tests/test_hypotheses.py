@@ -143,6 +143,25 @@ def test_a_hypothesis_is_checked_where_it_is_written(tmp_path):
     assert case.mesh.axis == "y"   # the default axis, filled in
 
 
+def test_an_area_the_axisymmetric_model_refuses_is_taken_out_by_the_null_its_message_advises(tmp_path):
+    """``--set material.area=null`` is how the command line takes a key out (null: not given, as everywhere
+    in a case file); the refusal says so, and the null is then taken."""
+    from fem_impact.config.case import load_case
+
+    path = tmp_path / "axi.yaml"
+    path.write_text("name: axi\nmesh: {shape: bar, dim: 2, height: 0.1, cells: 4, hypothesis: axisymmetric}\n"
+                    "material: {E: 1.0, rho: 1.0, area: 2.0}\nsolver: {dt: 0.01, t_end: 0.1}\n")
+    with pytest.raises(CaseError, match=r"material.area: .* remove area \(or give it null: --set material.area=null\)"):
+        load_case(path)
+    assert load_case(path, ["material.area=null"]).mesh.hypothesis == "axisymmetric"
+    materials = path.read_text().replace("material: {E: 1.0, rho: 1.0, area: 2.0}",
+                                         "materials: {bar: {E: 1.0, rho: 1.0, area: 2.0}}")
+    path.write_text(materials)
+    with pytest.raises(CaseError, match=r"--set materials.bar.area=null"):
+        load_case(path)
+    load_case(path, ["materials.bar.area=null"])
+
+
 def test_about_y_the_bar_is_a_disk_of_radius_its_length():
     """Axis y: the bar (x from 0 to L, y from 0 to H) is a disk of radius L and thickness H, mass
     rho pi L^2 H; moving along y it carries that momentum; its nodes on the axis (x = 0) keep no

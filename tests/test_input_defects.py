@@ -50,6 +50,18 @@ def test_billion_laughs_inside_velocity(tmp_path):
     assert "aliases" in error_of(CASE, ["initial.velocity=" + laughs])
 
 
+def test_a_recursive_alias_is_refused_in_one_line(tmp_path):
+    """An alias inside its own anchor (a value that contains itself): refused naming the key, from a file
+    and from --set, where the --set value escaped as a traceback."""
+    text = CASE.read_text().replace("initial:\n  velocity: [-1.0]", "initial:\n  velocity: &a [*a]")
+    assert "initial.velocity[0]: an alias (*name) inside its own anchor" in error_of(write(tmp_path, text))
+    for option in ("material.E=&a [*a]", "material=&m {E: *m}"):
+        message = error_of(CASE, [option])
+        assert message.startswith("--set: material") and "inside its own anchor" in message
+    # a value nested past the limit under a deep key of --set (the path counts too)
+    assert "nested more than 64 levels" in error_of(CASE, ["parameters.a.b.c.d.e.f.g=" + "[" * 60 + "1" + "]" * 60])
+
+
 def test_duplicate_keys_inside_a_set_value():
     assert "duplicate key" in error_of(CASE, ["contacts.0={name: w, name: x}"])
 

@@ -340,3 +340,31 @@ def test_the_modes_of_a_2d_cantilever_are_described():
     words = describe(compute_modes(model, 6), model)
     assert words[0].startswith("transverse (y): bar 100 %; y ")
     assert any(w.startswith("longitudinal: bar 100 %; x ") for w in words)
+
+
+def test_an_axisymmetric_model_has_an_effective_mass_along_its_axis_only(tmp_path):
+    """A uniform radial displacement is a ring's expansion, not a translation: the table and modes.csv give
+    no radial effective mass (they printed one, meaningless), nor a radial participation factor; along
+    the axis, the free disk's rigid translation carries all of its mass."""
+    from fem_impact.app.modes import format_table, run_modes
+
+    case = tmp_path / "disk.yaml"
+    case.write_text("name: disk\nmesh: {shape: bar, dim: 2, length: 1.0, height: 0.2, cells: 10, "
+                    "hypothesis: axisymmetric}\nmaterial: {E: 1.0, rho: 1.0, nu: 0.3}\n"
+                    "solver: {dt: 0.01, t_end: 0.1}\n")
+    summary = run_modes(case, tmp_path / "m", n=4)
+    assert summary["columns"][3:5] == ["mass_y_percent", "residual"]   # (axis y: the radius is x)
+    rows = read_csv(tmp_path / "m" / "modes.csv")
+    assert "mass_x_percent" not in rows[0]
+    assert rows[0]["type"] == "rigid" and float(rows[0]["mass_y_percent"]) == pytest.approx(100.0, rel=1e-9)
+    table = format_table(summary)
+    assert "mass y [%]" in table and "mass x [%]" not in table and "along the axis y only" in table
+    radial = run_modes(case, tmp_path / "r", n=4, at="right", direction="x")
+    assert not any(c.startswith("participation") for c in radial["columns"])
+    assert "no Gamma: x is the radius" in format_table(radial)
+    axial = run_modes(case, tmp_path / "a", n=4, at="top", direction="y")
+    assert axial["columns"][-1] == "participation_y"
+    # plane models keep every direction
+    plane = tmp_path / "plate.yaml"
+    plane.write_text(case.read_text().replace(", hypothesis: axisymmetric", "").replace("name: disk", "name: plate"))
+    assert run_modes(plane, tmp_path / "p", n=3)["columns"][3:5] == ["mass_x_percent", "mass_y_percent"]

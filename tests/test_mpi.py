@@ -64,7 +64,9 @@ def test_serial_and_two_ranks_agree(tmp_path, dim, cells, method):
     case = str(CASES / "impacting_bar.yaml")
     run_serial_and_two_ranks(case, tmp_path, overrides)
     a, b = read_history(tmp_path / "serial"), read_history(tmp_path / "mpi")
-    assert_same_history(a, b, 1e-10)
+    assert a.dtype.names == b.dtype.names and a.shape == b.shape
+    for name in ("left_ux", "right_ux", "left_vx", "right_vx", "kinetic", "strain"):   # (the momentum is round-off)
+        assert np.abs(a[name] - b[name]).max() <= 1e-10 * np.abs(a[name]).max(), name
     # The contact really happened in both runs (the comparison is not of two empty histories).
     assert a["wall_impulse"].sum() > 0.9 * (1.0 / 20 if dim == 2 else 1.0) * 2
     if method == "friction":   # and the friction acted, on both
@@ -83,7 +85,9 @@ def test_the_explicit_plate_with_441_face_rows_agrees_on_two_ranks(tmp_path):
                  "--set", "solver.mass=lumped", "--set", "output.every=1"]
     run_serial_and_two_ranks(str(CASES / "plate_drop.yaml"), tmp_path, overrides)
     a, b = read_history(tmp_path / "serial"), read_history(tmp_path / "mpi")
-    assert_same_history(a, b, 1e-10)
+    assert a.dtype.names == b.dtype.names and a.shape == b.shape
+    for name in ("left_ux", "right_ux", "left_vx", "right_vx", "kinetic", "strain"):   # (the momentum is round-off)
+        assert np.abs(a[name] - b[name]).max() <= 1e-10 * np.abs(a[name]).max(), name
     assert a["floor_impulse"].sum() > 0.9 * 2 * 25.0      # the face hit the floor (2 rho c A v0 = 50)
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
@@ -140,6 +144,20 @@ def test_a_moving_support_agrees_on_two_ranks(tmp_path, method):
     assert np.allclose(fa.values["u"][:, ia][:, clamp, 1], expected[:, None], rtol=0, atol=1e-12 * 2e-5)
     for name in ("u", "v"):   # (as the history: 1e-8; the impacts magnify round-off, measured up to 1.05e-10)
         assert np.abs(fa.values[name][:, ia] - fb.values[name][:, ib]).max() <= 1e-8 * np.abs(fa.values[name]).max()
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
+@pytest.mark.parametrize("method", ["moreau_jean", "newmark"])
+def test_a_run_without_contacts_agrees_on_two_ranks(tmp_path, method):
+    """No contact row: the implicit schemes' Delassus solve has no right-hand side, which MUMPS refused on
+    2 ranks (a traceback) where the serial run went through."""
+    overrides = ["--set", f"solver.method={method}", "--set", "solver.t_end=0.2", "--set", "output.vtk=false",
+                 "--set", "output.every=5"]
+    run_serial_and_two_ranks(str(CASES / "free_vibration.yaml"), tmp_path, overrides)
+    a, b = read_history(tmp_path / "serial"), read_history(tmp_path / "mpi")
+    assert a.dtype.names == b.dtype.names and a.shape == b.shape
+    for name in ("left_ux", "right_ux", "left_vx", "right_vx", "kinetic", "strain"):   # (the momentum is round-off)
+        assert np.abs(a[name] - b[name]).max() <= 1e-10 * np.abs(a[name]).max(), name
 
 
 def mpirun(*args, repeatable: bool = False) -> subprocess.CompletedProcess:

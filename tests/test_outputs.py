@@ -140,3 +140,39 @@ def test_fields_of_a_run_without_the_binary_series_say_why(tmp_path):
         fi.Result.load(tmp_path / "vtu").fields()
     with pytest.raises(fi.SimulationError, match="not a run's output folder"):
         fi.Result.load(tmp_path / "nothing")
+
+
+def test_fields_of_a_damaged_binary_series_are_one_error_naming_the_file(tmp_path):
+    """A truncated results.h5, a cut results.xdmf, a frame whose data set is gone: Result.fields() raises a
+    SimulationError naming the file (they escaped as h5py's OSError, ElementTree's ParseError, a KeyError)."""
+    import shutil
+
+    import fem_impact as fi
+
+    case = fi.load_case(CASES / "impacting_bar.yaml").with_changes({
+        "solver.t_end": 0.1, "mesh.cells": 20, "solver.dt": 0.02, "output.format": "xdmf", "output.every": 1})
+    fi.run(case, outdir=tmp_path / "run")
+    assert len(fi.Result.load(tmp_path / "run").fields().t) == 6
+
+    def damaged(name, damage):
+        folder = tmp_path / name
+        shutil.copytree(tmp_path / "run", folder)
+        damage(folder)
+        with pytest.raises(fi.SimulationError) as info:
+            fi.Result.load(folder).fields()
+        message = str(info.value)
+        assert str(folder / "results.xdmf") in message and "cannot read" in message and "\n" not in message
+        return message
+
+    def truncate(path):
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+    assert "OSError" in damaged("h5", lambda f: truncate(f / "results.h5"))
+    assert "ParseError" in damaged("xml", lambda f: truncate(f / "results.xdmf"))
+
+    def renamed(folder):   # the last frame's data set named wrongly in the index
+        text = (folder / "results.xdmf").read_text()
+        last = text.rindex("results.h5:/Function/u/")
+        (folder / "results.xdmf").write_text(text[:last] + text[last:].replace("/Function/u/", "/Function/w/", 1))
+
+    assert "frame 5" in damaged("frame", renamed)

@@ -28,14 +28,17 @@ METHODS = {
 }
 
 
-def pushed_rod(method: str, **solver):
-    data = {"name": "pushed", "parameters": {"v": V},
+def pushed_rod(method: str, end: str = "left", **solver):
+    """The rod pushed at its ``end``, the wall at the other; the mirror (``end="right"``) pushed in -x."""
+    sign, wall = (1.0, "right") if end == "left" else (-1.0, "left")
+    data = {"name": "pushed", "parameters": {"v": sign * V},
             "mesh": {"shape": "bar", "dim": 1, "length": 1.0, "cells": CELLS},
             "material": {"E": 1.0, "rho": 1.0, "nu": 0.0, "area": 1.0},
-            "supports": [{"nodes": "left", "fix": ["x"], "displacement": ["v*t"]}],
-            "contacts": [{"name": "wall", "type": "obstacle", "nodes": "right", "normal": [1.0], "gap": 0.0}],
+            "supports": [{"nodes": end, "fix": ["x"], "displacement": ["v*t"]}],
+            "contacts": [{"name": "wall", "type": "obstacle", "nodes": wall, "normal": [sign], "gap": 0.0}],
             "solver": {"method": method, "dt": 0.5 / CELLS, "t_end": 5.0, **METHODS[method], **solver},
-            "output": {"vtk": False, "probes": {"base": [0.0], "tip": [1.0]}}}
+            "output": {"vtk": False, "probes": {"base": [0.0 if end == "left" else 1.0],
+                                                "tip": [1.0 if end == "left" else 0.0]}}}
     return fi.run(fi.Case.from_dict(data)).history
 
 
@@ -50,16 +53,19 @@ def support_work(h, column, velocity):
     return np.concatenate([[0.0], np.cumsum(0.5 * np.diff(h["t"]) * (power[1:] + power[:-1]))])
 
 
+@pytest.mark.parametrize("end", ["left", "right"])
 @pytest.mark.parametrize("method", list(METHODS))
-def test_a_rod_pushed_against_a_wall_gives_the_staircase_force_in_every_method(method):
-    h = pushed_rod(method)
-    for (start, end), level in zip(((0.0, 1.0), (1.0, 3.0), (3.0, 5.0)), (0.0, 2 * V, 4 * V)):
-        assert plateau(h, "wall.force", start, end) == pytest.approx(level, rel=0.01, abs=1e-6 * V)
-    for (start, end), level in zip(((0.0, 2.0), (2.0, 4.0), (4.0, 5.0)), (V, 3 * V, 5 * V)):
-        assert plateau(h, "left.reaction", start, end) == pytest.approx(level, rel=0.01)
+def test_a_rod_pushed_against_a_wall_gives_the_staircase_force_in_every_method(method, end):
+    """Pushed at either end: whether a contact is taken must not depend on how the dofs are numbered."""
+    h = pushed_rod(method, end)
+    sign = 1.0 if end == "left" else -1.0
+    for (start, stop), level in zip(((0.0, 1.0), (1.0, 3.0), (3.0, 5.0)), (0.0, 2 * V, 4 * V)):
+        assert plateau(h, "wall.force", start, stop) == pytest.approx(level, rel=0.01, abs=1e-6 * V)
+    for (start, stop), level in zip(((0.0, 2.0), (2.0, 4.0), (4.0, 5.0)), (V, 3 * V, 5 * V)):
+        assert sign * plateau(h, f"{end}.reaction", start, stop) == pytest.approx(level, rel=0.01)
     # the pushed end follows its prescribed motion; the wall holds the other
-    assert h["base.ux"][-1] == pytest.approx(V * 5.0, rel=1e-12)
-    assert h["base.vx"][-1] == pytest.approx(V, rel=1e-12)
+    assert h["base.ux"][-1] == pytest.approx(sign * V * 5.0, rel=1e-12)
+    assert h["base.vx"][-1] == pytest.approx(sign * V, rel=1e-12)
     assert h["wall.gap"].min() >= -1e-12 * V
     assert abs(h["tip.ux"]).max() <= 5 * V * 0.5 / CELLS   # (the mesh's ripple ahead of the front: 3 v dt)
     # The energy budget closes with the support's work as external work, and that work is the
@@ -68,7 +74,7 @@ def test_a_rod_pushed_against_a_wall_gives_the_staircase_force_in_every_method(m
     energy = h["kinetic"] + h["strain"] + h.get("scheme_energy", 0.0)
     scale = energy.max()
     assert np.abs(h["energy_error"]).max() <= 1e-9 * scale
-    assert np.abs(h["external_work"] - support_work(h, "left.reaction", V)).max() <= 2e-3 * scale
+    assert np.abs(h["external_work"] - support_work(h, f"{end}.reaction", sign * V)).max() <= 2e-3 * scale
     assert (energy - energy[0] - h["external_work"]).max() <= 1e-8 * scale
     assert min(h["impact_loss"].min(), h["contact_loss"].min()) >= -1e-8 * scale
 
@@ -141,3 +147,72 @@ def test_prescribed_motion_is_checked():
     assert h["corner.uy"][-1] == pytest.approx(0.5 * h["t"][-1], rel=1e-12)
     assert h["corner.ux"][-1] == 0.0 and h["corner.vy"][-1] == pytest.approx(0.5, rel=1e-12)
     assert "left.reaction_x" in h and "left.reaction_y" in h
+
+
+def _plate(supports, **solver):
+    return {"name": "m", "mesh": {"shape": "bar", "dim": 2, "length": 1.0, "height": 0.1, "cells": 10},
+            "material": {"E": 1.0, "rho": 1.0}, "supports": supports,
+            "solver": {"dt": 0.01, "t_end": 0.02, **solver}, "output": {"vtk": False}}
+
+
+def test_the_reduced_model_without_static_correction_refuses_a_moving_support():
+    """Its fixed-base modes alone would leave the support's quasi-static motion out (the structure
+    staying behind its support): refused before anything is built, naming the key."""
+    moving = [{"nodes": "left", "fix": ["x", "y"], "displacement": ["0", "1e-4*sin(30*t)"]}]
+    for scheme in ("moreau_jean", "newmark"):
+        with pytest.raises(CaseError, match=r"solver.static_correction: supports\[0\] moves"):
+            fi.Case.from_dict(_plate(moving, method="modal", scheme=scheme, modes=3, static_correction=False))
+    # a motion that is the constant 0 holds still: the truncated model takes it
+    still = [{"nodes": "left", "fix": ["x", "y"], "displacement": ["0", "0"]}]
+    fi.Case.from_dict(_plate(still, method="modal", modes=3, static_correction=False))
+
+
+def test_a_node_held_still_by_one_support_and_moved_by_another_is_refused():
+    """The corner of 'left' (driven in x) and 'bottom' (held still) cannot do both: refused, where
+    the motion used to win silently; a motion of the constant 0 agrees with the still support."""
+    driven = {"nodes": "left", "fix": ["x"], "displacement": ["0.5*t"]}
+    case = fi.Case.from_dict(_plate([{"nodes": "bottom", "fix": ["x", "y"]}, driven]))
+    with pytest.raises(CaseError, match=r"supports\[1\].displacement: moves the x component of 1 node\(s\) that "
+                                        r"supports\[0\] \(group 'bottom'"):
+        fi.run(case)
+    agreeing = {"nodes": "left", "fix": ["x", "y"], "displacement": ["0", "0.5*t"]}
+    fi.run(fi.Case.from_dict(_plate([{"nodes": "bottom", "fix": ["x"]}, agreeing])))
+    # the symmetry axis of an axisymmetric model holds its radial displacement still
+    axi = _plate([{"nodes": "left", "fix": ["x"], "displacement": ["0.01*t"]}])
+    axi["mesh"]["hypothesis"] = "axisymmetric"
+    with pytest.raises(CaseError, match=r"supports\[0\].displacement: moves the x component of .* the symmetry axis"):
+        fi.run(fi.Case.from_dict(axi))
+
+
+def test_the_reduction_study_of_a_moving_support_leaves_out_the_plain_truncation_with_a_warning(tmp_path, caplog):
+    """The study runs each n1 with and without static correction; without is refused for a moving support,
+    so the study goes on with the rest (it stopped with status 2 after the full run) and says why."""
+    from fem_impact.app.studies import reduction_table
+
+    data = {"name": "pushed", "mesh": {"shape": "bar", "dim": 1, "length": 1.0, "cells": 20},
+            "material": {"E": 1.0, "rho": 1.0, "nu": 0.0, "area": 1.0},
+            "supports": [{"nodes": "left", "fix": ["x"], "displacement": ["0.01*t"]}],
+            "contacts": [{"name": "wall", "type": "obstacle", "nodes": "right", "normal": [1.0], "gap": 0.0}],
+            "solver": {"dt": 0.025, "t_end": 0.5}, "output": {"vtk": False, "probes": {"middle": [0.5]}}}
+    with caplog.at_level("WARNING"):
+        rows = reduction_table(fi.Case.from_dict(data), modes=(4,), outdir=tmp_path / "reduction")
+    assert [(r["model"], r["modes"], r["static_correction"]) for r in rows] == [("full", None, None),
+                                                                                ("modal", 4, True)]
+    assert "modal-4-plain: not run: supports[0] moves" in caplog.text
+
+
+def test_a_contact_on_a_component_its_support_holds_at_the_constant_0_is_taken():
+    """The table's base moves in y and holds x at "0": a stop on the right side along x (its corner on the
+    base, mean coupling) is taken, as with a support without motion, and is open at rest; along y it is
+    refused (its gap would move with the base)."""
+    data = {"name": "table", "mesh": {"shape": "bar", "dim": 2, "length": 1.0, "height": 0.2, "cells": 10},
+            "material": {"E": 1.0, "rho": 1.0, "nu": 0.3, "area": 1.0}, "damping": {"alpha": 4.0},
+            "supports": [{"nodes": "bottom", "fix": ["x", "y"], "displacement": ["0", "1e-3"]}],
+            "contacts": [{"name": "stop", "type": "obstacle", "nodes": "right", "normal": [1.0, 0.0], "gap": 1e-4,
+                          "coupling": "mean"}],
+            "solver": {"dt": 0.02, "t_end": 12.0}, "output": {"vtk": False, "probes": {"top": [0.5, 0.2]}}}
+    h = fi.run(fi.Case.from_dict(data)).history
+    assert h["top.uy"][-1] == pytest.approx(1e-3, rel=1e-6) and h["stop.gap"][-1] == pytest.approx(1e-4, rel=1e-6)
+    data["contacts"][0]["normal"] = [0.0, 1.0]
+    with pytest.raises(CaseError, match=r"contacts\[0\].nodes: acts on nodes whose motion a support prescribes"):
+        fi.run(fi.Case.from_dict(data))

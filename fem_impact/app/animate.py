@@ -2,7 +2,8 @@
 
 The frames come from ``results.pvd`` and its pieces (read with VTK through pyvista; the
 .pvd and .pvtu indexes are parsed here, so that a piece listed more than once, as dolfinx
-0.5 writes them, is read once, and ghost cells of a parallel run are dropped). Each frame
+0.5 writes them, is read once, and ghost cells of a parallel run are dropped), or from
+``results.xdmf`` and its ``results.h5`` (``output.format: xdmf``, read with meshio). Each frame
 shows the deformed shape ``x + scale * u`` coloured by ``|u|``, ``|v|``, ``|a|`` or the
 contact-force magnitude, the contact forces as arrows (tip at the node, length in
 proportion to the force), the undeformed outline in grey and the time. Camera, colour
@@ -200,22 +201,44 @@ def auto_scale(max_displacement: float, size: float) -> float:
     return float(f"{AUTO_FRACTION * size / max_displacement:.3g}")
 
 
+def _series_file(outdir: Path) -> Path:
+    """The run's time series: results.pvd (VTK, the default) or results.xdmf (``output.format: xdmf``)."""
+    for name in ("results.pvd", "results.xdmf"):
+        if (outdir / name).is_file():
+            return outdir / name
+    raise AnimateError(f"{outdir}: no results.pvd or results.xdmf (is it a run's output folder, with output.vtk "
+                       "on?)")
+
+
+def frame_count(outdir: Path) -> int:
+    """How many frames the run stored."""
+    path = _series_file(outdir)
+    if path.suffix == ".pvd":
+        return len(read_pvd(path))
+    from .xdmf import XdmfError, open_xdmf
+
+    try:
+        with open_xdmf(path) as series:
+            return len(series.times)
+    except XdmfError as err:
+        raise AnimateError(str(err)) from None
+
+
 def load_series(outdir: Path, field: str, progress=None) -> Series:
-    pvd = outdir / "results.pvd"
-    frames = read_pvd(pvd)
+    path = _series_file(outdir)
     array = FIELDS[field][0]
     times, us, scalars, forces = [], [], [], []
     grid = None
-    for k, (t, path) in enumerate(frames):
-        g = read_frame(path)
+
+    def add(t, where, g):
+        nonlocal grid
         for name in ("u", array, "contact_force"):
             if name not in g.point_data:
-                raise AnimateError(f"{path}: no point array '{name}'")
+                raise AnimateError(f"{where}: no point array '{name}'")
         if grid is None:
             grid = _linear_grid(g)
-            n = grid.n_points
-        elif g.n_points != n:
-            raise AnimateError(f"{path}: {g.n_points} points, the first frame has {n}")
+        elif g.n_points != grid.n_points:
+            raise AnimateError(f"{where}: {g.n_points} points, the first frame has {grid.n_points}")
         u = _as3(g.point_data["u"])
         f = _as3(g.point_data["contact_force"])
         times.append(t)
@@ -224,9 +247,42 @@ def load_series(outdir: Path, field: str, progress=None) -> Series:
         fmag = np.linalg.norm(f, axis=1)
         idx = np.flatnonzero(fmag > 0)
         forces.append((idx, f[idx]))
-        if progress:
-            progress(k + 1, len(frames))
+
+    if path.suffix == ".pvd":
+        frames = read_pvd(path)
+        for k, (t, piece) in enumerate(frames):
+            add(t, piece, read_frame(piece))
+            if progress:
+                progress(k + 1, len(frames))
+    else:
+        _xdmf_frames(path, add, progress)
     return Series(np.array(times), grid, topological_dim(grid), np.stack(us), np.stack(scalars), forces)
+
+
+def _xdmf_frames(path: Path, add, progress) -> None:
+    """Each frame of results.xdmf to ``add(t, where, grid)``, as a pyvista grid of the run's mesh."""
+    import meshio
+    import pyvista as pv
+
+    from .xdmf import XdmfError, open_xdmf
+
+    try:
+        with open_xdmf(path) as series:
+            points = np.zeros((len(series.points), 3))
+            points[:, : series.points.shape[1]] = series.points[:, :3]
+            mesh = pv.from_meshio(meshio.Mesh(points, series.cells))
+            for k, (t, data) in enumerate(series.frames()):
+                g = mesh.copy(deep=False)
+                for name, values in data.items():
+                    if len(values) != g.n_points:
+                        raise AnimateError(f"{path} (frame {k}): '{name}' has {len(values)} values for "
+                                           f"{g.n_points} points")
+                    g.point_data[name] = values
+                add(t, f"{path} (frame {k})", g)
+                if progress:
+                    progress(k + 1, len(series.times))
+    except XdmfError as err:
+        raise AnimateError(str(err)) from None
 
 
 def _as3(a) -> np.ndarray:
@@ -541,8 +597,7 @@ def animate(outdir, field: str = "v", scale: float | None = None, output=None, f
         raise AnimateError(f"--fps {fps}: must be > 0")
     if not outdir.is_dir():
         raise AnimateError(f"{outdir}: no such folder")
-    if not (outdir / "results.pvd").is_file():
-        raise AnimateError(f"{outdir}: no results.pvd (is it a run's output folder, with output.vtk on?)")
+    _series_file(outdir)
     picture = frame is not None or when is not None
     out = Path(output) if output else outdir / ("frame.png" if picture else "animation.gif")
     if out.suffix.lower() not in (".gif", ".mp4", ".png"):
@@ -560,7 +615,7 @@ def animate(outdir, field: str = "v", scale: float | None = None, output=None, f
     except OutputFolderError as err:
         raise AnimateError(str(err)) from None
     if frame is not None:
-        n = len(read_pvd(outdir / "results.pvd"))
+        n = frame_count(outdir)
         if not -n <= frame < n:
             raise AnimateError(f"--frame {frame}: the run stored {n} frames (0 to {n - 1}, or -1 to -{n})")
     _import_pyvista()

@@ -64,19 +64,24 @@ def _run_modes(case, out, n, comm, t_start, at=None, direction="x") -> dict:
                                                      f"{', '.join(AXES[:model.bs])})")
         model.node_set(at, ("--at",))   # (an unknown group: a clear error before the eigensolve)
     modes = compute_modes(model, n)
-    fractions = participation(modes, model)
+    translations = translation_axes(case, model.bs)
+    fractions = participation(modes, model)[:, translations]
     described = describe(modes, model)
     point = at_point(modes, model, at, AXES.index(direction)) if at is not None else None
     solve_time = time.perf_counter() - t_start
 
-    columns = (["mode", "frequency_hz", "type"] + [f"mass_{AXES[d]}_percent" for d in range(model.bs)]
+    columns = (["mode", "frequency_hz", "type"] + [f"mass_{AXES[d]}_percent" for d in translations]
                + ["residual", "moves"])
+    point_keys = ("mass", "stiffness", "phi", "participation")
     if point is not None:
-        columns += [f"{at}.{direction}.modal_mass", f"{at}.{direction}.modal_stiffness", f"{at}.{direction}.shape",
-                    f"participation_{direction}"]
+        columns += [f"{at}.{direction}.modal_mass", f"{at}.{direction}.modal_stiffness", f"{at}.{direction}.shape"]
+        if AXES.index(direction) in translations:   # (Gamma is a translation's participation)
+            columns.append(f"participation_{direction}")
+        else:
+            point_keys = point_keys[:3]
     rows = [[i + 1, float(modes.frequency_hz[i]), "rigid" if modes.rigid[i] else "elastic",
              *(100.0 * fractions[i]).tolist(), float(modes.residual[i]), described[i]]
-            + ([float(point[k][i]) for k in ("mass", "stiffness", "phi", "participation")] if point else [])
+            + ([float(point[k][i]) for k in point_keys] if point else [])
             for i in range(n)]
     with out.staged() as stage:
         series = VTKSeries(comm, stage / "modes.pvd", model.V, ["mode"])
@@ -100,16 +105,25 @@ def _run_modes(case, out, n, comm, t_start, at=None, direction="x") -> dict:
         "at": at, "direction": direction if at is not None else None,
         "case": case.name, "dofs": model.dofs, "free_dofs": available, "modes": n, "rigid": modes.n_rigid,
         "dim": model.bs, "columns": columns, "rows": rows, "mass_total_percent": (100.0 * fractions.sum(0)).tolist(),
+        "mass_axes": [AXES[d] for d in translations], "axisymmetric": case.mesh.hypothesis == "axisymmetric",
         "wall_time_s": time.perf_counter() - t_start, "solve_time_s": solve_time, "mpi_ranks": comm.size,
         "outdir": str(outdir.resolve()),
     }
+
+
+def translation_axes(case, dim: int) -> list[int]:
+    """The directions in which the model can translate, those of the effective masses: every axis, but an
+    axisymmetric model's axis alone (a uniform radial displacement is a ring's expansion, no translation)."""
+    if case.mesh.hypothesis == "axisymmetric":
+        return [0 if case.mesh.axis == "x" else 1]
+    return list(range(dim))
 
 
 def format_table(summary: dict) -> str:
     """The table printed by ``fem-impact modes``."""
     from ..fem.modes import AXES
 
-    axes = AXES[: summary["dim"]]
+    axes = summary.get("mass_axes", AXES[: summary["dim"]])
     header = f"{'mode':>5}  {'frequency [Hz]':>15}  {'type':<7}" + "".join(f"  {'mass ' + a + ' [%]':>10}"
                                                                           for a in axes) + f"  {'residual':>9}"
     at = summary.get("at")
@@ -123,15 +137,22 @@ def format_table(summary: dict) -> str:
         mass, (residual, moves) = row[3:3 + len(axes)], row[3 + len(axes):5 + len(axes)]
         line = f"{mode:>5}  {freq:>15.8g}  {kind:<7}" + "".join(f"  {m:>10.3f}" for m in mass) + f"  {residual:>9.2g}"
         if at:
-            modal_mass, stiffness, _, gamma = row[5 + len(axes):]
-            line += f"  {modal_mass:>11.5g}  {stiffness:>11.5g}  {gamma:>10.4g}"
+            modal_mass, stiffness, _, *gamma = row[5 + len(axes):]
+            line += f"  {modal_mass:>11.5g}  {stiffness:>11.5g}  " + (f"{gamma[0]:>10.4g}" if gamma else f"{'-':>10}")
         lines.append(line + f"  {moves}")
     lines.append(f"{'sum':>5}  {'':>15}  {'':<7}" + "".join(f"  {m:>10.3f}" for m in summary["mass_total_percent"]))
     if at:
+        gamma = (f"Gamma = y^T M r, the participation factor along {summary['direction']}."
+                 if summary["direction"] in axes else
+                 f"no Gamma: {summary['direction']} is the radius, along which an axisymmetric model does not "
+                 "translate.")
         lines.append(f"Modal mass and stiffness at {at} along {summary['direction']}: 1 / phi^2 and w^2 / phi^2, phi "
                      f"the mass-normalized mode's mean displacement there (units of the case: mass, force/length); "
-                     f"Gamma = y^T M r, the participation factor along {summary['direction']}.")
-    lines.append(f"Effective mass: share of the free mass that each mode carries in a translation. "
+                     + gamma)
+    radial = [a for a in AXES[: summary["dim"]] if a not in axes]
+    lines.append(f"Effective mass: share of the free mass that each mode carries in a translation"
+                 + (f" (along the axis {axes[0]} only: axisymmetric, a uniform {radial[0]} displacement is a "
+                    "ring's expansion, no translation)" if summary.get("axisymmetric") and radial else "") + ". "
                  f"Wall time {summary['wall_time_s']:.2f} s on {summary['mpi_ranks']} rank(s). "
                  f"Results in {summary['outdir']} (modes.csv, modes.pvd: mass-normalized shapes, "
                  f"frame t = mode number).")

@@ -153,12 +153,10 @@ class Fields:
 
 
 def read_fields(outdir) -> Fields:
-    """Read ``results.xdmf`` of a run's folder with meshio (Debian's python3-meshio), frame by frame."""
-    import meshio
-    import meshio.xdmf.common
+    """Read ``results.xdmf`` of a run's folder with meshio (Debian's python3-meshio), frame by frame; a
+    file that cannot be read (a truncated results.h5) is a SimulationError naming it."""
+    from .xdmf import XdmfError, open_xdmf
 
-    # dolfinx writes a 1D mesh's intervals as XDMF "PolyLine", meshio 1.x knows "Polyline" only
-    meshio.xdmf.common.xdmf_to_meshio_type.setdefault("PolyLine", "line")
     path = Path(outdir) / "results.xdmf"
     if not path.is_file():
         pvd = Path(outdir) / "results.pvd"
@@ -166,14 +164,20 @@ def read_fields(outdir) -> Fields:
                if pvd.is_file() else "it holds no fields (output.vtk: false?)")
         raise SimulationError(f"{outdir}: no results.xdmf: {why}")
     times, values = [], {}
-    with meshio.xdmf.TimeSeriesReader(str(path)) as reader:
-        points, _ = reader.read_points_cells()
-        for k in range(reader.num_steps):
-            t, point_data, _ = reader.read_data(k)
-            times.append(float(t))
-            for name, array in point_data.items():
-                values.setdefault(name, []).append(np.asarray(array))
-    return Fields(np.array(times), np.asarray(points), {name: np.stack(a) for name, a in values.items()})
+    try:
+        with open_xdmf(path) as series:
+            for t, point_data in series.frames():
+                times.append(t)
+                for name, array in point_data.items():
+                    values.setdefault(name, []).append(array)
+            points = series.points
+    except XdmfError as err:
+        raise SimulationError(str(err)) from None
+    try:
+        stacked = {name: np.stack(a) for name, a in values.items()}
+    except ValueError:   # (frames of different sizes: not one run's fields)
+        raise SimulationError(f"{path}: its frames differ in size: a damaged file?") from None
+    return Fields(np.array(times), np.asarray(points), stacked)
 
 
 def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,

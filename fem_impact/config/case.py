@@ -352,11 +352,16 @@ def _parse_yaml(text, file):
             loader.dispose()
 
 
-def _record_lines(node, path, lines, seen, file):
-    """Record the line of every mapping key and sequence item under `path`; reject duplicate keys."""
+def _record_lines(node, path, lines, seen, file, ancestors=frozenset()):
+    """Record the line of every mapping key and sequence item under `path`; reject duplicate keys and
+    an alias inside its own anchor (a value that would contain itself)."""
+    if id(node) in ancestors:
+        raise CaseError(file, _dotted(path) or None, node.start_mark.line + 1 if file != "--set" else None,
+                        "an alias (*name) inside its own anchor (&name): the value would contain itself")
     if id(node) in seen:  # an alias: its lines were recorded where the anchor is
         return
     seen.add(id(node))
+    ancestors = ancestors | {id(node)}
     if len(path) > MAX_DEPTH:
         raise CaseError(file, _dotted(path[:3]) + ".(...)", node.start_mark.line + 1,
                         f"nested more than {MAX_DEPTH} levels deep")
@@ -369,11 +374,11 @@ def _record_lines(node, path, lines, seen, file):
                 raise CaseError(file, _dotted(path + (key,)), line, "duplicate key")
             keys.add(key)
             lines[path + (key,)] = line
-            _record_lines(value_node, path + (key,), lines, seen, file)
+            _record_lines(value_node, path + (key,), lines, seen, file, ancestors)
     elif isinstance(node, yaml.SequenceNode):
         for index, item in enumerate(node.value):
             lines[path + (index,)] = item.start_mark.line + 1
-            _record_lines(item, path + (index,), lines, seen, file)
+            _record_lines(item, path + (index,), lines, seen, file, ancestors)
 
 
 # --- errors -----------------------------------------------------------------------------
@@ -449,7 +454,10 @@ def _set_key(data, key: str, value, origin: str):
             raise CaseError(origin, _dotted(path), None, f"is not a mapping or a list; cannot set {key}")
         path += (segment,)
         if depth == len(segments):
-            target[segment] = _plain(value, path)
+            try:
+                target[segment] = _plain(value, path)
+            except _Invalid as exc:
+                raise CaseError(origin, _dotted(exc.path), None, exc.message) from None
         else:
             if isinstance(target, dict) and target.get(segment) is None:
                 target[segment] = {}
@@ -1152,6 +1160,7 @@ def _validated(data: dict, case_path: Path | None, folder: Path, lines, override
     check_numbers(case)
     _check_section(case)
     _check_friction(case)
+    _check_moving_supports(case)
     _check_set_parameters(case, changed)
     _check_reference(case, changed)
     return case
@@ -1180,17 +1189,20 @@ def _check_reference(case: Case, changed) -> None:
 
 
 def _check_section(case: Case) -> None:
-    """An axisymmetric model's section is the circle, 2 pi r: a given ``area`` would be ignored."""
+    """An axisymmetric model's section is the circle, 2 pi r: a given ``area`` would be ignored (a null
+    one is not given, as everywhere in a case file: ``--set material.area=null`` takes it out)."""
     if case.mesh.hypothesis != "axisymmetric":
         return
     source = case.source if isinstance(case.source, dict) else {}
-    where = [("material", "area")] if isinstance(source.get("material"), dict) and "area" in source["material"] else []
-    for body, values in (source.get("materials") or {}).items():
-        if isinstance(values, dict) and "area" in values:
+    material = source.get("material")
+    where = [("material", "area")] if isinstance(material, dict) and material.get("area") is not None else []
+    materials = source.get("materials")
+    for body, values in (materials.items() if isinstance(materials, dict) else ()):
+        if isinstance(values, dict) and values.get("area") is not None:
             where.append(("materials", body, "area"))
     if where:
         raise case.error(where[0], "an axisymmetric model's section is the whole circle, 2 pi r (forces are totals "
-                                   "over it): remove area")
+                                   f"over it): remove area (or give it null: --set {_dotted(where[0])}=null)")
 
 
 def _check_friction(case: Case) -> None:
@@ -1208,6 +1220,21 @@ def _check_friction(case: Case) -> None:
             raise case.error(("contacts", i, "friction"),
                              f"solver.method {case.solver.method} cannot take friction (its contact step is an "
                              "LCP on normal forces only): use solver.method: moreau_jean")
+
+
+def _check_moving_supports(case: Case) -> None:
+    """The reduced model holds a support's quasi-static motion in its static correction: the
+    fixed-base modes alone carry only the share their mass takes part in (docs/theory.md s. 2.4)."""
+    from ..integrators import is_reduced
+
+    if not is_reduced(case.solver) or case.solver.static_correction:
+        return
+    for i, support in enumerate(case.supports):
+        if any(not (f.is_constant and f.at_time(0.0) == 0.0) for f in support.displacement or ()):
+            raise case.error(("solver", "static_correction"),
+                             f"supports[{i}] moves (displacement), and the reduced model holds a support's motion "
+                             "in its static correction (the fixed-base modes alone leave most of it out): set "
+                             "solver.static_correction: true, or use the full model (solver.method: moreau_jean)")
 
 
 def _check_set_parameters(case: Case, changed) -> None:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import math
 import subprocess
 import sys
 import tempfile
@@ -27,6 +29,50 @@ def write_msh(path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     gmsh.write(str(path))
     return path
+
+
+def length_option(minimum: float = 0.0, inclusive: bool = False):
+    """An argparse ``type`` for a length in m (or another real): finite and above ``minimum`` (or at
+    least it, ``inclusive``); what is not is refused naming the option (status 2), never a traceback."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(value) or value < minimum or (value == minimum and not inclusive):
+            raise argparse.ArgumentTypeError(f"must be a number {'>=' if inclusive else '>'} {minimum:g}, "
+                                             f"got {text}")
+        return value
+    return parse
+
+
+def output_option(text: str) -> Path:
+    """An argparse ``type`` for a mesh script's output: a .msh file (Gmsh picks the format by the
+    extension), not a folder."""
+    path = Path(text)
+    if path.suffix.lower() != ".msh":
+        raise argparse.ArgumentTypeError(f"write a .msh file, got {text!r}")
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a folder: give the .msh file to write")
+    return path
+
+
+class ScriptParser(argparse.ArgumentParser):
+    """A mesh script's options: a bad one is a single line (``SCRIPT: error: ...; see --help``, status 2),
+    not argparse's usage block."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def run_script(parser: argparse.ArgumentParser, build, argv=None):
+    """Parse a mesh script's options and ``build(args)``: a ValueError of ``build`` (options that do not
+    fit together) is the parser's error, one line naming them (status 2), and no file is written."""
+    args = parser.parse_args(argv)
+    try:
+        return args, build(args)
+    except ValueError as err:
+        parser.error(str(err))
 
 
 class MshError(Exception):
@@ -111,6 +157,7 @@ def _extract(path: str) -> tuple[dict, dict]:
         raise MshError("no physical groups (name the bodies and node groups in the .geo/.py script)")
     dim = max(d for d, _ in groups)
     names = {(d, t): model.getPhysicalName(d, t) or f"group_{d}_{t}" for d, t in groups}
+    _check_unique_names(names, dim)
     meta = {"dim": dim, "bodies": {}, "node_group_names": []}
     if dim < 1:
         return {"x": x}, meta
@@ -153,6 +200,22 @@ def _extract(path: str) -> tuple[dict, dict]:
         arrays[f"group{len(meta['node_group_names'])}"] = group
         meta["node_group_names"].append(name)
     return arrays, meta
+
+
+def _check_unique_names(names: dict, dim: int) -> None:
+    """Bodies (groups of the top dimension) and node groups (the lower ones) are looked up by name:
+    two groups of one kind with the same name would be one of them silently (MshError)."""
+    for kind, same_kind in (("bodies", lambda d: d == dim), ("node groups", lambda d: d < dim)):
+        seen: dict[str, tuple[int, int]] = {}
+        for (d, t), name in sorted(names.items()):
+            if not same_kind(d):
+                continue
+            if name in seen:
+                (d0, t0) = seen[name]
+                raise MshError(f"two physical groups are named '{name}' (dimension {d0} tag {t0}, dimension {d} tag "
+                               f"{t}): fem-impact finds {kind} by name, so each needs its own (or make them one "
+                               "physical group)")
+            seen[name] = (d, t)
 
 
 def _child(path: str, out: str) -> None:

@@ -180,14 +180,16 @@ def build_model(spec: ModelSpec, meshdata: MeshData) -> Model:
         M = _lumped(M)
 
     fixed = _fixed_dofs(spec, meshdata, V, bs)
+    axis = None
     if hypothesis[0] == "axisymmetric":
-        fixed = np.union1d(fixed, _axis_dofs(meshdata, coords[:n_owned], bs, hypothesis[1]))
+        axis = _axis_dofs(meshdata, coords[:n_owned], bs, hypothesis[1])
+        fixed = np.union1d(fixed, axis)
     massless = np.zeros(0, dtype=np.int64)
     if spec.mass == "redistributed":
         massless = np.setdiff1d(_contact_dofs(spec, meshdata, V, bs), fixed)
         M = _redistributed(M, massless, first * bs, spec)
     motion = build_motion(spec, meshdata, lambda name, key: node_set(meshdata, V, name, key), bs, M, K,
-                          spec.damping, first * bs, ("supports",))
+                          spec.damping, first * bs, ("supports",), axis)
     rows = (fixed + first * bs).astype(np.int32)
     # Supports: zero rows and columns; unit mass and zero stiffness on the diagonal keep S
     # regular for any Newmark parameters while the held dofs see a zero right-hand side.

@@ -65,8 +65,11 @@ class PrescribedMotion:
         return self._last[1]
 
     def moving_dofs(self) -> np.ndarray:
-        """Owned dofs whose motion is prescribed."""
-        return np.unique(self.patterns.indices)
+        """Owned dofs that a support moves: the rows of the patterns that hold an entry, but for a
+        motion that is the constant 0 (its dofs are held still, as a support without motion holds them)."""
+        still = [k for k, f in enumerate(self.functions) if is_still(f)]
+        moving = self.patterns[:, [k for k in range(self.count) if k not in still]]
+        return np.flatnonzero(moving.getnnz(axis=1))
 
     def view(self, integrator, fields, comm) -> tuple[MotionView, MovingFields]:
         """The run as the whole structure: an integrator whose states carry its energies and
@@ -75,18 +78,24 @@ class PrescribedMotion:
         return MotionView(integrator, self, fields, comm), moving
 
 
+def is_still(function) -> bool:
+    """Whether a support's motion is the constant 0."""
+    return function.is_constant and function.at_time(0.0) == 0.0
+
+
 def raise_not_finite(function, t):
     raise SimulationError(f"the support's motion '{function.source}' (or its derivatives) is no longer finite at "
                           f"t = {t:.6g}")
 
 
 def build_motion(spec, meshdata, node_set, bs: int, M: PETSc.Mat, K: PETSc.Mat, damping, first_dof: int,
-                 fixed_key) -> PrescribedMotion | None:
+                 fixed_key, axis: np.ndarray | None = None) -> PrescribedMotion | None:
     """The patterns, their couplings and what the load needs, from M and K before the supports
-    zero their rows (``M``, ``K``: with every dof). None when no support moves."""
+    zero their rows (``M``, ``K``: with every dof). None when no support moves. ``axis``: the owned
+    dofs an axisymmetric model holds on its axis (no support may move them)."""
     comm = M.getComm().tompi4py()
     dim = meshdata.dim
-    names, functions, columns = [], [], []
+    names, functions, columns, owners = [], [], [], []
     n_local = M.getLocalSize()[0]
     for i, support in enumerate(spec.supports):
         if support.displacement is None:
@@ -111,8 +120,10 @@ def build_motion(spec, meshdata, node_set, bs: int, M: PETSc.Mat, K: PETSc.Mat, 
             column = np.zeros(n_local)
             column[owned * bs + comp] = 1.0
             columns.append(column)
+            owners.append((i, comp))
     if not functions:
         return None
+    _check_held_still(spec, node_set, bs, dim, n_local, functions, columns, owners, axis, comm)
     seen: dict[str, int] = {}
     for k, name in enumerate(names):   # two supports of one group: the second gets its index
         if name in seen:
@@ -140,6 +151,36 @@ def build_motion(spec, meshdata, node_set, bs: int, M: PETSc.Mat, K: PETSc.Mat, 
     rows = np.flatnonzero(coupled & ~moving)
     coupling = {key: products[key][rows] if key in products else None for key in ("M", "K", "C")}
     return PrescribedMotion(names, functions, sparse.csr_matrix(E), rows, coupling, held)
+
+
+def _check_held_still(spec, node_set, bs, dim, n_local, functions, columns, owners, axis, comm) -> None:
+    """A dof that one support holds still (no displacement, or an axisymmetric model's axis) and
+    another moves is a contradiction the held dofs would settle silently for the motion: refused.
+    (A component whose motion is the constant 0 holds still too, and agrees.)"""
+    still = []   # (what holds it, owned dof mask)
+    for j, support in enumerate(spec.supports):
+        if support.displacement is not None:
+            continue
+        mask = np.zeros(n_local, dtype=bool)
+        nodes = node_set(support.nodes, ("supports", j, "nodes"))
+        owned = nodes.local_node[nodes.local_node >= 0]
+        for comp in support.fix:
+            if comp < dim:
+                mask[owned * bs + comp] = True
+        still.append((f"supports[{j}] (group '{support.nodes}', no displacement)", mask))
+    if axis is not None and axis.size:
+        mask = np.zeros(n_local, dtype=bool)
+        mask[axis] = True
+        still.append(("the symmetry axis of the axisymmetric model (its radial displacement is 0)", mask))
+    for f, column, (i, comp) in zip(functions, columns, owners):
+        if is_still(f):
+            continue
+        for what, mask in still:
+            shared = comm.allreduce(int(np.count_nonzero(mask & (column > 0.0))))
+            if shared:
+                raise ModelInputError(("supports", i, "displacement"),
+                                      f"moves the {AXES[comp]} component of {shared} node(s) that {what} holds "
+                                      "still: a node cannot be both; take those nodes out of one of the groups")
 
 
 def effective_loads(motion: PrescribedMotion, template: PETSc.Vec, fixed: np.ndarray) -> list:

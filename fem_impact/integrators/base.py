@@ -272,6 +272,8 @@ class Factor:
         """``A^-1 B`` for the owned rows ``B`` (n_local x k)."""
         alg = self.algebra
         n, k = alg.sizes, B.shape[1]
+        if k == 0:   # (no contact rows: MUMPS refuses a solve with no right-hand side under MPI)
+            return np.zeros(B.shape)
         pc = self.ksp.getPC()
         try:
             F = pc.getFactorMatrix()

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
+from ...errors import CaseError
 from ...integrators.parameters import MODAL_SCHEMES, REDUCED
 from ..outdir import case_inputs, writing
 from ..pipeline import run, staged_directory
@@ -61,7 +62,8 @@ def _probe_component(history: dict, probe: str | None) -> str:
 
 
 def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, probe=None, comm: MPI.Comm = MPI.COMM_WORLD) -> list[dict]:
-    """Run the full model and the modal model for each n1, with and without static correction.
+    """Run the full model and the modal model for each n1, with and without static correction (without:
+    where the case allows it; a moving support needs the static correction, and a warning says so).
 
     ``case`` is a :class:`~fem_impact.config.case.Case`; every run is a copy of it with changes (VTK off;
     the modal method, its scheme, n1 and the static correction), run by :func:`fem_impact.run`.
@@ -93,8 +95,15 @@ def reduction_table(case, modes=(2, 5, 10, 20), outdir=None, probe=None, comm: M
         for n1 in modes:
             for static in (True, False):
                 name = f"modal-{n1}-{'static' if static else 'plain'}"
-                reduced = full_case.with_changes({"solver.method": REDUCED, **scheme, "solver.modes": n1,
-                                                  "solver.static_correction": static})
+                try:
+                    reduced = full_case.with_changes({"solver.method": REDUCED, **scheme, "solver.modes": n1,
+                                                      "solver.static_correction": static})
+                except CaseError as err:
+                    if static:
+                        raise
+                    # (a case the plain truncation refuses, e.g. a moving support: the study goes on without it)
+                    log.warning("%s: not run: %s", name, err.message)
+                    continue
                 summary = run(reduced, stage / name, comm=comm).summary
                 h = history_columns(stage / name)
                 histories[f"{n1} modes, {'static correction' if static else 'plain'}"] = h
