@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
+from conftest import CASES
 from fem_impact.config.case import CaseError, load_case
 
 BASE = """\
@@ -408,6 +409,15 @@ def test_a_parameter_set_on_the_command_line_must_be_used(tmp_path):
     # defined in the file and unused is allowed (documentation), and so is a new one that is used
     load_case(write(tmp_path, PARAMETERS.replace("{f: 2000.0,", "{f: 2000.0, spare: 1,")))
     load_case(path, ["parameters.g=9.81", "loads.0.force=[\"F0\", \"-g\"]"])
+
+
+def test_a_parameter_of_a_supports_motion_is_used():
+    """base_excited_beam's amplitude A appears only in its clamp's prescribed motion: --set takes it (it was
+    refused as used by no expression), and the motion follows it."""
+    case = load_case(CASES / "base_excited_beam.yaml", ["parameters.A=4e-5"])
+    assert case.parameters["A"] == 4e-5
+    motion = case.supports[0].displacement[1]
+    assert motion.at_time(0.25 / case.parameters["f"]) == pytest.approx(4e-5, rel=1e-12)
 
 
 # --- numeric limits (issue 16): values and the scales the model forms from them ----------------

@@ -205,13 +205,16 @@ class Case:
         return data
 
     def expressions(self):
-        """Every expression of the case as (key path, Expression): loads and initial fields."""
+        """Every expression of the case as (key path, Expression): initial fields, supports' motions and loads."""
         for which in ("displacement", "velocity"):
             items = getattr(self.initial, which)
             for i, item in enumerate(items):
                 key = ("initial", which) if item.body is None else ("initial", which, i, "value")
                 for comp, expr in enumerate(item.value):
                     yield key + (comp,), expr
+        for i, support in enumerate(self.supports):
+            for comp, expr in enumerate(support.displacement or ()):
+                yield ("supports", i, "displacement", comp), expr
         for i, load in enumerate(self.loads):
             for name in ("force", "acceleration"):
                 for comp, expr in enumerate(getattr(load, name) or ()):
