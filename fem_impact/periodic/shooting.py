@@ -97,6 +97,7 @@ class Orbit:
     iterations: int
     impacts: list            # (t, row, approach speed) over the k periods
     unseen: int = 0          # coordinates left out (no row sees them): 2 entries of x each
+    held: np.ndarray | None = None   # per row, the impulse that held it stuck over the k periods
 
     @property
     def stable(self) -> bool:
@@ -108,8 +109,11 @@ class _OutOfTime(Exception):
 
 
 def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: list | None = None,
-           max_impacts: int = MAX_IMPACTS, deadline: float | None = None) -> np.ndarray:
+           max_impacts: int = MAX_IMPACTS, deadline: float | None = None, held: np.ndarray | None = None) -> np.ndarray:
     """The state [Z, Z'] at t1 from ``x`` at t0: exact to the tolerance, impacts located as events.
+
+    ``impacts`` gets (t, row, approach speed) of every impact; ``held`` (one entry a row) adds the impulse
+    of the force that holds a row stuck on its stop (integrated with the flight).
 
     At most ``max_impacts`` impacts (callers pass ``MAX_IMPACTS`` per forcing period of the span),
     and no later than ``deadline`` (``time.monotonic()``); beyond either, and when the integration
@@ -120,7 +124,7 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
     acceleration is held at zero by a force ``lam = P_j a_free / |P_j|^2`` until that force would turn
     negative (an event: the row leaves its stop). One row at a time sticks; two at once is refused.
     """
-    n = system.n
+    n, n2 = system.n, 2 * system.n
     force = np.zeros(n)
     span = t1 - t0
     # Scales: the state's, or (a start at rest) the response to the load over the span: static for a mode
@@ -135,7 +139,7 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
 
     def free_acceleration(t, y):
         system.load.evaluate(t, force)
-        return force - system.damping * y[n:] - system.w2 * y[:n]
+        return force - system.damping * y[n:n2] - system.w2 * y[:n]
 
     def holding(t, y, j):
         row = system.P[j]
@@ -145,10 +149,12 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
         if deadline is not None and time.monotonic() > deadline:
             raise _OutOfTime
         a = free_acceleration(t, y)
+        lam = 0.0
         for j in stuck:
             row = system.P[j]
-            a = a - (row @ a) / (row @ row) * row
-        return np.concatenate([y[n:], a])
+            lam = (row @ a) / (row @ row)
+            a = a - lam * row
+        return np.concatenate([y[n:n2], a, [lam]])   # (the last: the impulse that holds the stuck row)
 
     def gap_event(j):   # (crossing a hair beyond the stop: a row that starts on it, at zero, is seen coming back)
         def event(t, y):
@@ -161,7 +167,9 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
     release_event.terminal, release_event.direction = True, -1
 
     events = [gap_event(j) for j in range(system.P.shape[0])] + [release_event]
-    t, y, count, stalls = t0, np.array(x, dtype=float), 0, 0
+    t, y, count, stalls = t0, np.concatenate([np.asarray(x, dtype=float), [0.0]]), 0, 0
+    atol = np.full(n2 + 1, ATOL_FACTOR * scale)
+    atol[-1] = ATOL_FACTOR * vscale / max(np.linalg.norm(system.P, axis=1).max(initial=0.0), 1e-300)
     at_stop = 1e-12 * max(scale, np.abs(system.d0).max(initial=0.0))   # a row this close is on its stop
     lost = 1e-9 * scale                                                  # a row this far beyond it was lost
     pressed = 1e-10 * max(vscale * np.sqrt(system.w2.max()), vscale / span, load.max())   # |acceleration| of a row
@@ -172,17 +180,17 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
             raise ShootingError(f"row {j} meets its stop at t = {t:.6g} while row {stuck[0]} sticks: two rows at "
                                 "once are not followed")
         row = system.P[j]
-        speed = float(row @ y[n:])   # approach speed (>= 0)
+        speed = float(row @ y[n:n2])   # approach speed (>= 0)
         count += 1
         if count > max_impacts:
             raise ShootingError(f"more than {max_impacts} impacts at t = {t:.6g} ({MAX_IMPACTS} a forcing period): "
                                 "chatter that does not end")
         if impacts is not None:
             impacts.append((t, j, speed))
-        y[n:] -= (1.0 + system.restitution[j]) * speed * row / (row @ row)
+        y[n:n2] -= (1.0 + system.restitution[j]) * speed * row / (row @ row)
         rebound, pull = system.restitution[j] * speed, holding(t, y, j) * float(row @ row)
         if pull > 0.0 and (rebound <= STICK_SPEED * vscale or rebound ** 2 <= 2.0 * pull * HOP * at_stop):
-            _stick(y, n, row, stuck, j)   # the end of a chatter sequence (or a plastic impact): it stays
+            _stick(y, n, row, stuck, j, held)   # the end of a chatter sequence (or a plastic impact): it stays
 
     def on_stops(t, y):
         """Rows on their stops where a flight starts or goes on (an event cannot see a gap that starts at
@@ -194,19 +202,19 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
                 continue
             if gap < 0.0:   # (on it: at the event a hair beyond, or round-off)
                 y[:n] += gap / (row @ row) * row
-            speed = float(row @ y[n:])
+            speed = float(row @ y[n:n2])
             if speed > STICK_SPEED * vscale:
                 impact(t, j, y)
             elif speed > -STICK_SPEED * vscale and holding(t, y, j) * np.linalg.norm(row) > pressed:
                 if stuck:
                     raise ShootingError(f"rows {stuck[0]} and {j} stick at once at t = {t:.6g}: two rows at once "
                                         "are not followed")
-                _stick(y, n, row, stuck, j)
+                _stick(y, n, row, stuck, j, held)
 
     on_stops(t, y)
     while t < t1:
         try:
-            sol = solve_ivp(rhs, (t, t1), y, method="DOP853", rtol=RTOL, atol=ATOL_FACTOR * scale,
+            sol = solve_ivp(rhs, (t, t1), y, method="DOP853", rtol=RTOL, atol=atol,
                             events=events, dense_output=False)
         except _OutOfTime:
             raise ShootingError(f"the flight reached its time limit at t = {t:.6g}") from None
@@ -223,6 +231,9 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
                 for k, te in enumerate(times):
                     if te > t + 1e-12 * span and (hit is None or te < hit[0]):
                         hit = (te, j, sol.y_events[j][k])
+        end = sol.y[:, -1] if hit is None else hit[2]
+        if stuck and held is not None:
+            held[stuck[0]] += end[-1]
         if hit is None:
             if sol.t[-1] < t1:
                 stalls = stalls + 1 if sol.t[-1] <= t + 1e-12 * span else 0
@@ -230,28 +241,34 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
                     raise ShootingError(f"the flight does not advance at t = {t:.6g}: a row stays at its stop "
                                         "in a way the event-driven flight does not follow")
                 t, y = sol.t[-1], sol.y[:, -1].copy()
+                y[-1] = 0.0
                 on_stops(t, y)
                 continue
-            return sol.y[:, -1]
+            return sol.y[:n2, -1]
         stalls = 0
         t, j, y = hit[0], hit[1], hit[2].copy()
+        y[-1] = 0.0
         if j == len(events) - 1:   # the stuck row's force reached zero: it leaves its stop
             stuck.clear()
         else:
             impact(t, j, y)
         on_stops(t, y)
-    return y
+    return y[:n2]
 
 
-def _stick(y, n, row, stuck, j) -> None:
-    y[n:] -= (row @ y[n:]) / (row @ row) * row
+def _stick(y, n, row, stuck, j, held) -> None:
+    """Row j stays on its stop: its remaining approach speed is taken by an impulse (counted in ``held``)."""
+    lam = (row @ y[n:2 * n]) / (row @ row)
+    y[n:2 * n] -= lam * row
+    if held is not None:
+        held[j] += lam
     stuck.append(j)
 
 
 def poincare_map(system: ReducedSystem, x: np.ndarray, period: float, k: int = 1, impacts=None,
-                 deadline: float | None = None) -> np.ndarray:
-    """``P^k(x)``: the state after k forcing periods from forcing phase 0."""
-    return flight(system, x, 0.0, k * period, impacts, max_impacts=MAX_IMPACTS * k, deadline=deadline)
+                 deadline: float | None = None, held: np.ndarray | None = None) -> np.ndarray:
+    """``P^k(x)``: the state after k forcing periods from forcing phase 0 (``impacts``, ``held``: :func:`flight`)."""
+    return flight(system, x, 0.0, k * period, impacts, max_impacts=MAX_IMPACTS * k, deadline=deadline, held=held)
 
 
 def _coordinates(system: ReducedSystem) -> np.ndarray:
@@ -299,9 +316,10 @@ def shoot(system: ReducedSystem, x0: np.ndarray, period: float, k: int = 1, seco
                 progress(iteration, float(np.abs(residual).max() / scale), time.monotonic() - start)
             if np.abs(residual).max() <= NEWTON_TOL * scale:
                 impacts: list = []
-                poincare_map(system, x, period, k, impacts, deadline=deadline)
+                held = np.zeros(system.P.shape[0])
+                poincare_map(system, x, period, k, impacts, deadline=deadline, held=held)
                 return Orbit(x, k, np.linalg.eigvals(J), float(np.abs(residual).max() / scale), iteration, impacts,
-                             system.n - entries.size // 2)
+                             system.n - entries.size // 2, held)
             try:
                 step = np.linalg.solve(J - np.eye(entries.size), -residual)
             except np.linalg.LinAlgError:
@@ -369,9 +387,10 @@ def reduced_scene(case) -> ReducedScene:
     return ReducedScene(system, start, probes.names, rows, probes.dim, [(c.name, c.rows) for c in cons.contacts])
 
 
-def impulses(system: ReducedSystem, impacts: list) -> np.ndarray:
-    """The impulse each row took in ``impacts`` ((t, row, approach speed), Newton's law)."""
-    out = np.zeros(system.P.shape[0])
+def impulses(system: ReducedSystem, impacts: list, held: np.ndarray | None = None) -> np.ndarray:
+    """The impulse each row took in ``impacts`` ((t, row, approach speed), Newton's law), plus ``held``
+    (the impulse of the forces that held rows stuck)."""
+    out = np.zeros(system.P.shape[0]) if held is None else np.array(held, dtype=float)
     for _, j, speed in impacts:
         row = system.P[j]
         out[j] += (1.0 + system.restitution[j]) * speed / (row @ row)

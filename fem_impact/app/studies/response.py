@@ -453,12 +453,19 @@ def _kinds(names) -> tuple[np.ndarray, np.ndarray]:
     return kinds == "u", kinds == "v"
 
 
-def section_tolerance(names, u_max: float, v_max: float, omega: float, tolerance: float, floor: float) -> np.ndarray:
-    """Per probe column: ``tolerance`` of the probes' displacement scale (the largest displacement, or
-    velocity / omega) or velocity scale (omega times it), never below round-off (``floor``)."""
+def section_tolerance(names, values: np.ndarray, omega: float, tolerance: float, floor: float) -> np.ndarray:
+    """Per probe column: ``tolerance`` of its probe's displacement scale (the largest of its displacements in
+    ``values``, or of its velocities / omega) or velocity scale (omega times it), never below round-off
+    (``floor``): the components of a probe share its scale, so that one it does not move in stays round-off."""
     u, v = _kinds(names)
-    scale_u = max(u_max, v_max / omega, floor)
-    return tolerance * np.where(u, scale_u, omega * scale_u)
+    probe = np.array([name.rsplit(".", 1)[0] for name in names])
+    tol = np.empty(len(names))
+    for p in set(probe.tolist()):
+        mine = probe == p
+        scale = max(float(np.abs(values[:, mine & u]).max(initial=0.0)),
+                    float(np.abs(values[:, mine & v]).max(initial=0.0)) / omega, floor)
+        tol[mine] = tolerance * np.where(u[mine], scale, omega * scale)
+    return tol
 
 
 def _probe_columns(names) -> list[str]:
@@ -487,10 +494,8 @@ def _section(folder, key, value, frequency, direction, settle, periods, steps, t
     window = slice(section[0] - steps, section[-1] + 1)
     u, v = _kinds(probes)
     columns = np.column_stack([h[p][window] for p in probes]) if probes else np.zeros((1, 0))
-    u_max = float(np.abs(columns[:, u]).max(initial=0.0))
-    v_max = float(np.abs(columns[:, v]).max(initial=0.0))
     omega = 2 * np.pi * frequency
-    tol = section_tolerance(probes, u_max, v_max, omega, tolerance, floor)
+    tol = section_tolerance(probes, columns, omega, tolerance, floor)
     # The timing error of an impact placed at the end of a step: the step times the velocity's jump in
     # displacement, the velocity's change over a step without impulse (times 1 + r <= 2) in velocity.
     dt = 1.0 / (frequency * steps)
@@ -553,10 +558,11 @@ def _event_levels(cases, key, ordered, freq, direction, settle, periods, toleran
         try:
             for j in range(settle + periods):
                 impacts: list = []
-                x = poincare_map(scene.system, x, T, 1, impacts)
+                held = np.zeros(scene.system.P.shape[0])
+                x = poincare_map(scene.system, x, T, 1, impacts, held=held)
                 if j >= settle:
                     states.append(x.copy())
-                    kicks.append((impulses(scene.system, impacts), impacts))
+                    kicks.append((impulses(scene.system, impacts, held), impacts))
         except ShootingError as err:
             raise StudyInputError(f"--flight events at {key}={v:g}: {err}") from None
         states = np.array(states)
@@ -569,9 +575,7 @@ def _event_levels(cases, key, ordered, freq, direction, settle, periods, toleran
                 for c in range(scene.dim):
                     section[j, names.index(f"{name}.u{'xyz'[c]}")] = u[p * scene.dim + c]
                     section[j, names.index(f"{name}.v{'xyz'[c]}")] = w[p * scene.dim + c]
-        u_cols, v_cols = _kinds(names)
-        tol = section_tolerance(names, float(np.abs(section[:, u_cols]).max(initial=0.0)),
-                                float(np.abs(section[:, v_cols]).max(initial=0.0)), 2 * np.pi * f, tolerance, floor)
+        tol = section_tolerance(names, section, 2 * np.pi * f, tolerance, floor)
         k, note, candidates[v] = period_of(section, tol)
         chosen = range(periods - k, periods) if k else range(periods)
         for j in chosen:
@@ -659,7 +663,7 @@ def shoot_branch(cases, key, ordered, freq, ends, rows, seconds=SHOOTING_SECONDS
             mu = orbit.multipliers[np.argsort(-np.abs(orbit.multipliers))]
             info[f"orbit{k}.residual"] = orbit.residual
             info[f"orbit{k}.stable"] = int(orbit.stable)
-            info[f"orbit{k}.impulse"] = float(impulses(scene.system, orbit.impacts).sum()) / k
+            info[f"orbit{k}.impulse"] = float(impulses(scene.system, orbit.impacts, orbit.held).sum()) / k
             info[f"orbit{k}.impacts"] = len(orbit.impacts)
             info[f"orbit{k}.min_speed"] = min((s for _, _, s in orbit.impacts), default=0.0)
             for i, m in enumerate(mu[:4], start=1):
@@ -703,6 +707,7 @@ def _finish(case, changes, outdir, key, expression, ordered, freq, direction, se
         marks = [f"{b['kind']} at {b[key]:.6g}" for b in bifurcations if b["between"][1] == row[key]]
         if bifurcations:
             row["bifurcation"] = "; ".join(marks)
+    outdir.mkdir(parents=True, exist_ok=True)   # (the event-driven levels write no level folder)
     theirs = [r for r in other.get("rows", []) if isinstance(r, dict) and key in r]
     all_rows = sorted(theirs + rows, key=lambda r: (r["direction"], r[key], r["point"]))
     columns = list(dict.fromkeys(c for r in all_rows for c in r)) if all_rows else \
