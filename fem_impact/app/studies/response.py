@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from ...config.case import Case
-from ...errors import CaseError, type_name
+from ...errors import CaseError, SimulationError, type_name
 from ..outdir import replacing
 from .common import StudyInputError, case_record, given_changes, pyplot, save_figure, write_json
 from .levels import Level, run_levels, slug
@@ -81,7 +81,7 @@ def response_study(case, vary, outdir, down: bool = False, settle: int = 50, per
     if not (tolerance > 0 and math.isfinite(tolerance)):
         raise StudyInputError(f"--tolerance {tolerance}: give a positive number")
     if not shooting_seconds > 0:
-        raise StudyInputError(f"shooting_seconds {shooting_seconds}: give a positive number of seconds")
+        raise StudyInputError(f"--shooting-time {shooting_seconds}: give a positive number of seconds")
     if flight not in FLIGHTS:
         raise StudyInputError(f"--flight {flight}: scheme (the case's time stepping) or events (event-driven)")
     if flight == "events" and settle + periods > MAX_EVENT_PERIODS:
@@ -131,6 +131,9 @@ def response_study(case, vary, outdir, down: bool = False, settle: int = 50, per
                 ends[v] = outcome.folder
             elif outcome.status == "skipped" and not _after_failure(outcome, outcomes):
                 raise StudyInputError(f"level {outcome.level.label}: {outcome.reason}")
+        if not ends:
+            first = next(o for o in outcomes if not o.ok)
+            raise SimulationError(f"no level of the sweep completed (level {first.level.label}: {first.reason})")
     note = "not asked (--no-shooting)"
     orbits = {}
     if shooting:
@@ -733,8 +736,11 @@ def _finish(case, changes, outdir, key, expression, ordered, freq, direction, se
     marks = bifurcations + list(other.get("bifurcations") or [])
     frequency_axis = key == f"parameters.{expression}"
     chart = plot_response(all_rows, key, outdir / "response.png", marks, frequency_axis) if all_rows else None
+    missing = [(direction, o.level.info["value"], "FAILED: " + o.reason if o.status == "failed" else
+                "not run: a level before it failed, and each level starts from the one before")
+               for o in outcomes if not o.ok]
     return {"rows": all_rows, "key": key, "frequency": expression, "levels": list(outcomes), "chart": chart,
-            "outdir": str(outdir), "bifurcations": bifurcations, "shooting": note}
+            "outdir": str(outdir), "bifurcations": bifurcations, "shooting": note, "missing": missing}
 
 
 def _write_rows(path: Path, columns, rows) -> None:
@@ -812,6 +818,7 @@ def format_response(result: dict) -> str:
         if period == "?":
             notes.append(f"{direction} {key}={value:.6g}: period {note}")
     lines += notes
+    lines += [f"{direction} {key}={value:.6g}: {why}" for direction, value, why in result.get("missing", [])]
     for mark in result.get("bifurcations", []):
         lines.append(f"{mark['kind'].replace('_', ' ')} at {key} = {mark[key]:.6g} (between {mark['between'][0]:.6g} "
                      f"and {mark['between'][1]:.6g})")
