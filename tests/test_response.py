@@ -16,7 +16,7 @@ import pytest
 
 import fem_impact as fi
 from fem_impact.app.studies.common import StudyInputError
-from fem_impact.app.studies.response import detect_period, parse_vary, response_study
+from fem_impact.app.studies.response import detect_period, response_study
 from fem_impact.periodic import oscillator as exact
 from fem_impact.periodic.shooting import reduced_scene, shoot
 
@@ -140,6 +140,8 @@ def test_any_key_is_swept_at_the_case_forcing_frequency(tmp_path):
 def test_the_values_and_the_keys_a_sweep_takes():
     """START,NEXT,...,END (the README's form) gives the evenly spaced values, END included; whole numbers
     stay whole; every other form is one plain refusal naming the option."""
+    from fem_impact.app.studies.response import parse_vary
+
     key, values = parse_vary("parameters.f=23000,23500,...,29000")
     assert key == "parameters.f" and values == list(range(23000, 29001, 500))
     assert parse_vary("parameters.f=0.45,0.5,...,0.65")[1] == [0.45, 0.5, 0.55, 0.6, 0.65]
