@@ -234,20 +234,31 @@ def _add_study_parser(sub) -> argparse.ArgumentParser:
     stab.add_argument("--length", metavar="K1,K2,...", help="run lengths in multiples of t_end (default 1,4)")
     stab.add_argument("--tolerance", metavar="TOL", help="largest relative error of an accurate run (default 0.05)")
     resp = kinds.add_parser(
-        "response", help="the settled forced response over a frequency sweep: Poincare sections, periods, "
+        "response", help="the settled forced response over a sweep of any key: Poincare sections, periods, "
                          "impulses (response.csv, response.png)",
-        description="Sweep the forcing frequency (the varied key, in Hz): each level starts from the previous "
-                    "one's last state, runs --settle forcing periods, then --periods periods sampled at forcing "
-                    "phase 0 (the stroboscopic Poincare section), at --steps-per-period steps a period. The "
-                    "period of the settled response (the smallest k whose section repeats, 0: none), the "
-                    "Poincare points of the probes and each contact's impulse and impacts per period go to "
-                    "response.csv; response.png is the bifurcation diagram. A sweep --down into the same folder "
-                    "keeps the sweep up: the chart shows both.",
-        epilog="example:\n  fem-impact study response cases/impact_oscillator.yaml --vary parameters.f=0.45,0.5,0.55",
+        description="Sweep a key of the case (--vary: the forcing frequency's parameter, an amplitude, a gap, a "
+                    "restitution ...) at the forcing frequency --frequency (in Hz: an expression of the case's "
+                    "parameters, by default its parameter f): each level starts from the previous one's last "
+                    "state, runs --settle forcing periods, then --periods periods sampled at forcing phase 0 (the "
+                    "stroboscopic Poincare section), at --steps-per-period steps a period. The period of the "
+                    "settled response (the smallest k whose section repeats; 0 with a period_note when none, or "
+                    "when the time step's timing error cannot tell it), the Poincare points of the probes and "
+                    "each contact's impulse and impacts per period go to response.csv; response.png is the "
+                    "bifurcation diagram. A sweep --down into the same folder with the same settings keeps the "
+                    "sweep up: the chart shows both.",
+        epilog="examples:\n"
+               "  fem-impact study response cases/impact_oscillator.yaml --vary parameters.f=0.45,0.5,...,0.65\n"
+               "  fem-impact study response cases/impact_oscillator.yaml --vary parameters.F0=0.5,0.6,0.7 "
+               "--frequency f\n"
+               "  fem-impact study response cases/impact_oscillator.yaml --vary contacts.0.gap=0,0.1,0.2",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     common(resp, "1")
-    resp.add_argument("--vary", required=True, metavar="KEY=F1,F2,...",
-                      help="the forcing frequency's key and its values in Hz, e.g. parameters.f=40,45,50")
+    resp.add_argument("--vary", required=True, metavar="KEY=V1,V2,...",
+                      help="the varied key and its values: V1,V2,... or START,NEXT,...,END (evenly spaced, END "
+                           "included), e.g. parameters.f=40,45,...,60 or contacts.0.gap=0,1e-4,2e-4")
+    resp.add_argument("--frequency", metavar="EXPR",
+                      help="the forcing frequency in Hz: an expression of the case's parameters (default: its "
+                           "parameter f) or a number; it sets the time step and the section")
     resp.add_argument("--down", action="store_true", help="sweep the values from the highest down")
     resp.add_argument("--settle", default="50", metavar="M", help="forcing periods to settle (default 50)")
     resp.add_argument("--periods", default="16", metavar="N", help="forcing periods sampled (default 16)")
@@ -259,6 +270,8 @@ def _add_study_parser(sub) -> argparse.ArgumentParser:
     resp.add_argument("--no-shooting", action="store_true",
                       help="skip the periodic orbits by shooting (done for the reduced model without static "
                            "correction: the period-1 orbit along the sweep, its Floquet multipliers, bifurcations)")
+    resp.add_argument("--shooting-time", default="300", metavar="SECONDS",
+                      help="time limit of one orbit's shooting (default 300); beyond it the orbit's note says so")
     resp.add_argument("--tolerance", default="1e-4", metavar="TOL",
                       help="relative tolerance of a repeated section point (default 1e-4)")
     return study
@@ -523,7 +536,8 @@ def _study_in(args, case) -> None:
             periods=_numbers("--periods", args.periods, int, single=True),
             steps_per_period=_numbers("--steps-per-period", args.steps_per_period, int, single=True),
             tolerance=_numbers("--tolerance", args.tolerance, single=True), changes=args.overrides, quiet=quiet,
-            allow_failure=args.allow_failure, flight=args.flight, shooting=not args.no_shooting)
+            allow_failure=args.allow_failure, flight=args.flight, shooting=not args.no_shooting,
+            frequency=args.frequency, shooting_seconds=_numbers("--shooting-time", args.shooting_time, single=True))
         if not quiet:
             print(format_response(result))
     else:

@@ -14,10 +14,18 @@ is taken by central differences, which then include the saltation.
 
 It handles isolated impacts (every orbit a frequency sweep follows); a row that meets its stop
 at a vanishing speed (sticking, chatter) stops the flight with :class:`ShootingError`.
+
+Newton and the multipliers take the coordinates that some contact row sees (a column of ``P`` that
+is not zero): the others (a free body's rigid drift along its stops, a mode with no motion at any
+row) are linear, forced alone and never change an impact, and their neutral multipliers (exactly 1
+for a rigid drift) say nothing of the impacting orbit's stability. Every flight is bounded (impacts
+per forcing period, steps that do not advance, a deadline), so shooting ends with an orbit or a
+:class:`ShootingError` saying why.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +36,10 @@ from ..errors import SimulationError
 RTOL = 1e-12
 ATOL_FACTOR = 1e-14          # of the state's scale
 MAX_IMPACTS = 200            # per forcing period
+MAX_STALLS = 50              # integrations in a row that end at their start (an event the flight cannot leave)
+UNSEEN = 1e-9                # of the largest entry of P: a coordinate no row sees
 STICK_SPEED = 1e-7           # of the velocity scale: a rebound slower than this sticks
+HOP = 100                    # a rebound that rises less than this many times the stop's resolution sticks
 NEWTON_TOL = 1e-10           # |P^k(x) - x| on the state's scale
 NEWTON_ITERATIONS = 30
 DIFFERENCE_STEP = 1e-6       # central differences, on the state's scale
@@ -67,6 +78,13 @@ class ReducedSystem:
     def n(self) -> int:
         return self.w2.size
 
+    @property
+    def seen(self) -> np.ndarray:
+        """Indices of the coordinates some contact row sees: the impacts depend on these alone, and the
+        others (no row sees them: a rigid drift along the stops, a mode still at every row) on none."""
+        size = np.abs(self.P).max(initial=0.0)
+        return np.flatnonzero(np.abs(self.P).max(axis=0, initial=0.0) > UNSEEN * size)
+
 
 @dataclass
 class Orbit:
@@ -74,52 +92,73 @@ class Orbit:
 
     x: np.ndarray            # [Z, Z'] at forcing phase 0
     k: int
-    multipliers: np.ndarray  # eigenvalues of the Jacobian of P^k (complex)
-    residual: float          # |P^k(x) - x| / scale
+    multipliers: np.ndarray  # eigenvalues of the Jacobian of P^k on the coordinates the rows see (complex)
+    residual: float          # |P^k(x) - x| / scale, on those coordinates
     iterations: int
     impacts: list            # (t, row, approach speed) over the k periods
+    unseen: int = 0          # coordinates left out (no row sees them): 2 entries of x each
+    held: np.ndarray | None = None   # per row, the impulse that held it stuck over the k periods
 
     @property
     def stable(self) -> bool:
         return bool(np.max(np.abs(self.multipliers)) < 1.0)
 
 
-def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: list | None = None) -> np.ndarray:
+class _OutOfTime(Exception):
+    pass
+
+
+def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: list | None = None,
+           max_impacts: int = MAX_IMPACTS, deadline: float | None = None, held: np.ndarray | None = None) -> np.ndarray:
     """The state [Z, Z'] at t1 from ``x`` at t0: exact to the tolerance, impacts located as events.
+
+    ``impacts`` gets (t, row, approach speed) of every impact; ``held`` (one entry a row) adds the impulse
+    of the force that holds a row stuck on its stop (integrated with the flight).
+
+    At most ``max_impacts`` impacts (callers pass ``MAX_IMPACTS`` per forcing period of the span),
+    and no later than ``deadline`` (``time.monotonic()``); beyond either, and when the integration
+    keeps stopping where it starts (an event it cannot leave), a :class:`ShootingError`.
 
     A row that meets its stop at a vanishing speed (below ``STICK_SPEED`` of the velocity scale: the
     end of a chatter sequence) or starts on it at rest while the load presses it on, sticks: its
     acceleration is held at zero by a force ``lam = P_j a_free / |P_j|^2`` until that force would turn
     negative (an event: the row leaves its stop). One row at a time sticks; two at once is refused.
     """
-    n = system.n
+    n, n2 = system.n, 2 * system.n
     force = np.zeros(n)
-    # Scales: the state's, or (a start at rest) the static response to the load over the span
+    span = t1 - t0
+    # Scales: the state's, or (a start at rest) the response to the load over the span: static for a mode
+    # stiffer than the span, the motion under it for a softer one (a rigid mode: w2 = 0)
     system.load.evaluate(0.5 * (t0 + t1), force)
-    reach = max(np.abs(system.load.evaluate(t0, np.zeros(n))).max(), np.abs(force).max()) / max(system.w2.min(), 1e-300)
+    load = np.maximum(np.abs(system.load.evaluate(t0, np.zeros(n))), np.abs(force))
+    reach = float((load / np.maximum(system.w2, 1.0 / max(t1 - t0, 1e-300) ** 2)).max(initial=0.0))
     scale = max(np.abs(x[:n]).max(), reach, np.abs(system.d0).max(initial=0.0), 1e-300)
-    vscale = max(np.abs(x[n:]).max(), scale * np.sqrt(system.w2.max()), 1e-300)
+    vscale = max(np.abs(x[n:]).max(), scale * np.sqrt(system.w2.max()), scale / span, 1e-300)
     scale = max(scale, np.abs(x[n:]).max())
     stuck: list[int] = []
 
     def free_acceleration(t, y):
         system.load.evaluate(t, force)
-        return force - system.damping * y[n:] - system.w2 * y[:n]
+        return force - system.damping * y[n:n2] - system.w2 * y[:n]
 
     def holding(t, y, j):
         row = system.P[j]
         return float(row @ free_acceleration(t, y)) / float(row @ row)
 
     def rhs(t, y):
+        if deadline is not None and time.monotonic() > deadline:
+            raise _OutOfTime
         a = free_acceleration(t, y)
+        lam = 0.0
         for j in stuck:
             row = system.P[j]
-            a = a - (row @ a) / (row @ row) * row
-        return np.concatenate([y[n:], a])
+            lam = (row @ a) / (row @ row)
+            a = a - lam * row
+        return np.concatenate([y[n:n2], a, [lam]])   # (the last: the impulse that holds the stuck row)
 
-    def gap_event(j):
+    def gap_event(j):   # (crossing a hair beyond the stop: a row that starts on it, at zero, is seen coming back)
         def event(t, y):
-            return system.d0[j] - system.P[j] @ y[:n] if j not in stuck else 1.0
+            return system.d0[j] - system.P[j] @ y[:n] + at_stop if j not in stuck else 1.0
         event.terminal, event.direction = True, -1
         return event
 
@@ -128,90 +167,186 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
     release_event.terminal, release_event.direction = True, -1
 
     events = [gap_event(j) for j in range(system.P.shape[0])] + [release_event]
-    t, y, count = t0, np.array(x, dtype=float), 0
-    span = t1 - t0
-    for j in range(system.P.shape[0]):   # starting at rest on a stop that the load presses: stuck
+    t, y, count, stalls = t0, np.concatenate([np.asarray(x, dtype=float), [0.0]]), 0, 0
+    atol = np.full(n2 + 1, ATOL_FACTOR * scale)
+    atol[-1] = ATOL_FACTOR * vscale / max(np.linalg.norm(system.P, axis=1).max(initial=0.0), 1e-300)
+    at_stop = 1e-12 * max(scale, np.abs(system.d0).max(initial=0.0))   # a row this close is on its stop
+    lost = 1e-9 * scale                                                  # a row this far beyond it was lost
+    pressed = 1e-10 * max(vscale * np.sqrt(system.w2.max()), vscale / span, load.max())   # |acceleration| of a row
+
+    def impact(t, j, y):
+        nonlocal count
+        if stuck:
+            raise ShootingError(f"row {j} meets its stop at t = {t:.6g} while row {stuck[0]} sticks: two rows at "
+                                "once are not followed")
         row = system.P[j]
-        if abs(system.d0[j] - row @ y[:n]) <= 1e-12 * max(scale, abs(system.d0[j])) and \
-                abs(row @ y[n:]) <= STICK_SPEED * vscale and holding(t, y, j) > 0.0:
-            _stick(y, n, row, stuck, j)
+        speed = float(row @ y[n:n2])   # approach speed (>= 0)
+        count += 1
+        if count > max_impacts:
+            raise ShootingError(f"more than {max_impacts} impacts at t = {t:.6g} ({MAX_IMPACTS} a forcing period): "
+                                "chatter that does not end")
+        if impacts is not None:
+            impacts.append((t, j, speed))
+        y[n:n2] -= (1.0 + system.restitution[j]) * speed * row / (row @ row)
+        rebound, pull = system.restitution[j] * speed, holding(t, y, j) * float(row @ row)
+        if pull > 0.0 and (rebound <= STICK_SPEED * vscale or rebound ** 2 <= 2.0 * pull * HOP * at_stop):
+            _stick(y, n, row, stuck, j, held)   # the end of a chatter sequence (or a plastic impact): it stays
+
+    def on_stops(t, y):
+        """Rows on their stops where a flight starts or goes on (an event cannot see a gap that starts at
+        zero): moving in, an impact now; at rest (to the sticking speed) and pressed by the load, stuck."""
+        for j in range(system.P.shape[0]):
+            row = system.P[j]
+            gap = system.d0[j] - row @ y[:n]
+            if j in stuck or gap > at_stop:
+                continue
+            if gap < 0.0:   # (on it: at the event a hair beyond, or round-off)
+                y[:n] += gap / (row @ row) * row
+            speed = float(row @ y[n:n2])
+            if speed > STICK_SPEED * vscale:
+                impact(t, j, y)
+            elif speed > -STICK_SPEED * vscale and holding(t, y, j) * np.linalg.norm(row) > pressed:
+                if stuck:
+                    raise ShootingError(f"rows {stuck[0]} and {j} stick at once at t = {t:.6g}: two rows at once "
+                                        "are not followed")
+                _stick(y, n, row, stuck, j, held)
+
+    on_stops(t, y)
     while t < t1:
-        sol = solve_ivp(rhs, (t, t1), y, method="DOP853", rtol=RTOL, atol=ATOL_FACTOR * scale,
-                        events=events, dense_output=False)
-        if sol.status == -1:
+        try:
+            sol = solve_ivp(rhs, (t, t1), y, method="DOP853", rtol=RTOL, atol=atol,
+                            events=events, dense_output=False)
+        except _OutOfTime:
+            raise ShootingError(f"the flight reached its time limit at t = {t:.6g}") from None
+        if sol.status == -1 or not np.all(np.isfinite(sol.y[:, -1])):
             raise ShootingError(f"the flight's integration failed at t = {t:.6g}: {sol.message}")
+        free = [j for j in range(system.P.shape[0]) if j not in stuck]
+        depth = (system.P[free] @ sol.y[:n] - system.d0[free, None]).max(initial=-np.inf) if free else -np.inf
+        if depth > lost:   # (a row beyond its stop between two events: the flight lost a contact)
+            raise ShootingError(f"a row went {depth:.3g} beyond its stop after t = {t:.6g}: a contact the "
+                                "event-driven flight lost")
         hit = None
         if sol.status == 1:   # an event: the first (not at the very start: a row just left, or just stuck)
             for j, times in enumerate(sol.t_events):
                 for k, te in enumerate(times):
                     if te > t + 1e-12 * span and (hit is None or te < hit[0]):
                         hit = (te, j, sol.y_events[j][k])
+        end = sol.y[:, -1] if hit is None else hit[2]
+        if stuck and held is not None:
+            held[stuck[0]] += end[-1]
         if hit is None:
-            if sol.status == 1 and sol.t[-1] < t1:
-                t, y = sol.t[-1], sol.y[:, -1]
+            if sol.t[-1] < t1:
+                stalls = stalls + 1 if sol.t[-1] <= t + 1e-12 * span else 0
+                if stalls > MAX_STALLS:
+                    raise ShootingError(f"the flight does not advance at t = {t:.6g}: a row stays at its stop "
+                                        "in a way the event-driven flight does not follow")
+                t, y = sol.t[-1], sol.y[:, -1].copy()
+                y[-1] = 0.0
+                on_stops(t, y)
                 continue
-            return sol.y[:, -1]
+            return sol.y[:n2, -1]
+        stalls = 0
         t, j, y = hit[0], hit[1], hit[2].copy()
+        y[-1] = 0.0
         if j == len(events) - 1:   # the stuck row's force reached zero: it leaves its stop
             stuck.clear()
-            continue
-        if stuck:
-            raise ShootingError(f"row {j} meets its stop at t = {t:.6g} while row {stuck[0]} sticks: two rows at "
-                                "once are not followed")
-        row = system.P[j]
-        speed = float(row @ y[n:])   # approach speed (>= 0)
-        count += 1
-        if count > MAX_IMPACTS * max(1.0, span):
-            raise ShootingError(f"more than {MAX_IMPACTS} impacts a period at t = {t:.6g}: chatter that does not end")
-        if impacts is not None:
-            impacts.append((t, j, speed))
-        y[n:] -= (1.0 + system.restitution[j]) * speed * row / (row @ row)
-        if system.restitution[j] * speed <= STICK_SPEED * vscale and holding(t, y, j) > 0.0:
-            _stick(y, n, row, stuck, j)   # the end of a chatter sequence (or a plastic impact): it stays
-    return y
+        else:
+            impact(t, j, y)
+        on_stops(t, y)
+    return y[:n2]
 
 
-def _stick(y, n, row, stuck, j) -> None:
-    y[n:] -= (row @ y[n:]) / (row @ row) * row
+def _stick(y, n, row, stuck, j, held) -> None:
+    """Row j stays on its stop: its remaining approach speed is taken by an impulse (counted in ``held``)."""
+    lam = (row @ y[n:2 * n]) / (row @ row)
+    y[n:2 * n] -= lam * row
+    if held is not None:
+        held[j] += lam
     stuck.append(j)
 
 
-def poincare_map(system: ReducedSystem, x: np.ndarray, period: float, k: int = 1, impacts=None) -> np.ndarray:
-    """``P^k(x)``: the state after k forcing periods from forcing phase 0."""
-    return flight(system, x, 0.0, k * period, impacts)
+def poincare_map(system: ReducedSystem, x: np.ndarray, period: float, k: int = 1, impacts=None,
+                 deadline: float | None = None, held: np.ndarray | None = None) -> np.ndarray:
+    """``P^k(x)``: the state after k forcing periods from forcing phase 0 (``impacts``, ``held``: :func:`flight`)."""
+    return flight(system, x, 0.0, k * period, impacts, max_impacts=MAX_IMPACTS * k, deadline=deadline, held=held)
 
 
-def jacobian(system: ReducedSystem, x: np.ndarray, period: float, k: int) -> np.ndarray:
-    scale = max(np.abs(x).max(), 1e-300)
-    J = np.zeros((x.size, x.size))
-    for i in range(x.size):
+def _coordinates(system: ReducedSystem) -> np.ndarray:
+    """The entries of [Z, Z'] that shooting solves for: those of the coordinates a row sees."""
+    seen = system.seen
+    return np.concatenate([seen, system.n + seen])
+
+
+def jacobian(system: ReducedSystem, x: np.ndarray, period: float, k: int, deadline: float | None = None,
+             entries: np.ndarray | None = None) -> np.ndarray:
+    """Central differences of ``P^k`` at ``x`` on ``entries`` of the state (default all): rows and columns."""
+    entries = np.arange(x.size) if entries is None else entries
+    scale = max(np.abs(x[entries]).max(initial=0.0), 1e-300)
+    J = np.zeros((entries.size, entries.size))
+    for col, i in enumerate(entries):
         h = DIFFERENCE_STEP * max(abs(x[i]), scale)
         plus, minus = x.copy(), x.copy()
         plus[i] += h
         minus[i] -= h
-        J[:, i] = (poincare_map(system, plus, period, k) - poincare_map(system, minus, period, k)) / (2 * h)
+        J[:, col] = (poincare_map(system, plus, period, k, deadline=deadline)[entries]
+                     - poincare_map(system, minus, period, k, deadline=deadline)[entries]) / (2 * h)
     return J
 
 
-def shoot(system: ReducedSystem, x0: np.ndarray, period: float, k: int = 1) -> Orbit:
-    """Newton on ``P^k(x) - x = 0`` from ``x0``; the orbit with the multipliers of its Jacobian."""
+def shoot(system: ReducedSystem, x0: np.ndarray, period: float, k: int = 1, seconds: float | None = None,
+          progress=None) -> Orbit:
+    """Newton on ``P^k(x) - x = 0`` from ``x0``; the orbit with the multipliers of its Jacobian.
+
+    Newton and the multipliers take the coordinates some contact row sees (:attr:`ReducedSystem.seen`);
+    the others keep their values of ``x0``. ``seconds``: a time limit (ShootingError beyond it);
+    ``progress(iteration, residual, elapsed)`` is called after each of Newton's iterations.
+    """
+    start = time.monotonic()
+    deadline = None if seconds is None else start + seconds
+    entries = _coordinates(system)
+    if entries.size == 0:
+        raise ShootingError("no contact row sees any of the kept modes: there are no impacts to follow")
     x = np.array(x0, dtype=float)
-    for iteration in range(1, NEWTON_ITERATIONS + 1):
-        scale = max(np.abs(x).max(), 1e-300)
-        residual = poincare_map(system, x, period, k) - x
-        J = jacobian(system, x, period, k)
-        if np.abs(residual).max() <= NEWTON_TOL * scale:
-            impacts: list = []
-            poincare_map(system, x, period, k, impacts)
-            return Orbit(x, k, np.linalg.eigvals(J), float(np.abs(residual).max() / scale), iteration, impacts)
-        try:
-            step = np.linalg.solve(J - np.eye(x.size), -residual)
-        except np.linalg.LinAlgError:
-            raise ShootingError("Newton's matrix J - I is singular (a multiplier at +1: a fold)") from None
-        # damped: never more than the state's scale in one step (a far start)
-        x = x + step * min(1.0, scale / max(np.abs(step).max(), 1e-300))
+    try:
+        for iteration in range(1, NEWTON_ITERATIONS + 1):
+            scale = max(np.abs(x[entries]).max(), 1e-300)
+            residual = (poincare_map(system, x, period, k, deadline=deadline) - x)[entries]
+            J = jacobian(system, x, period, k, deadline, entries)
+            if progress is not None:
+                progress(iteration, float(np.abs(residual).max() / scale), time.monotonic() - start)
+            if np.abs(residual).max() <= NEWTON_TOL * scale:
+                impacts: list = []
+                held = np.zeros(system.P.shape[0])
+                poincare_map(system, x, period, k, impacts, deadline=deadline, held=held)
+                return Orbit(x, k, np.linalg.eigvals(J), float(np.abs(residual).max() / scale), iteration, impacts,
+                             system.n - entries.size // 2, held)
+            try:
+                step = np.linalg.solve(J - np.eye(entries.size), -residual)
+            except np.linalg.LinAlgError:
+                raise ShootingError("Newton's matrix J - I is singular (a multiplier at +1: a fold)") from None
+            # damped: never more than the state's scale in one step (a far start)
+            x[entries] += step * min(1.0, scale / max(np.abs(step).max(), 1e-300))
+    except ShootingError as err:
+        if deadline is not None and time.monotonic() > deadline:
+            raise ShootingError(f"shooting stopped at its time limit of {seconds:g} s (iteration {iteration}): "
+                                f"{err}") from None
+        raise
     raise ShootingError(f"Newton did not converge in {NEWTON_ITERATIONS} iterations (residual "
                         f"{np.abs(residual).max() / scale:.3g} of the state's scale)")
+
+
+def least_period(system: ReducedSystem, orbit: Orbit, period: float, seconds: float | None = None) -> int:
+    """The orbit's least period: the smallest divisor m of its k with ``P^m(x) = x`` (to far below the
+    differences Newton's tolerance leaves): a fixed point of ``P^6`` may be the period-2 orbit."""
+    deadline = None if seconds is None else time.monotonic() + seconds
+    entries = _coordinates(system)
+    scale = max(np.abs(orbit.x[entries]).max(), 1e-300)
+    for m in range(1, orbit.k):
+        if orbit.k % m == 0:
+            back = poincare_map(system, orbit.x, period, m, deadline=deadline)[entries]
+            if np.abs(back - orbit.x[entries]).max() <= 1e3 * NEWTON_TOL * scale:
+                return m
+    return orbit.k
 
 
 @dataclass
@@ -252,9 +387,10 @@ def reduced_scene(case) -> ReducedScene:
     return ReducedScene(system, start, probes.names, rows, probes.dim, [(c.name, c.rows) for c in cons.contacts])
 
 
-def impulses(system: ReducedSystem, impacts: list) -> np.ndarray:
-    """The impulse each row took in ``impacts`` ((t, row, approach speed), Newton's law)."""
-    out = np.zeros(system.P.shape[0])
+def impulses(system: ReducedSystem, impacts: list, held: np.ndarray | None = None) -> np.ndarray:
+    """The impulse each row took in ``impacts`` ((t, row, approach speed), Newton's law), plus ``held``
+    (the impulse of the forces that held rows stuck)."""
+    out = np.zeros(system.P.shape[0]) if held is None else np.array(held, dtype=float)
     for _, j, speed in impacts:
         row = system.P[j]
         out[j] += (1.0 + system.restitution[j]) * speed / (row @ row)
