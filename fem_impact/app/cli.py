@@ -348,20 +348,25 @@ def _guarded(action, failure: str) -> int:
 
 def _interrupted(err: KeyboardInterrupt) -> int:
     """One line for Ctrl-C, SIGTERM, SIGHUP or SIGQUIT (on its own line after a progress bar); 128 + signal."""
-    from .outdir import exit_status, ignore_signals, signal_name
+    from .outdir import exit_status, ignore_signals, signal_name, wait_for_cleanup
     from .progress import Progress
 
     ignore_signals()
     Progress.end_line()
     status = exit_status(err)
+    comm = _comm()
+    # Under MPI the rank that cleaned up says it (rank 0, or another when rank 0 was stuck in an MPI call).
+    speaker = getattr(err, "speaker", comm.rank == 0)
     try:
-        _fail(_comm(), f"interrupted by {signal_name(err)} ({_left(err)})", status)
+        if speaker:
+            print(f"fem-impact: interrupted by {signal_name(err)} ({_left(err)})", file=sys.stderr)
         sys.stderr.flush()
     except OSError:   # (SIGHUP: the terminal may be gone)
         pass
-    if _comm().size > 1:
+    if comm.size > 1:
         # The other ranks may wait in a collective call that never completes: no MPI_Finalize (it
         # would wait for them too); mpirun ends the job when a rank exits with a non-zero status.
+        wait_for_cleanup()
         os._exit(status)
     return status
 
