@@ -184,16 +184,19 @@ _KNOWN_FOLDERS = ("checkpoint", "checkpoint.new", "checkpoint.old", "run[0-9][0-
                   "modal-*-plain")
 LEVELS = "levels"
 _STAGING = re.compile(r"\..+\.(partial|old|checkpoint)-\d+")
-_TEMPORARY = re.compile(r"\..+\.partial-\d+(\.[A-Za-z0-9]+)?")   # replacing()'s files
+_TEMPORARY = re.compile(r"\..+\.(partial)-\d+(\.[A-Za-z0-9]+)?")   # replacing()'s files
 _STUDY_CACHE = re.compile(r"\.cache-[a-z0-9_]{8}")                # levels.run_levels's private cache
 
 
-def _debris(name: str, is_dir: bool, in_levels: bool) -> bool:
+def _debris(name: str, is_dir: bool, in_levels: bool, owned: _Owned, sub: str) -> bool:
     """An entry a command makes while it works and removes when it ends (a killed one leaves it): a
-    temporary file of :func:`replacing`, a study's cache; in ``levels/``, a level run's staging, moved-aside,
-    checkpoint folders and lock. Names no user gives a file (a dot, the name, the kind, a process id)."""
-    if not is_dir and _TEMPORARY.fullmatch(name):
-        return True
+    temporary file of :func:`replacing` beside one of the result's files, a study's cache; in ``levels/``, a
+    level run's staging, moved-aside, checkpoint folders and lock. Names no user gives a file (a dot, the
+    name, the kind, a process id)."""
+    temporary = None if is_dir else _TEMPORARY.fullmatch(name)
+    if temporary:
+        target = name[1:temporary.start(1) - 1] + (temporary.group(2) or "")   # (.history.partial-7.csv)
+        return owned.owns(sub + target, False)
     if is_dir and _STUDY_CACHE.fullmatch(name):
         return True
     return in_levels and ((is_dir and _STAGING.fullmatch(name) is not None) or
@@ -245,7 +248,7 @@ def _scan(root: Path, owned: _Owned, shown: str = "", sub: str = ""):
         rel = sub + entry.name
         is_dir = entry.is_dir(follow_symlinks=False)
         path = Path(entry.path)
-        if _debris(entry.name, is_dir, in_levels=(sub == f"{LEVELS}/")):
+        if _debris(entry.name, is_dir, sub == f"{LEVELS}/", owned, sub):
             yield path, "debris", shown + rel
         elif owned.owns(rel, is_dir):
             if is_dir:
@@ -1090,18 +1093,82 @@ class Interrupted(KeyboardInterrupt):
 HANDLED = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 
+_RECEIVED: list[int] = []
+
+
 def _raise(signum, frame):
     # The process is ending: a second signal (mpirun follows one with another, a user presses Ctrl-C
     # twice) must not interrupt the cleanup. The next claim() installs the handlers again.
     ignore_signals()
+    _RECEIVED.append(signum)
     raise Interrupted(signum)
 
 
+def received() -> int | None:
+    """The signal that interrupted this process (a library may have turned the KeyboardInterrupt raised in
+    its code into an error of its own: an extension's import fails), or None."""
+    return _RECEIVED[-1] if _RECEIVED else None
+
+
+def rank_zero_stuck(wait: float = TAKE_OVER) -> bool:
+    """Under mpirun, interrupted on a rank other than 0: whether rank 0 is still running ``wait`` seconds
+    later (stuck in an MPI call that waits for this rank; it exits at once when it can say so itself). Rank 0
+    is found among this process's siblings (the ranks mpirun starts on this machine); False when it is not."""
+    pid = _rank_zero_pid()
+    if pid is None:
+        return False
+    deadline = time.monotonic() + wait
+    while time.monotonic() < deadline:
+        if not _running(pid):
+            return False
+        time.sleep(0.02)
+    return _running(pid)
+
+
+def _rank_zero_pid() -> int | None:
+    parent, me = os.getppid(), os.getpid()
+    try:
+        entries = [e.name for e in os.scandir("/proc") if e.name.isdigit() and int(e.name) != me]
+    except OSError:
+        return None
+    for pid in entries:
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                if int(f.read().rsplit(")", 1)[1].split()[1]) != parent:
+                    continue
+            with open(f"/proc/{pid}/environ", "rb") as f:
+                env = f.read().split(b"\0")
+        except (OSError, ValueError, IndexError):
+            continue
+        if b"OMPI_COMM_WORLD_RANK=0" in env or b"PMI_RANK=0" in env:
+            return int(pid)
+    return None
+
+
+def _running(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except (OSError, IndexError):
+        return False
+
+
+_IGNORED_AT_START: frozenset | None = None
+
+
 def install_signal_handlers() -> None:
-    """SIGTERM, SIGHUP, SIGQUIT and SIGINT raise :class:`Interrupted` (in the main thread; else nothing)."""
+    """SIGTERM, SIGHUP, SIGQUIT and SIGINT raise :class:`Interrupted` (in the main thread; else nothing).
+
+    A signal the process was started with ignored stays ignored (``nohup`` ignores SIGHUP, a shell script's
+    background command SIGINT): the run goes on, as the one who started it asked. (Noted at the first call;
+    PETSc, imported later, installs handlers of its own, which the next call replaces.)"""
+    global _IGNORED_AT_START
+    if _IGNORED_AT_START is None:
+        _IGNORED_AT_START = frozenset(sig for sig in (*HANDLED, signal.SIGINT)
+                                      if signal.getsignal(sig) == signal.SIG_IGN)
     try:
         for sig in (*HANDLED, signal.SIGINT):
-            signal.signal(sig, _raise)
+            signal.signal(sig, signal.SIG_IGN if sig in _IGNORED_AT_START else _raise)
     except ValueError:   # not the main thread (a study's worker): the process's owner handles signals
         pass
 
