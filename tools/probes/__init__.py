@@ -198,15 +198,19 @@ class Context:
 
     # -- user files ---------------------------------------------------------------------------
     def keep(self, folder) -> None:
-        """Remember every file under ``folder`` (a user's, which no command may change or remove)."""
+        """Remember every file under ``folder``, or the file ``folder`` (a user's, which no command may change
+        or remove)."""
         folder = Path(folder)
+        if folder.is_file():
+            self._kept[folder] = {"": _digest(folder)}
+            return
         self._kept[folder] = {str(p.relative_to(folder)): _digest(p) for p in folder.rglob("*") if p.is_file()}
 
     def lost_files(self) -> list[str]:
         missing = []
         for folder, files in self._kept.items():
             for name, digest in files.items():
-                p = folder / name
+                p = folder / name if name else folder
                 if not p.is_file() or _digest(p) != digest:
                     missing.append(str(p))
         return missing

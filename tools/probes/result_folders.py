@@ -68,10 +68,16 @@ def _rerun_over(command, place, label):
         if bad:
             return bad
         names = place(out)
-        ctx.keep(out)
+        _keep(ctx, out, names)
         r = ctx.run(*COMMANDS[command][1], "-o", out)
         return _judge(ctx, r, out, *names)
     probe("result-folders", f"{command} rerun over {label}")(body)
+
+
+def _keep(ctx, out, names):
+    """The user's files ``names`` (under ``out``) must stay as they are; the command may rewrite its own."""
+    for name in names:
+        ctx.keep(out / name)
 
 
 def _top(out):
@@ -101,7 +107,7 @@ def _collides(out):
     (out / ".history.partial-4194303.txt").write_text("mine, oddly named\n")
     (out / ".cache-mine").mkdir()
     (out / ".cache-mine" / "keep.txt").write_text("mine\n")
-    return [".cache-mine/keep.txt"]
+    return [".cache-mine/keep.txt", ".history.partial-4194303.txt"]
 
 
 for _command in COMMANDS:
@@ -143,7 +149,7 @@ def _rerun_fails_nested(ctx):
     if bad:
         return bad
     (out / "checkpoint" / "why.txt").write_text("my note on this checkpoint\n")
-    ctx.keep(out)
+    _keep(ctx, out, ["checkpoint/why.txt"])
     r = ctx.run("run", BLOCK, "-q", "-o", out, "--set", "solver.t_end=0.04")
     return _judge(ctx, r, out, "checkpoint/why.txt")
 
@@ -238,7 +244,7 @@ def _legacy_marker(ctx):
         return bad
     _strip_manifest(out)
     _user_files(out)
-    ctx.keep(out)
+    _keep(ctx, out, ["analysis.ipynb", "figures/f.png"])
     r = ctx.run(*COMMANDS["run"][1], "-o", out)
     return _judge(ctx, r, out, "analysis.ipynb", "figures/f.png")
 
@@ -250,7 +256,7 @@ def _legacy_summary(ctx):
         return bad
     (out / ".fem-impact.json").unlink()
     (out / "thesis.tex").write_text("\\documentclass{article}\n")
-    ctx.keep(out)
+    _keep(ctx, out, ["thesis.tex"])
     r = ctx.run(*COMMANDS["run"][1], "-o", out)
     return _judge(ctx, r, out, "thesis.tex")
 
@@ -278,7 +284,7 @@ def _legacy_sweep(ctx):
         return bad
     _strip_manifest(out)
     (out / "run01" / "remarks.md").write_text("# mine\n")
-    ctx.keep(out)
+    _keep(ctx, out, ["run01/remarks.md"])
     r = ctx.run(*COMMANDS["sweep"][1], "-o", out)
     return _judge(ctx, r, out, "run01/remarks.md")
 
@@ -353,7 +359,7 @@ def _study_levels(ctx):
     if bad:
         return bad
     (out / "levels" / "README.txt").write_text("what these levels are\n")
-    ctx.keep(out)
+    _keep(ctx, out, ["levels/README.txt"])
     r = ctx.run(*COMMANDS["study"][1], "-o", out)
     return _judge(ctx, r, out, "levels/README.txt")
 
@@ -364,7 +370,7 @@ def _study_over_run(ctx):
     if bad:
         return bad
     _user_files(out)
-    ctx.keep(out)
+    _keep(ctx, out, ["analysis.ipynb", "figures/f.png"])
     r = ctx.run(*COMMANDS["study"][1], "-j", "2", "-o", out)
     return _judge(ctx, r, out, "analysis.ipynb", "figures/f.png")
 
