@@ -1,22 +1,28 @@
 """The output folder's policy, shared by every command that writes: which folders may be written or
 replaced, the staging folder, the lock against a concurrent run, stale debris, and interruption.
 
-- A folder is replaced only when it holds an earlier fem-impact result (the marker file
-  ``.fem-impact.json`` that every command writes, or the files of a result written before the
-  marker existed); any other folder that is not empty is refused, and left as it was.
+- A folder is replaced only when it holds an earlier fem-impact result and nothing else: the marker
+  file ``.fem-impact.json`` that every command writes lists what the command wrote (its manifest);
+  a result written before the manifest existed owns the names its commands write. A result that
+  holds anything else (a notebook, a folder of figures, a link, a note inside ``checkpoint/``) is
+  refused naming those entries, and any other folder that is not empty is refused; both are left
+  as they were. Removing a result removes its own entries only (:func:`remove_result`).
 - The home folder, the current folder and its parents, the case file's folder and its parents
   (and the mesh file's) are never output folders.
 - Results are written into a hidden sibling ``.NAME.partial-PID`` and moved into place when
   complete, under the policy checked again at that moment: a folder that appeared or changed
-  meanwhile and holds files that are not a result is left as it was, and the result is kept
+  meanwhile and holds files that are not the result's is left as it was, and the result is kept
   beside it (``NAME.result-TIMESTAMP``, :class:`OutputFolderChanged`). A lock (``.NAME.lock``
   beside the folder, ``flock``: released by the kernel when the process dies) makes a second run
   into the same folder refuse; whoever holds the lock removes staging folders that a killed
-  process left behind.
+  process left behind, puts back an earlier result it finds moved aside, and keeps a killed run's
+  checkpoint in ``NAME.checkpoint`` (a restart from it follows it there: :meth:`OutputFolder.follow`).
 - A study writes into its folder directly (:func:`written_in_place`): its completed levels stay
   when it fails or is interrupted, for a rerun to resume.
 - SIGTERM, SIGHUP and SIGQUIT end a run as Ctrl-C does (:class:`Interrupted`, a KeyboardInterrupt):
-  the staging folder is removed and the command exits with 128 + the signal number.
+  the staging folder is removed and the command exits with 128 + the signal number; a signal the
+  process was started with ignored (nohup) stays ignored. Under mpirun one rank says it
+  (:meth:`OutputFolder._stop_ranks`).
 - A write that fails (a full disk, a quota, an I/O error) is :class:`OutputWriteError`, a
   SimulationError (status 3) naming the file and the reason; the staging folder is removed.
 
