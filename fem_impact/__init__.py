@@ -16,16 +16,20 @@ The Python API (the command ``fem-impact`` is a thin layer over it)::
 """
 
 from ._version import __version__
-from .config.case import Case, load_case
 from .errors import CaseError, FemImpactError, SimulationError
 
 __all__ = ["Case", "CaseError", "FemImpactError", "Result", "SimulationError", "__version__", "load_case", "run"]
 
 
 def __getattr__(name):
-    # run and Result need MPI: imported on first use, so that `import fem_impact` stays light.
+    # Imported on first use, so that `import fem_impact` stays light: run and Result need MPI, and the case
+    # format numpy and YAML (the command line installs its signal handlers before any of them loads).
     if name in ("run", "Result"):
         from .app import pipeline
 
         return getattr(pipeline, name)
+    if name in ("Case", "load_case"):
+        from .config import case
+
+        return getattr(case, name)
     raise AttributeError(f"module 'fem_impact' has no attribute {name!r}")

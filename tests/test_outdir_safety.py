@@ -522,14 +522,17 @@ def test_a_failed_write_is_one_line_with_status_3(tmp_path):
     result = subprocess.run([sys.executable, "-c", FULL_DISK_HOOK, "run", CASES / "impacting_bar.yaml", "-o", out,
                              *SMALL, "-q"], capture_output=True, text=True, env=env, timeout=300)
     assert result.returncode == 3, result.stderr
+    # (history.csv is written out at the end, after the run's last checkpoint: kept, and said)
+    kept = tmp_path / "out.checkpoint"
     assert result.stderr == (f"fem-impact: the run failed: cannot write {out / 'history.csv'}: No space left on "
-                             "device (the output folder was left as it was)\n")
-    assert snapshot(out) == before
+                             f"device (the output folder was left as it was; the run's last checkpoint (t = 0.05) is "
+                             f"kept in {kept}: continue it with --restart {kept})\n")
+    assert snapshot(out) == before and (kept / "state.json").is_file()
     no_debris(tmp_path)
 
 
-def in_small_filesystem(script: str, tmp_path: Path) -> subprocess.CompletedProcess:
-    """``script`` (sh) with a 256 kB tmpfs at tmp_path/disk, in a mount namespace of its own (nothing
+def in_small_filesystem(script: str, tmp_path: Path, size: str = "256k") -> subprocess.CompletedProcess:
+    """``script`` (sh) with a small tmpfs (``size``) at tmp_path/disk, in a mount namespace of its own (nothing
     is mounted on this machine); skips where user namespaces are not allowed."""
     disk = tmp_path / "disk"
     disk.mkdir()
@@ -540,7 +543,7 @@ def in_small_filesystem(script: str, tmp_path: Path) -> subprocess.CompletedProc
         pytest.skip("no user namespaces here")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run(["unshare", "--map-root-user", "--mount", "sh", "-c",
-                           f"mount -t tmpfs -o size=256k tmpfs {disk} && {script}"],
+                           f"mount -t tmpfs -o size={size} tmpfs {disk} && {script}"],
                           capture_output=True, text=True, env=env, timeout=300)
 
 
@@ -562,3 +565,216 @@ def test_a_really_full_disk(tmp_path):
            "folder was left as it was)" in result.stderr, result.stderr
     assert "Traceback" not in result.stderr
     assert result.stdout.split("\n")[-3:] == ["same", "out", ""], result.stdout
+
+
+# --- a result folder holds what its command wrote, and the user's files (issue 30) ----------------
+
+def manifest_of(folder: Path) -> list[str]:
+    import json
+
+    return json.loads((folder / ".fem-impact.json").read_text())["files"]
+
+
+def test_a_rerun_over_files_of_the_user_refuses_and_keeps_them(tmp_path):
+    """The issue's case: a notebook and a folder of figures put into a run's folder; the same run again
+    refuses (one line, status 2, naming them) and leaves every file as it was."""
+    out = tmp_path / "x"
+    assert cli("run", CASES / "impacting_bar.yaml", "-o", out, *SMALL, "-q").returncode == 0
+    (out / "analysis.ipynb").write_text("notes\n")
+    (out / "figures").mkdir()
+    (out / "figures" / "f.png").write_text("p\n")
+    before = snapshot(out)
+    again = cli("run", CASES / "impacting_bar.yaml", "-o", out, *SMALL, "--set", "solver.t_end=0.04", "-q")
+    refused(again, str(out), "fem-impact did not write (analysis.ipynb, figures/)", "move them")
+    assert snapshot(out) == before
+    no_debris(tmp_path)
+
+
+def users_entry(out: Path, where: str) -> Path:
+    """A user's entry in the result ``out`` (returns what must stay as it was)."""
+    if where == "nested in checkpoint/":
+        (out / "checkpoint" / "why.txt").write_text("my note on this checkpoint\n")
+    elif where == "hidden":
+        (out / ".ipynb_checkpoints").mkdir()
+        (out / ".ipynb_checkpoints" / "a.ipynb").write_text("{}\n")
+    elif where == "a link to a folder elsewhere":
+        data = out.parent / "data"
+        data.mkdir()
+        (data / "measurements.csv").write_text("t,x\n")
+        os.symlink(data, out / "data")
+    elif where == "a temporary file's name of another output":
+        (out / ".summary.partial-4194303.txt").write_text("mine\n")
+    elif where == "an earlier version's result (no manifest)":
+        import json
+
+        marker = json.loads((out / ".fem-impact.json").read_text())
+        del marker["files"]
+        (out / ".fem-impact.json").write_text(json.dumps(marker))
+        (out / "thesis.tex").write_text("x\n")
+    elif where == "an earlier version's result (no marker)":
+        (out / ".fem-impact.json").unlink()
+        (out / "thesis.tex").write_text("x\n")
+    return out.parent
+
+
+USERS_ENTRIES = {"nested in checkpoint/": "checkpoint/why.txt", "hidden": ".ipynb_checkpoints/",
+                 "a link to a folder elsewhere": "data", "a temporary file's name of another output":
+                 ".summary.partial-4194303.txt", "an earlier version's result (no manifest)": "thesis.tex",
+                 "an earlier version's result (no marker)": "thesis.tex"}
+
+
+@pytest.mark.parametrize("where", list(USERS_ENTRIES))
+def test_a_result_holding_an_entry_of_the_user_is_refused(tmp_path, where):
+    import fem_impact
+    from fem_impact.app.outdir import OutputFolderError
+
+    out = tmp_path / "out"
+    fem_impact.run(small_case(), out)
+    users_entry(out, where)
+    before = snapshot(tmp_path)
+    with pytest.raises(OutputFolderError, match="the folder holds files fem-impact did not write") as caught:
+        fem_impact.run(small_case(), out)
+    assert f"({USERS_ENTRIES[where]})" in str(caught.value)
+    assert snapshot(tmp_path) == before
+    no_debris(tmp_path)
+
+
+def test_the_manifest_lists_what_was_written_and_a_rerun_replaces_it(tmp_path):
+    """The marker lists the run's files; a picture plot writes into the folder joins them (a rerun replaces
+    it); a result of an earlier version holding its known files only is replaced too."""
+    import json
+
+    import fem_impact
+    from fem_impact.app.outdir import tree
+    from fem_impact.app.plots import plot_history
+
+    out = tmp_path / "out"
+    fem_impact.run(small_case(), out)
+    files = manifest_of(out)
+    assert files == tree(out) and {"history.csv", "summary.json", "checkpoint/", "checkpoint/state.json"} <= set(files)
+    plot_history(out)
+    assert manifest_of(out) == sorted([*files, "history.png"])
+    fem_impact.run(small_case().with_changes({"solver.t_end": 0.04}), out)
+    assert not (out / "history.png").exists() and manifest_of(out) == tree(out)
+    marker = json.loads((out / ".fem-impact.json").read_text())
+    del marker["files"]
+    (out / ".fem-impact.json").write_text(json.dumps(marker))
+    fem_impact.run(small_case(), out)
+    assert manifest_of(out) == tree(out)
+    no_debris(tmp_path)
+
+
+def test_a_file_written_into_the_folder_during_the_rerun_is_kept(tmp_path):
+    """Written while the rerun integrates: at the final move the folder is not the result it was; the file
+    stays, the result goes beside it."""
+    import fem_impact
+    from fem_impact.app.outdir import OutputFolderChanged, is_result
+
+    out = tmp_path / "out"
+    fem_impact.run(small_case(), out)
+    with pytest.raises(OutputFolderChanged, match=r"did not write \(notes.txt\)") as caught:
+        fem_impact.run(small_case(), out, progress=at_step(2, lambda: (out / "notes.txt").write_text("mine\n")))
+    assert (out / "notes.txt").read_text() == "mine\n" and is_result(caught.value.kept)
+    assert kept_results(tmp_path) == [caught.value.kept]
+    no_debris(tmp_path)
+
+
+def test_a_study_folder_holding_a_file_of_the_user_in_its_levels_is_refused(tmp_path):
+    """A study's levels are its own (a study killed before it completes lists none of them); anything
+    else under levels/ is the user's."""
+    from fem_impact.app.outdir import OutputFolderError, check, write_marker_data
+
+    study = tmp_path / "S"
+    level = study / "levels" / "00-mesh.cells_10"
+    level.mkdir(parents=True)
+    write_marker_data(study, {"files": ["convergence.csv"]})
+    (study / "convergence.csv").write_text("x\n")
+    write_marker_data(level, {"files": ["history.csv"]})
+    (level / "history.csv").write_text("x\n")
+    (level / "level.json").write_text("{}\n")
+    (study / "levels" / ".01-mesh.cells_20.partial-4194303").mkdir()   # a killed level run's staging folder
+    assert check(study) == study
+    (level / "plot.py").write_text("mine\n")
+    (study / "levels" / "README").write_text("mine\n")
+    with pytest.raises(OutputFolderError, match=r"did not write \(levels/00-mesh.cells_10/plot.py, levels/README\)"):
+        check(study)
+
+
+def test_a_failed_level_rerun_keeps_the_users_file(tmp_path):
+    """A level that fails on a rerun replaces the earlier level's result by its record: the earlier run's
+    files go, a file of the user's in the folder stays."""
+    from fem_impact.app.outdir import write_marker_data
+    from fem_impact.app.studies.levels import Level, Outcome, _record
+
+    folder = tmp_path / "levels" / "00-a"
+    folder.mkdir(parents=True)
+    write_marker_data(folder, {"files": ["history.csv"]})
+    (folder / "history.csv").write_text("x\n")
+    (folder / "level.json").write_text("{}\n")
+    (folder / "mine.txt").write_text("mine\n")
+    _record(Outcome(Level("00-a", {}), "failed", "blew up", None, folder), "f")
+    left = sorted(p.name for p in folder.iterdir())
+    assert "history.csv" not in left and {"level.json", "mine.txt"} <= set(left)
+    assert (folder / "mine.txt").read_text() == "mine\n"
+
+
+def test_stale_debris_never_removes_a_users_file(tmp_path):
+    """A rerun killed between its two moves: the earlier result (with a note of the user's) is aside in
+    .NAME.old-PID. The next claim puts it back when the folder is missing; when the folder is there, it
+    removes the earlier result's own files and puts the note back into the folder."""
+    import fem_impact
+    from fem_impact.app.outdir import _remove_stale
+
+    out = tmp_path / "out"
+    fem_impact.run(small_case(), out)
+    earlier = snapshot(out)
+    aside = tmp_path / ".out.old-4194303"
+    os.rename(out, aside)
+    (aside / "note.txt").write_text("mine\n")
+    _remove_stale(tmp_path, "out")
+    assert not aside.exists() and snapshot(out) == {**earlier, "note.txt": b"mine\n"}
+    shutil.copytree(out, aside)
+    (out / "note.txt").unlink()
+    _remove_stale(tmp_path, "out")
+    assert not aside.exists() and (out / "note.txt").read_text() == "mine\n"
+    assert snapshot(out) == {**earlier, "note.txt": b"mine\n"}
+
+
+def test_size_guard_counts_the_checkpoints(monkeypatch):
+    """Every run saves a checkpoint at its end (two on disk while the next one is written): the guard counts
+    them, and names the mesh when they are the output's largest part."""
+    from mpi4py import MPI
+
+    from fem_impact.app import limits
+    from fem_impact.config.case import CaseError, load_case
+
+    case = load_case(CASES / "impacting_bar.yaml", ["mesh.cells=2000000", "output.vtk=false", "solver.t_end=0.001",
+                                                    "solver.dt=1e-4"])
+    est = limits.estimate(case)
+    assert est.checkpoints == 2 * (limits.CHECKPOINT_BYTES_PER_DOF * 2000001 + limits.CHECKPOINT_BYTES_PER_RANK)
+    assert est.output == est.history + est.vtk + est.checkpoints and est.checkpoints > 10 * est.history
+    monkeypatch.setattr(limits, "free_disk", lambda folder: est.history + est.checkpoints / 2)
+    with pytest.raises(CaseError, match=r"mesh.cells: the run would write about .*checkpoints 520 MB"):
+        limits.check_limits(case, Path("/tmp/x"), MPI.COMM_SELF)
+
+
+def test_a_full_disk_under_hdf5_is_one_line(tmp_path):
+    """A small file system filled by an XDMF run (HDF5 printed its whole error stack, dozens of lines) and by
+    a checkpoint (h5py's failed write, then its failed close: a traceback, a crash at exit): one line each,
+    status 3, naming the file as it would be in the result and what the run kept (its last checkpoint). The XDMF
+    run checkpoints at t = 1, 2, 3, ...: its series fills the disk between two (near t = 2.6), a checkpoint the
+    other run."""
+    out = tmp_path / "disk" / "out"
+    run = f"{sys.executable} -m fem_impact run {CASES / 'impacting_bar.yaml'} -q --force -o {out}"
+    result = in_small_filesystem(
+        f"{run} --set output.format=xdmf --set solver.t_end=20 --set output.checkpoint_every=500; echo status $?; "
+        f"rm -rf {out}.checkpoint; "
+        f"{run} --set output.vtk=false --set mesh.cells=20000 --set solver.dt=1e-4 --set solver.t_end=0.01 "
+        f"--set output.checkpoint_every=10; echo status $?; ls -A {out.parent}", tmp_path, size="2m")
+    assert result.stdout.split("\n")[:2] == ["status 3", "status 3"], result
+    first, second = result.stderr.splitlines()
+    assert first.startswith(f"fem-impact: the run failed: cannot write {out}/results.h5: No space left on device (the "
+                            "output folder was left as it was; the run's last checkpoint (t = "), first
+    assert first.endswith(f"is kept in {out}.checkpoint: continue it with --restart {out}.checkpoint)"), first
+    assert second.startswith(f"fem-impact: the run failed: cannot write {out}/checkpoint/rank-0.h5: No space left on "
+                             "device (the output folder was left as it was"), second

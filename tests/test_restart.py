@@ -398,3 +398,44 @@ def test_initial_from_under_a_support_the_saved_run_had_not_holds_its_nodes_at_r
     held = fi.run(case.with_changes({"initial": {"from": str(saved)}, "solver.t_end": 0.2,
                                      "supports": [{"nodes": "right", "fix": ["x"]}]}))
     assert not held.history["right.ux"].any() and not held.history["right.vx"].any()
+
+
+def killed_run_checkpoint(tmp_path, name: str, t_end: float) -> tuple:
+    """What a run into tmp_path/NAME killed outright (SIGKILL) after a checkpoint at t_end leaves: its hidden
+    .NAME.checkpoint-PID/checkpoint (a process id that does not exist); returns (that folder, the case)."""
+    import shutil
+
+    case = fi.load_case(CASES / "impacting_bar.yaml", ["output.vtk=false", "solver.t_end=1"])
+    saved = fi.run(case.with_changes({"solver.t_end": t_end}), tmp_path / f"made-{t_end}").outdir
+    hidden = tmp_path / f".{name}.checkpoint-4194303"
+    hidden.mkdir()
+    shutil.copytree(saved / "checkpoint", hidden / "checkpoint")
+    shutil.rmtree(saved)
+    return hidden, case
+
+
+@pytest.mark.parametrize("inner", [False, True], ids=["the hidden folder", "its checkpoint/"])
+def test_a_restart_from_a_killed_runs_hidden_checkpoint_into_the_same_folder(tmp_path, inner):
+    """Claiming the folder keeps the killed run's checkpoint in NAME.checkpoint (it moved it away, and the
+    restart then found "no checkpoint there"): the restart follows it there."""
+    hidden, case = killed_run_checkpoint(tmp_path, "run", 0.5)
+    result = fi.run(case, tmp_path / "run", restart=hidden / "checkpoint" if inner else hidden)
+    kept = tmp_path / "run.checkpoint"
+    assert result.summary["restarted_from"]["folder"] == str(kept) and result.summary["restarted_from"]["t"] == 0.5
+    assert not hidden.exists() and (kept / "state.json").is_file()
+
+
+def test_a_restart_reads_the_checkpoint_it_names_not_another_killed_runs(tmp_path):
+    """NAME.checkpoint is the restart's (t = 0.5); a run killed later left a hidden one (t = 0.25). Claiming
+    the folder keeps that one beside, never over the one the restart reads."""
+    import shutil
+
+    first, case = killed_run_checkpoint(tmp_path, "run", 0.5)
+    shutil.move(first / "checkpoint", tmp_path / "run.checkpoint")
+    first.rmdir()
+    hidden, _ = killed_run_checkpoint(tmp_path, "run", 0.25)
+    result = fi.run(case, tmp_path / "run", restart=tmp_path / "run.checkpoint")
+    assert result.summary["restarted_from"]["t"] == 0.5 and result.history["t"][0] == 0.5
+    beside = sorted(tmp_path.glob("run.checkpoint-*"))
+    assert len(beside) == 1 and json.loads((beside[0] / "state.json").read_text())["t"] == 0.25
+    assert not hidden.exists()

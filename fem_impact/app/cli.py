@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import sys
@@ -278,15 +279,28 @@ def _add_study_parser(sub) -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    from .outdir import install_signal_handlers
+
+    install_signal_handlers()   # SIGTERM, SIGHUP, SIGQUIT end every command as Ctrl-C does
+    try:
+        return _main(argv)
+    except KeyboardInterrupt as err:   # (while the command line or the libraries load)
+        return _interrupted(err)
+    except Exception:
+        from .outdir import Interrupted, received
+
+        if received() is None:
+            raise
+        return _interrupted(Interrupted(received()))   # (a library's import failed, interrupted)
+
+
+def _main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return 2
     _configure_logging(getattr(args, "verbose", False))
-    from .outdir import install_signal_handlers
-
-    install_signal_handlers()   # SIGTERM, SIGHUP, SIGQUIT end every command as Ctrl-C does
     if not getattr(args, "verbose", False):
         # Overflow on the way to a blow-up: the run detects it and says so in one line (status 3);
         # numpy's warnings (with source lines, once per rank) would only add noise. Shown with -v.
@@ -361,22 +375,42 @@ def _guarded(action, failure: str) -> int:
 
 def _interrupted(err: KeyboardInterrupt) -> int:
     """One line for Ctrl-C, SIGTERM, SIGHUP or SIGQUIT (on its own line after a progress bar); 128 + signal."""
-    from .outdir import exit_status, ignore_signals, signal_name
-    from .progress import Progress
+    from .outdir import exit_status, ignore_signals, rank_zero_stuck, signal_name, wait_for_cleanup
 
     ignore_signals()
-    Progress.end_line()
+    if "fem_impact.app.progress" in sys.modules:
+        sys.modules["fem_impact.app.progress"].Progress.end_line()
     status = exit_status(err)
+    rank, size = _rank_and_size()
+    # Under MPI the rank that cleaned up says it (rank 0, or another when rank 0 was stuck in an MPI call).
+    speaker = getattr(err, "speaker", None)
+    if speaker is None:
+        speaker = rank == 0 or (size > 1 and rank_zero_stuck())
     try:
-        _fail(_comm(), f"interrupted by {signal_name(err)} ({_left(err)})", status)
+        if speaker:
+            print(f"fem-impact: interrupted by {signal_name(err)} ({_left(err)})", file=sys.stderr)
         sys.stderr.flush()
     except OSError:   # (SIGHUP: the terminal may be gone)
         pass
-    if _comm().size > 1:
+    if size > 1:
         # The other ranks may wait in a collective call that never completes: no MPI_Finalize (it
         # would wait for them too); mpirun ends the job when a rank exits with a non-zero status.
+        wait_for_cleanup()
         os._exit(status)
     return status
+
+
+def _rank_and_size() -> tuple[int, int]:
+    """This process's MPI rank and the job's size: from MPI when mpi4py is loaded, else (interrupted while the
+    libraries load) from the launcher's environment, without starting MPI now."""
+    mpi = sys.modules.get("mpi4py.MPI")
+    if mpi is not None and hasattr(mpi, "COMM_WORLD"):
+        with contextlib.suppress(Exception):
+            return mpi.COMM_WORLD.rank, mpi.COMM_WORLD.size
+    env = os.environ
+    rank = env.get("OMPI_COMM_WORLD_RANK", env.get("PMI_RANK", "0"))
+    size = env.get("OMPI_COMM_WORLD_SIZE", env.get("PMI_SIZE", "1"))
+    return (int(rank), int(size)) if rank.isdigit() and size.isdigit() else (0, 1)
 
 
 def _left(err: BaseException) -> str:

@@ -28,6 +28,11 @@ BASE_MEMORY = 200e6          # measured 150-180 MB: Python, dolfinx, PETSc and a
 BYTES_PER_DOF = {1: 1.5e3, 2: 5.0e3, 3: 1.5e4}   # measured 1.2, 4.5 and 10 kB (3D: the LU fill grows)
 HISTORY_BYTES_PER_VALUE = 20   # "%.17g" and a comma
 VTK_BYTES_PER_NODE = {1: 140, 2: 250, 3: 400}   # per frame (measured 133, 239, 382): fields, geometry, cells
+# A checkpoint (every run saves one at its end): its state vectors per unknown (measured 98 to 120 bytes on the
+# full model, 19 on the reduced one), plus HDF5's and state.json's bytes per rank file; two at once while the
+# next one is written.
+CHECKPOINT_BYTES_PER_DOF = 130
+CHECKPOINT_BYTES_PER_RANK = 60e3
 
 
 @dataclass
@@ -39,10 +44,11 @@ class Estimate:
     history: float     # bytes of history.csv
     frames: int
     vtk: float         # bytes of the VTK series
+    checkpoints: float = 0.0   # bytes of the checkpoints on disk at once
 
     @property
     def output(self) -> float:
-        return self.history + self.vtk
+        return self.history + self.vtk + self.checkpoints
 
 
 def _nodes(case: Case) -> tuple[int, int]:
@@ -71,7 +77,8 @@ def estimate(case: Case, ranks: int = 1) -> Estimate:
     history = (float(steps) + 1) * columns * HISTORY_BYTES_PER_VALUE
     frames = steps // case.output.every + 2 if case.output.vtk else 0
     vtk = float(frames) * (float(nodes) * VTK_BYTES_PER_NODE[dim] + 2000 * ranks)
-    return Estimate(steps, nodes, dofs, memory, history, frames, vtk)
+    checkpoints = 2.0 * (CHECKPOINT_BYTES_PER_DOF * float(dofs) + CHECKPOINT_BYTES_PER_RANK * ranks)
+    return Estimate(steps, nodes, dofs, memory, history, frames, vtk, checkpoints)
 
 
 def available_memory() -> float:
@@ -119,7 +126,7 @@ def check_limits(case: Case, outdir: Path | None, comm, force: bool = False) -> 
     key = ("mesh", "file") if case.mesh.file is not None else ("mesh", "cells")
     memory = available_memory()
     if outdir is None:   # a run that writes nothing keeps its history in memory, and writes no frame
-        est = dataclasses.replace(est, memory=est.memory + est.history, frames=0, vtk=0.0)
+        est = dataclasses.replace(est, memory=est.memory + est.history, frames=0, vtk=0.0, checkpoints=0.0)
     if est.memory > memory:
         raise case.error(key, f"the run would need about {_size(est.memory)} of memory ({est.dofs:.3g} unknowns), "
                               f"more than the {_size(memory)} available{FORCE}")
@@ -130,7 +137,8 @@ def check_limits(case: Case, outdir: Path | None, comm, force: bool = False) -> 
                                               f"{FORCE}")
     disk = free_disk(outdir.parent) if outdir is not None else math.inf
     if est.output > disk:
-        raise case.error(("output", "every") if est.vtk > est.history else ("solver", "dt"),
-                         f"the run would write about {_size(est.output)} (history {_size(est.history)}, VTK "
-                         f"{_size(est.vtk)}), more than the {_size(disk)} free on the disk{FORCE}")
+        key = max([(est.vtk, ("output", "every")), (est.history, ("solver", "dt")), (est.checkpoints, key)])[1]
+        raise case.error(key, f"the run would write about {_size(est.output)} (history {_size(est.history)}, VTK "
+                              f"{_size(est.vtk)}, checkpoints {_size(est.checkpoints)}), more than the "
+                              f"{_size(disk)} free on the disk{FORCE}")
     return est

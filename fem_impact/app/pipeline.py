@@ -233,7 +233,8 @@ def run(case: Case, outdir=None, progress=False, comm: MPI.Comm | None = None,
     protect = case_inputs(case) + ((Path(restart),) if restart is not None else ())
     with claim(Path(outdir), comm, "run", protect=protect, source=case.path) as out, \
             case.errors_at_keys():
-        return _run(case, out, comm, progress, force, t_start, stop_on_energy_gain, restart)
+        # (a killed run's checkpoint that the claim kept in NAME.checkpoint: read there)
+        return _run(case, out, comm, progress, force, t_start, stop_on_energy_gain, out.follow(restart))
 
 
 def _check_arguments(case, outdir, progress, comm, stop_on_energy_gain, force) -> None:

@@ -267,8 +267,12 @@ class XDMFSeries:
         self.out_bs = W.dofmap.index_map_bs
         self.functions = {name: function(W, name) for name in names}
         self._path, self._comm = Path(path), comm
-        self._file = io.XDMFFile(comm, str(self._path), "w")
-        self._file.write_mesh(V.mesh)
+        silence_hdf5_errors()
+        try:
+            self._file = io.XDMFFile(comm, str(self._path), "w")
+            self._file.write_mesh(V.mesh)
+        except RuntimeError:   # (HDF5's failed write, e.g. a full disk)
+            raise _unwritten(self._path.with_suffix(".h5")) from None
 
     def write(self, t: float, owned_values: dict) -> None:
         """Write one frame; ``owned_values`` maps a field name to its owned dof values."""
@@ -279,15 +283,38 @@ class XDMFSeries:
             f.x.scatter_forward()
             try:
                 self._file.write_function(f, t)
-            except RuntimeError as exc:   # (HDF5's failed write, e.g. a full disk)
-                raise OSError(errno.EIO, f"could not write {self._path.with_suffix('.h5')}: {exc}") from None
+            except RuntimeError:   # (HDF5's failed write, e.g. a full disk)
+                raise _unwritten(self._path.with_suffix(".h5")) from None
 
     def close(self) -> None:
         file, self._file = self._file, None
         if file is not None:
-            file.close()
+            try:
+                file.close()
+            except RuntimeError:
+                raise _unwritten(self._path.with_suffix(".h5")) from None
             if self._comm.rank == 0:
                 _one_collection(self._path)
+
+
+def silence_hdf5_errors() -> None:
+    """HDF5 prints its whole error stack (dozens of "HDF5-DIAG" lines) on stderr when a write fails, before
+    dolfinx raises: the run says what failed in one line. Turns that printing off (``H5Eset_auto2``) in every
+    HDF5 library of the process (dolfinx's is not h5py's, which keeps its own off)."""
+    import ctypes
+
+    try:
+        with open("/proc/self/maps") as maps:
+            libraries = {line.split()[-1] for line in maps if "/libhdf5" in line and "_hl" not in line}
+    except OSError:
+        return
+    for library in libraries:
+        try:
+            set_auto = ctypes.CDLL(library).H5Eset_auto2
+        except (OSError, AttributeError):
+            continue
+        set_auto.argtypes = [ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p]   # (hid_t, H5E_auto2_t, void *)
+        set_auto(0, None, None)   # H5E_DEFAULT: the default error stack
 
 
 def _one_collection(path: Path) -> None:

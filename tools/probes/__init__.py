@@ -136,7 +136,7 @@ class Context:
         """``fem-impact ARGS`` (or ``python ARGS`` with ``python=True``), in its own process group.
 
         ``signal_at=(when, SIG)``: send SIG to the process (mpirun under MPI) once ``when`` seconds have
-        passed, or once the callable ``when()`` is true. A command still running at the time limit is
+        passed, or once the callable ``when()`` is true (SIG 0: nothing more, the callable signals itself). A command still running at the time limit is
         killed with its group and raises, ending the probe as a hang.
         """
         cmd = [sys.executable, *map(str, args)] if python else self.command(*args, mpi=mpi)
@@ -167,7 +167,7 @@ class Context:
             out, err = proc.communicate()
             raise _Hung(Completed(cmd, None, out, err, time.monotonic() - start)) from None
         status = proc.returncode
-        if signal_at is not None and status == -signal_at[1]:
+        if signal_at is not None and signal_at[1] and status == -signal_at[1]:
             status = 128 + signal_at[1]   # (ended by the probe's own signal: not a crash)
         return Completed(cmd, status, out, err, time.monotonic() - start)
 
@@ -198,15 +198,19 @@ class Context:
 
     # -- user files ---------------------------------------------------------------------------
     def keep(self, folder) -> None:
-        """Remember every file under ``folder`` (a user's, which no command may change or remove)."""
+        """Remember every file under ``folder``, or the file ``folder`` (a user's, which no command may change
+        or remove)."""
         folder = Path(folder)
+        if folder.is_file():
+            self._kept[folder] = {"": _digest(folder)}
+            return
         self._kept[folder] = {str(p.relative_to(folder)): _digest(p) for p in folder.rglob("*") if p.is_file()}
 
     def lost_files(self) -> list[str]:
         missing = []
         for folder, files in self._kept.items():
             for name, digest in files.items():
-                p = folder / name
+                p = folder / name if name else folder
                 if not p.is_file() or _digest(p) != digest:
                     missing.append(str(p))
         return missing

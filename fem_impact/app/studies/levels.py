@@ -47,7 +47,7 @@ import numpy as np
 from ...cache import code_fingerprint
 from ...config.case import Case
 from ...integrators.parameters import steps_for
-from ..outdir import replacing
+from ..outdir import remove_result, replacing
 from ..plots import history_columns
 from ..progress import duration
 from . import worker
@@ -120,9 +120,9 @@ def fingerprint(case: Case, code: str) -> str:
 def _record(outcome: Outcome, fingerprint: str) -> None:
     folder = outcome.folder
     if outcome.status != "ok":   # a failed or refused run wrote nothing: its folder holds only the record
-        if folder.exists():
-            shutil.rmtree(folder)
-        folder.mkdir(parents=True)
+        if folder.exists():   # (an earlier run's result: what fem-impact wrote in it, never a file of the user's)
+            remove_result(folder, level=True)
+        folder.mkdir(parents=True, exist_ok=True)
     data = {"changes": outcome.level.changes, "fingerprint": fingerprint, "status": outcome.status,
             "reason": outcome.reason, "error": outcome.error, "info": outcome.level.info}
     with replacing(folder / LEVEL_FILE) as tmp:
