@@ -365,3 +365,26 @@ def test_a_free_block_periodic_orbit_balances_its_momentum(tmp_path):
     assert row["orbit1.impulse"] == pytest.approx(10.0 * 9.81 / 56.0, rel=1e-9)
     mu = [complex(row[f"orbit1.multiplier{i}.re"], row[f"orbit1.multiplier{i}.im"]) for i in range(1, 5)]
     assert min(abs(m - 1) for m in mu) > 1e-3
+
+
+def test_a_study_called_from_python_claims_its_folder_as_the_command_does(tmp_path):
+    """From Python a study wrote into any folder, over a user's files of its names, and left no manifest: it is
+    claimed as on the command line (refused over files fem-impact did not write, the user's file unchanged;
+    a result with its manifest, which a rerun replaces)."""
+    from fem_impact.app.outdir import MARKER, OutputFolderError
+
+    case = fi.load_case(CASES / "impact_oscillator.yaml")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "response.csv").write_text("my own table\n")
+    with pytest.raises(OutputFolderError, match="response.csv"):
+        response_study(case, "parameters.F0=0.6", mine, settle=0, periods=2, steps_per_period=8, quiet=True,
+                       shooting=False)
+    assert (mine / "response.csv").read_text() == "my own table\n" and sorted(p.name for p in mine.iterdir()) == \
+        ["response.csv"]
+    out = tmp_path / "out"
+    for _ in range(2):   # (the second: a rerun over the first result)
+        response_study(case, "parameters.F0=0.6", out, settle=0, periods=2, steps_per_period=8, quiet=True,
+                       shooting=False)
+        files = json.loads((out / MARKER).read_text())["files"]
+        assert "response.csv" in files and "study.json" in files

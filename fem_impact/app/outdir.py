@@ -866,6 +866,22 @@ def claim(outdir, comm, command: str, protect=(), source=None):
             out._release(failed=not ok)
 
 
+_IN_PLACE: set[str] = set()   # the folders this process's written_in_place claims hold now
+
+
+@contextlib.contextmanager
+def in_place(outdir, command: str, protect=(), source=None):
+    """:func:`written_in_place` for a study called from Python; nothing more when this process holds that claim
+    already (the command line claims the folder before it calls the study)."""
+    if os.path.realpath(outdir) in _IN_PLACE:
+        yield None
+        return
+    from mpi4py import MPI
+
+    with written_in_place(outdir, MPI.COMM_WORLD, command, protect, source) as out:
+        yield out
+
+
 @contextlib.contextmanager
 def written_in_place(outdir, comm, command: str, protect=(), source=None):
     """Claim ``outdir`` for a command that writes into it directly, not through a staging folder: a study,
@@ -893,6 +909,8 @@ def written_in_place(outdir, comm, command: str, protect=(), source=None):
         error = comm.bcast(error, root=0)
         if error:
             raise OutputFolderError(*error)
+        held = os.path.realpath(out.path)
+        _IN_PLACE.add(held)
         try:
             yield out
             if comm.rank == 0:
@@ -906,6 +924,8 @@ def written_in_place(outdir, comm, command: str, protect=(), source=None):
                 converted.left = getattr(err, "left", None)
                 raise converted from None
             raise
+        finally:
+            _IN_PLACE.discard(held)
 
 
 def _in_place_manifest(folder: Path, before: list[str]) -> list[str]:

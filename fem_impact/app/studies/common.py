@@ -36,11 +36,12 @@ def default_outdir(case, study: str) -> Path:
     return Path.cwd() / "results" / f"{case.name}-{study}"
 
 
-def check_outdir(outdir: Path, case) -> None:
-    """The output-folder policy (fem_impact.app.outdir); the command line also locks the folder."""
-    from ..outdir import case_inputs, check
+def study_folder(outdir: Path, command: str, case):
+    """The study's folder claimed under the output-folder policy (fem_impact.app.outdir.written_in_place: checked,
+    locked, its manifest written at the end), unless this process claimed it already (the command line does)."""
+    from ..outdir import case_inputs, in_place
 
-    check(outdir, protect=case_inputs(case))
+    return in_place(outdir, command, protect=case_inputs(case), source=case.path)
 
 
 def given_changes(changes) -> dict:

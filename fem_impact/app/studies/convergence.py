@@ -26,7 +26,7 @@ from .common import (
     MEASURE_LABELS,
     StudyInputError,
     case_record,
-    check_outdir,
+    study_folder,
     default_outdir,
     fit_order,
     fmt,
@@ -146,38 +146,38 @@ def convergence_study(case, vary_options, courant=None, dt=None, method=None, ch
     vary = parse_vary(vary_options)
     p = plan(case, vary, courant, dt, method, changes, against)
     outdir = Path(outdir) if outdir else default_outdir(case, "convergence")
-    check_outdir(outdir, case)
-    outcomes = run_levels(case, p["levels"], outdir, jobs, allow_failure, stream=stream, quiet=quiet)
-    finest = outcomes[p["finest"]]
-    rows = []
-    if p["against"] == "exact":
-        references = [from_case(o.case) for o in outcomes]
-        label = references[0].label
-    else:
-        if not finest.ok:
-            raise StudyInputError(f"the finest level ({finest.level.label}) did not finish ({finest.reason}): "
-                                  "no reference to measure the other levels against")
-        label = f"finest level ({finest.level.label})"
-        references = [run_reference(finest, label)] * len(outcomes)
-    for i, (o, ref, x) in enumerate(zip(outcomes, references, p["x"], strict=True)):
-        row = {"level": o.level.label, **dict(zip(p["keys"], o.level.info["values"], strict=True)),
-               **level_row(o, jobs), "parameter": x, "reference": label}
-        is_ref = p["against"] == "finest" and i == p["finest"]
-        row.update(dict.fromkeys(ERROR_MEASURES, math.nan) if is_ref else measure(o, ref))
-        rows.append(row)
-    fit = [i for i in range(len(rows)) if not (p["against"] == "finest" and i == p["finest"])]
-    orders = {m: fit_order([rows[i]["parameter"] for i in fit], [rows[i][m] for i in fit]) for m in ERROR_MEASURES}
-    columns = [*COLUMNS_HEAD, *p["keys"], *COLUMNS_TAIL]
-    outdir.mkdir(parents=True, exist_ok=True)
-    write_csv(outdir / "convergence.csv", columns, rows)
-    _plot(outdir / "convergence.png", rows, orders, p, label, case.name)
-    record = case_record(case, changes)
-    write_json(outdir / "study.json", {
-        "study": "convergence", "case": record["case"], "method": p["method"].name,
-        "vary": dict(vary), "courant": courant, "dt": dt, "overrides": record["overrides"], "parameter": p["parameter"],
-        "reference": label, "orders": orders, "jobs": jobs})
-    return {"rows": rows, "orders": orders, "reference": label, "parameter": p["parameter"], "outdir": outdir,
-            "method": p["method"].name, "keys": p["keys"]}
+    with study_folder(outdir, "study convergence", case):
+        outcomes = run_levels(case, p["levels"], outdir, jobs, allow_failure, stream=stream, quiet=quiet)
+        finest = outcomes[p["finest"]]
+        rows = []
+        if p["against"] == "exact":
+            references = [from_case(o.case) for o in outcomes]
+            label = references[0].label
+        else:
+            if not finest.ok:
+                raise StudyInputError(f"the finest level ({finest.level.label}) did not finish ({finest.reason}): "
+                                      "no reference to measure the other levels against")
+            label = f"finest level ({finest.level.label})"
+            references = [run_reference(finest, label)] * len(outcomes)
+        for i, (o, ref, x) in enumerate(zip(outcomes, references, p["x"], strict=True)):
+            row = {"level": o.level.label, **dict(zip(p["keys"], o.level.info["values"], strict=True)),
+                   **level_row(o, jobs), "parameter": x, "reference": label}
+            is_ref = p["against"] == "finest" and i == p["finest"]
+            row.update(dict.fromkeys(ERROR_MEASURES, math.nan) if is_ref else measure(o, ref))
+            rows.append(row)
+        fit = [i for i in range(len(rows)) if not (p["against"] == "finest" and i == p["finest"])]
+        orders = {m: fit_order([rows[i]["parameter"] for i in fit], [rows[i][m] for i in fit]) for m in ERROR_MEASURES}
+        columns = [*COLUMNS_HEAD, *p["keys"], *COLUMNS_TAIL]
+        outdir.mkdir(parents=True, exist_ok=True)
+        write_csv(outdir / "convergence.csv", columns, rows)
+        _plot(outdir / "convergence.png", rows, orders, p, label, case.name)
+        record = case_record(case, changes)
+        write_json(outdir / "study.json", {
+            "study": "convergence", "case": record["case"], "method": p["method"].name,
+            "vary": dict(vary), "courant": courant, "dt": dt, "overrides": record["overrides"], "parameter": p["parameter"],
+            "reference": label, "orders": orders, "jobs": jobs})
+        return {"rows": rows, "orders": orders, "reference": label, "parameter": p["parameter"], "outdir": outdir,
+                "method": p["method"].name, "keys": p["keys"]}
 
 
 def format_convergence(result: dict) -> str:

@@ -29,7 +29,7 @@ from .common import (
     StudyInputError,
     base_case,
     case_record,
-    check_outdir,
+    study_folder,
     default_outdir,
     fmt,
     given_changes,
@@ -122,55 +122,55 @@ def pareto_study(case, methods=None, courant=None, rungs=None, time_axis="wall",
     given = given_changes(changes)
     base = base_case(case, given)   # the resolution the ladders start from
     outdir = Path(outdir) if outdir else default_outdir(case, "pareto")
-    check_outdir(outdir, case)
-    levels, notes, skipped = [], [], {}
-    for method in chosen:
-        why = registry.availability(method, case, changes)
-        if why:
-            skipped[method.name] = why
-            continue
-        lv, nt = ladder(method, base, given, courant, rungs)
-        levels += lv
-        notes += nt
-    if not levels:
-        raise StudyInputError("no method to run: " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
-    exact = base.reference is not None
-    if exact:
-        for lv in levels:
-            from_case(case.with_changes(lv.changes))   # CaseError if the case does not fit its reference
-    else:
-        levels.append(_reference_level(base, given, courant, rungs))
-    if not quiet:
-        for name, why in skipped.items():
-            stream.write(f"note: {name} skipped: {why}\n")
-        for note in notes:
-            stream.write(f"note: {note}\n")
-    outcomes = run_levels(case, levels, outdir, jobs, allow_failure, stream=stream, quiet=quiet)
-    if exact:
-        references = [from_case(o.case) for o in outcomes]
-        label = references[0].label
-    else:
-        ref_outcome = outcomes.pop()
-        if not ref_outcome.ok:
-            raise StudyInputError(f"the reference run did not finish ({ref_outcome.reason})")
-        label = ref_outcome.level.label
-        references = [run_reference(ref_outcome, label)] * len(outcomes)
-    rows = []
-    for o, ref in zip(outcomes, references, strict=True):
-        rows.append({**o.level.info, **level_row(o, jobs), **measure(o, ref), "reference": label})
-    time_key = "wall_time_s" if time_axis == "wall" else "loop_time_s"
-    fronts = {m: pareto_front(rows, m, time_key) for m in PANELS}
-    outdir.mkdir(parents=True, exist_ok=True)
-    write_csv(outdir / "pareto.csv", COLUMNS, rows)
-    _plot(outdir / "pareto.png", rows, fronts, time_key, label, base.name, jobs)
-    record = case_record(case, changes)
-    write_json(outdir / "study.json", {
-        "study": "pareto", "case": record["case"], "methods": [m.name for m in chosen],
-        "skipped": skipped, "notes": notes, "courant": courant, "rungs": rungs, "time": time_key,
-        "overrides": record["overrides"], "reference": label, "jobs": jobs,
-        "fronts": {m: [f"{rows[i]['method']} {rows[i]['resolution']}" for i in f] for m, f in fronts.items()}})
-    return {"rows": rows, "fronts": fronts, "reference": label, "skipped": skipped, "notes": notes,
-            "outdir": outdir, "time_key": time_key, "jobs": jobs}
+    with study_folder(outdir, "study pareto", case):
+        levels, notes, skipped = [], [], {}
+        for method in chosen:
+            why = registry.availability(method, case, changes)
+            if why:
+                skipped[method.name] = why
+                continue
+            lv, nt = ladder(method, base, given, courant, rungs)
+            levels += lv
+            notes += nt
+        if not levels:
+            raise StudyInputError("no method to run: " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
+        exact = base.reference is not None
+        if exact:
+            for lv in levels:
+                from_case(case.with_changes(lv.changes))   # CaseError if the case does not fit its reference
+        else:
+            levels.append(_reference_level(base, given, courant, rungs))
+        if not quiet:
+            for name, why in skipped.items():
+                stream.write(f"note: {name} skipped: {why}\n")
+            for note in notes:
+                stream.write(f"note: {note}\n")
+        outcomes = run_levels(case, levels, outdir, jobs, allow_failure, stream=stream, quiet=quiet)
+        if exact:
+            references = [from_case(o.case) for o in outcomes]
+            label = references[0].label
+        else:
+            ref_outcome = outcomes.pop()
+            if not ref_outcome.ok:
+                raise StudyInputError(f"the reference run did not finish ({ref_outcome.reason})")
+            label = ref_outcome.level.label
+            references = [run_reference(ref_outcome, label)] * len(outcomes)
+        rows = []
+        for o, ref in zip(outcomes, references, strict=True):
+            rows.append({**o.level.info, **level_row(o, jobs), **measure(o, ref), "reference": label})
+        time_key = "wall_time_s" if time_axis == "wall" else "loop_time_s"
+        fronts = {m: pareto_front(rows, m, time_key) for m in PANELS}
+        outdir.mkdir(parents=True, exist_ok=True)
+        write_csv(outdir / "pareto.csv", COLUMNS, rows)
+        _plot(outdir / "pareto.png", rows, fronts, time_key, label, base.name, jobs)
+        record = case_record(case, changes)
+        write_json(outdir / "study.json", {
+            "study": "pareto", "case": record["case"], "methods": [m.name for m in chosen],
+            "skipped": skipped, "notes": notes, "courant": courant, "rungs": rungs, "time": time_key,
+            "overrides": record["overrides"], "reference": label, "jobs": jobs,
+            "fronts": {m: [f"{rows[i]['method']} {rows[i]['resolution']}" for i in f] for m, f in fronts.items()}})
+        return {"rows": rows, "fronts": fronts, "reference": label, "skipped": skipped, "notes": notes,
+                "outdir": outdir, "time_key": time_key, "jobs": jobs}
 
 
 def pareto_front(rows, measure_name: str, time_key: str) -> list[int]:

@@ -43,7 +43,7 @@ import numpy as np
 from ...config.case import Case
 from ...errors import CaseError, SimulationError, type_name
 from ..outdir import replacing
-from .common import StudyInputError, case_record, given_changes, pyplot, save_figure, write_json
+from .common import StudyInputError, case_record, given_changes, pyplot, save_figure, study_folder, write_json
 from .levels import Level, run_levels, slug
 
 DIRECTIONS = ("up", "down")
@@ -88,60 +88,61 @@ def response_study(case, vary, outdir, down: bool = False, settle: int = 50, per
         raise StudyInputError(f"--settle {settle} --periods {periods}: an event-driven level flies at most "
                               f"{MAX_EVENT_PERIODS} forcing periods")
     outdir = Path(outdir)
-    given = given_changes(changes)
-    _refuse_study_keys(key, given)
-    base = case.with_changes(given) if given else case
-    expression = frequency_expression(base, frequency)
-    direction = "down" if down else "up"
-    ordered = sorted(values, reverse=down)
-    cases = {}
-    for v in ordered:   # (CaseError: a key the case does not have, a value it refuses, before anything runs)
-        cases[v] = base.with_changes({key: v})
-    freq = {v: forcing_frequency(cases[v], expression, key, v) for v in ordered}
-    settings = _settings(base, key, expression, settle, periods, steps_per_period, tolerance, flight)
-    other = _other_sweep(outdir, direction, settings)
-    if flight == "scheme":
-        _check_sizes(cases, freq, key, settle, periods, steps_per_period, outdir)
-    say = (lambda line: None) if quiet else (lambda line: (sys.stderr.write(line + "\n"), sys.stderr.flush()))
-    floor = ROUND_OFF * _element_size(base)
-    outcomes = ()
-    if flight == "events":
-        rows, ends, candidates = _event_levels(cases, key, ordered, freq, direction, settle, periods, tolerance,
-                                               floor, say)
-    else:
-        levels, previous = [], None
-        for i, v in enumerate(ordered):
-            f = freq[v]
-            name = f"{direction}-{i:03d}-{slug(key)}={v:.6g}"
-            level_changes = {key: v, "solver.dt": 1.0 / (f * steps_per_period),
-                             "solver.t_end": (settle + periods) / f, "output.vtk": False}
-            if previous is not None:
-                level_changes["initial"] = {"from": str((outdir / "levels" / previous).resolve())}
-            levels.append(Level(name, level_changes, info={"direction": direction, "value": v, "index": i,
-                                                           "frequency": f}))
-            previous = name
-        outcomes = run_levels(base, levels, outdir, jobs=1, allow_failure=allow_failure, quiet=quiet)
-        rows, ends, candidates = [], {}, {}
-        for outcome in outcomes:
-            v = outcome.level.info["value"]
-            if outcome.ok:
-                mine, candidates[v] = _section(outcome.folder, key, v, freq[v], direction, settle, periods,
-                                               steps_per_period, tolerance, floor)
-                rows += mine
-                ends[v] = outcome.folder
-            elif outcome.status == "skipped" and not _after_failure(outcome, outcomes):
-                raise StudyInputError(f"level {outcome.level.label}: {outcome.reason}")
-        if not ends:
-            first = next(o for o in outcomes if not o.ok)
-            raise SimulationError(f"no level of the sweep completed (level {first.level.label}: {first.reason})")
-    note = "not asked (--no-shooting)"
-    orbits = {}
-    if shooting:
-        orbits, note = shoot_branch(cases, key, ordered, freq, ends, rows, shooting_seconds, say, candidates)
-        for row in rows:
-            row.update(orbits.get(row[key], {}))
-    return _finish(case, changes, outdir, key, expression, ordered, freq, direction, settings, rows, orbits, note,
-                   other, outcomes)
+    with study_folder(outdir, "study response", case):
+        given = given_changes(changes)
+        _refuse_study_keys(key, given)
+        base = case.with_changes(given) if given else case
+        expression = frequency_expression(base, frequency)
+        direction = "down" if down else "up"
+        ordered = sorted(values, reverse=down)
+        cases = {}
+        for v in ordered:   # (CaseError: a key the case does not have, a value it refuses, before anything runs)
+            cases[v] = base.with_changes({key: v})
+        freq = {v: forcing_frequency(cases[v], expression, key, v) for v in ordered}
+        settings = _settings(base, key, expression, settle, periods, steps_per_period, tolerance, flight)
+        other = _other_sweep(outdir, direction, settings)
+        if flight == "scheme":
+            _check_sizes(cases, freq, key, settle, periods, steps_per_period, outdir)
+        say = (lambda line: None) if quiet else (lambda line: (sys.stderr.write(line + "\n"), sys.stderr.flush()))
+        floor = ROUND_OFF * _element_size(base)
+        outcomes = ()
+        if flight == "events":
+            rows, ends, candidates = _event_levels(cases, key, ordered, freq, direction, settle, periods, tolerance,
+                                                   floor, say)
+        else:
+            levels, previous = [], None
+            for i, v in enumerate(ordered):
+                f = freq[v]
+                name = f"{direction}-{i:03d}-{slug(key)}={v:.6g}"
+                level_changes = {key: v, "solver.dt": 1.0 / (f * steps_per_period),
+                                 "solver.t_end": (settle + periods) / f, "output.vtk": False}
+                if previous is not None:
+                    level_changes["initial"] = {"from": str((outdir / "levels" / previous).resolve())}
+                levels.append(Level(name, level_changes, info={"direction": direction, "value": v, "index": i,
+                                                               "frequency": f}))
+                previous = name
+            outcomes = run_levels(base, levels, outdir, jobs=1, allow_failure=allow_failure, quiet=quiet)
+            rows, ends, candidates = [], {}, {}
+            for outcome in outcomes:
+                v = outcome.level.info["value"]
+                if outcome.ok:
+                    mine, candidates[v] = _section(outcome.folder, key, v, freq[v], direction, settle, periods,
+                                                   steps_per_period, tolerance, floor)
+                    rows += mine
+                    ends[v] = outcome.folder
+                elif outcome.status == "skipped" and not _after_failure(outcome, outcomes):
+                    raise StudyInputError(f"level {outcome.level.label}: {outcome.reason}")
+            if not ends:
+                first = next(o for o in outcomes if not o.ok)
+                raise SimulationError(f"no level of the sweep completed (level {first.level.label}: {first.reason})")
+        note = "not asked (--no-shooting)"
+        orbits = {}
+        if shooting:
+            orbits, note = shoot_branch(cases, key, ordered, freq, ends, rows, shooting_seconds, say, candidates)
+            for row in rows:
+                row.update(orbits.get(row[key], {}))
+        return _finish(case, changes, outdir, key, expression, ordered, freq, direction, settings, rows, orbits, note,
+                       other, outcomes)
 
 
 def _check_types(case, vary, outdir, down, settle, periods, steps, tolerance, quiet, allow_failure, flight,

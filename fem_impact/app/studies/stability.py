@@ -39,7 +39,7 @@ from .common import (
     StudyInputError,
     base_case,
     case_record,
-    check_outdir,
+    study_folder,
     default_outdir,
     fmt,
     given_changes,
@@ -158,107 +158,107 @@ def stability_study(case, methods=None, courants=None, restitutions=None, length
     if any(not 0 <= e <= 1 for e in restitutions):
         raise StudyInputError("--restitution: every value must be in [0, 1]")
     outdir = Path(outdir) if outdir else default_outdir(case, "stability")
-    check_outdir(outdir, case)
-    e_case = base.contacts[0].restitution if base.contacts else None
-    same_e = all(c.restitution == e_case for c in base.contacts)
+    with study_folder(outdir, "study stability", case):
+        e_case = base.contacts[0].restitution if base.contacts else None
+        same_e = all(c.restitution == e_case for c in base.contacts)
 
-    def e_changes(e):
-        if same_e and e == e_case:
-            return {}
-        return {f"contacts.{i}.restitution": e for i in range(len(base.contacts))}
+        def e_changes(e):
+            if same_e and e == e_case:
+                return {}
+            return {f"contacts.{i}.restitution": e for i in range(len(base.contacts))}
 
-    def dt_changes(courant):
-        dt = resolution.dt_for(base, courant)
-        return {} if abs(dt - base.solver.dt) <= 1e-9 * base.solver.dt else {"solver.dt": dt}
+        def dt_changes(courant):
+            dt = resolution.dt_for(base, courant)
+            return {} if abs(dt - base.solver.dt) <= 1e-9 * base.solver.dt else {"solver.dt": dt}
 
-    def length_changes(k):
-        return {} if k == 1 else {"solver.t_end": k * base.solver.t_end}
+        def length_changes(k):
+            return {} if k == 1 else {"solver.t_end": k * base.solver.t_end}
 
-    by_changes: dict[tuple, Level] = {}
-    plan, skipped = [], {}   # plan: (method, sweep, value, level name, e, length)
-    for method in chosen:
-        why = registry.availability(method, case, changes)
-        if why:
-            skipped[method.name] = why
-            continue
-        common = {**registry.changes_for(method, base, given), "output.vtk": False}
-        points = [("courant", c, dt_changes(c), e_case, 1.0) for c in courants]
-        points += [("restitution", e, e_changes(e), e, 1.0) for e in restitutions]
-        points += [("length", k, length_changes(k), e_case, k) for k in lengths]
-        for sweep, value, extra, e, k in points:
-            level_changes = {**common, **extra}
-            key = json.dumps(level_changes, sort_keys=True, default=str)   # (values may be lists: loads=[...])
-            if key not in by_changes:
-                name = slug(f"{method.name}-{sweep}-{value:g}")
-                by_changes[key] = Level(name, level_changes, {"method": method.name},
-                                        f"{method.name} {sweep} {value:g}")
-            plan.append((method.name, sweep, value, by_changes[key].name, e, k))
-    if not plan:
-        raise StudyInputError("no method to run: " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
-    levels = list(by_changes.values())
-    exact = base.reference is not None
-    ref_levels = {}
-    if exact:
-        for lv in levels:
-            from_case(case.with_changes(lv.changes))   # CaseError if the case does not fit its reference
-    else:   # the default method at half the case's step, per restitution, over the longest length
-        default = registry.get(registry.DEFAULT_METHOD)
-        for e in dict.fromkeys([e_case, *restitutions]):
-            if e is None and base.contacts:
+        by_changes: dict[tuple, Level] = {}
+        plan, skipped = [], {}   # plan: (method, sweep, value, level name, e, length)
+        for method in chosen:
+            why = registry.availability(method, case, changes)
+            if why:
+                skipped[method.name] = why
                 continue
-            k = max(lengths) if e == e_case else 1.0
-            ref_changes = {**registry.changes_for(default, base, given), "output.vtk": False,
-                           "solver.dt": base.solver.dt / 2,
-                           **e_changes(e), **length_changes(k)}
-            ref_levels[e] = Level(slug(f"reference-e{e:g}" if e is not None else "reference"), ref_changes,
-                                  {"method": default.name}, f"reference run ({default.name}, dt/2"
-                                  + (f", e = {e:g}" if e is not None else "") + ")")
-    if not quiet:
-        for name, why in skipped.items():
-            stream.write(f"note: {name} skipped: {why}\n")
-    outcomes = run_levels(case, [*levels, *ref_levels.values()], outdir, jobs, allow_failure=True,
-                          stream=stream, quiet=quiet)
-    by_name = {o.level.name: o for o in outcomes}
-    references = {}
-    if not exact:
-        for e, lv in ref_levels.items():
-            o = by_name[lv.name]
-            if not o.ok:
-                raise StudyInputError(f"the {lv.label} did not finish ({o.reason})")
-            references[e] = run_reference(o, lv.label)
-    rows = []
-    for method, sweep, value, name, e, k in plan:
-        o = by_name[name]
-        ref = from_case(o.case) if exact else references[e]
-        h = o.history() if o.ok else None
-        m = measure(o, ref, h)
-        row = {"method": method, "sweep": sweep, "value": value, "level": name, **level_row(o, jobs), **m,
-               "restitution": e, "length": k, "reference": ref.label}
-        names = [c.name for c in o.case.contacts]
-        if o.ok:
-            m["chatter_to_end"], m["chatter_switches"] = chattering(h, names)
-            m["penetration"] = (o.summary["max_penetration"] or 0.0) / ref.length_scale
-            row["impacts"] = impacts(h, names)
-        else:
-            m["chatter_to_end"], m["chatter_switches"], m["penetration"] = False, None, math.nan
-        row["outcome"], row["reason"], row["code"] = classify(o.status, o.reason, m, tolerance)
-        row.update(penetration=m["penetration"], chatter_switches=m["chatter_switches"])
-        rows.append(row)
-    outdir.mkdir(parents=True, exist_ok=True)
-    write_csv(outdir / "stability.csv", COLUMNS, rows)
-    label = (from_case(by_name[levels[0].name].case).label if exact
-             else "reference runs of the default method at dt/2")
-    _plot(outdir / "stability.png", rows, [m.name for m in chosen], skipped, courants, restitutions, lengths,
-          base.name, label, tolerance)
-    record = case_record(case, changes)
-    write_json(outdir / "study.json", {
-        "study": "stability", "case": record["case"], "methods": [m.name for m in chosen],
-        "skipped": skipped, "courant": courants, "restitution": restitutions, "length": lengths,
-        "tolerance": tolerance, "overrides": record["overrides"], "reference": label, "jobs": jobs,
-        "thresholds": {"energy_growth": ENERGY_GROWTH, "penetration": PENETRATION,
-                       "force_oscillation": FORCE_OSCILLATION, "chatter_steps": CHATTER_STEPS,
-                       "chatter_switches": CHATTER_SWITCHES}})
-    return {"rows": rows, "reference": label, "skipped": skipped, "outdir": outdir, "tolerance": tolerance}
+            common = {**registry.changes_for(method, base, given), "output.vtk": False}
+            points = [("courant", c, dt_changes(c), e_case, 1.0) for c in courants]
+            points += [("restitution", e, e_changes(e), e, 1.0) for e in restitutions]
+            points += [("length", k, length_changes(k), e_case, k) for k in lengths]
+            for sweep, value, extra, e, k in points:
+                level_changes = {**common, **extra}
+                key = json.dumps(level_changes, sort_keys=True, default=str)   # (values may be lists: loads=[...])
+                if key not in by_changes:
+                    name = slug(f"{method.name}-{sweep}-{value:g}")
+                    by_changes[key] = Level(name, level_changes, {"method": method.name},
+                                            f"{method.name} {sweep} {value:g}")
+                plan.append((method.name, sweep, value, by_changes[key].name, e, k))
+        if not plan:
+            raise StudyInputError("no method to run: " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
+        levels = list(by_changes.values())
+        exact = base.reference is not None
+        ref_levels = {}
+        if exact:
+            for lv in levels:
+                from_case(case.with_changes(lv.changes))   # CaseError if the case does not fit its reference
+        else:   # the default method at half the case's step, per restitution, over the longest length
+            default = registry.get(registry.DEFAULT_METHOD)
+            for e in dict.fromkeys([e_case, *restitutions]):
+                if e is None and base.contacts:
+                    continue
+                k = max(lengths) if e == e_case else 1.0
+                ref_changes = {**registry.changes_for(default, base, given), "output.vtk": False,
+                               "solver.dt": base.solver.dt / 2,
+                               **e_changes(e), **length_changes(k)}
+                ref_levels[e] = Level(slug(f"reference-e{e:g}" if e is not None else "reference"), ref_changes,
+                                      {"method": default.name}, f"reference run ({default.name}, dt/2"
+                                      + (f", e = {e:g}" if e is not None else "") + ")")
+        if not quiet:
+            for name, why in skipped.items():
+                stream.write(f"note: {name} skipped: {why}\n")
+        outcomes = run_levels(case, [*levels, *ref_levels.values()], outdir, jobs, allow_failure=True,
+                              stream=stream, quiet=quiet)
+        by_name = {o.level.name: o for o in outcomes}
+        references = {}
+        if not exact:
+            for e, lv in ref_levels.items():
+                o = by_name[lv.name]
+                if not o.ok:
+                    raise StudyInputError(f"the {lv.label} did not finish ({o.reason})")
+                references[e] = run_reference(o, lv.label)
+        rows = []
+        for method, sweep, value, name, e, k in plan:
+            o = by_name[name]
+            ref = from_case(o.case) if exact else references[e]
+            h = o.history() if o.ok else None
+            m = measure(o, ref, h)
+            row = {"method": method, "sweep": sweep, "value": value, "level": name, **level_row(o, jobs), **m,
+                   "restitution": e, "length": k, "reference": ref.label}
+            names = [c.name for c in o.case.contacts]
+            if o.ok:
+                m["chatter_to_end"], m["chatter_switches"] = chattering(h, names)
+                m["penetration"] = (o.summary["max_penetration"] or 0.0) / ref.length_scale
+                row["impacts"] = impacts(h, names)
+            else:
+                m["chatter_to_end"], m["chatter_switches"], m["penetration"] = False, None, math.nan
+            row["outcome"], row["reason"], row["code"] = classify(o.status, o.reason, m, tolerance)
+            row.update(penetration=m["penetration"], chatter_switches=m["chatter_switches"])
+            rows.append(row)
+        outdir.mkdir(parents=True, exist_ok=True)
+        write_csv(outdir / "stability.csv", COLUMNS, rows)
+        label = (from_case(by_name[levels[0].name].case).label if exact
+                 else "reference runs of the default method at dt/2")
+        _plot(outdir / "stability.png", rows, [m.name for m in chosen], skipped, courants, restitutions, lengths,
+              base.name, label, tolerance)
+        record = case_record(case, changes)
+        write_json(outdir / "study.json", {
+            "study": "stability", "case": record["case"], "methods": [m.name for m in chosen],
+            "skipped": skipped, "courant": courants, "restitution": restitutions, "length": lengths,
+            "tolerance": tolerance, "overrides": record["overrides"], "reference": label, "jobs": jobs,
+            "thresholds": {"energy_growth": ENERGY_GROWTH, "penetration": PENETRATION,
+                           "force_oscillation": FORCE_OSCILLATION, "chatter_steps": CHATTER_STEPS,
+                           "chatter_switches": CHATTER_SWITCHES}})
+        return {"rows": rows, "reference": label, "skipped": skipped, "outdir": outdir, "tolerance": tolerance}
 
 
 def format_stability(result: dict) -> str:
