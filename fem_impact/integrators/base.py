@@ -104,6 +104,11 @@ class PETScAlgebra:
     def diagonal(self, A: PETSc.Mat) -> np.ndarray:
         return A.getDiagonal().array_r.copy()
 
+    @staticmethod
+    def norm(A: PETSc.Mat) -> float:
+        """``||A||_inf``, the largest row sum of |A| (collective)."""
+        return float(A.norm(PETSc.NormType.INFINITY))
+
     def row_sums(self, A: PETSc.Mat) -> np.ndarray:
         ones, sums = A.createVecs()
         ones.set(1.0)
@@ -147,6 +152,11 @@ class DenseAlgebra:
     @staticmethod
     def diagonal(A: np.ndarray) -> np.ndarray:
         return A.copy() if A.ndim == 1 else np.diag(A).copy()
+
+    @staticmethod
+    def norm(A: np.ndarray) -> float:
+        """``||A||_inf``, the largest row sum of |A|."""
+        return float(np.abs(A).max(initial=0.0) if A.ndim == 1 else np.abs(A).sum(axis=1).max(initial=0.0))
 
     @staticmethod
     def row_sums(A: np.ndarray) -> np.ndarray:
@@ -523,8 +533,17 @@ class Operators:
             out[:, j] = x
         return out
 
-    def delassus(self, solve, diagonal: bool = False) -> tuple[np.ndarray, Columns | SolvedColumns]:
-        """``W = P A^-1 P^T`` (p x p, on every rank) and the correction ``y -= A^-1 P^T c``.
+    def delassus(self, solve, diagonal: bool = False, norm: float | None = None
+                 ) -> tuple[np.ndarray, Columns | SolvedColumns] | tuple[np.ndarray, Columns | SolvedColumns, np.ndarray]:
+        """``W = P A^-1 P^T`` (p x p, on every rank) and the correction ``y -= A^-1 P^T c``; with ``norm``
+        (``||A||_inf``) also the round-off bound of W's entries, s (p) with ``|dW_ij| <= s_i s_j``.
+
+        W from solves: ``A (x_j + dx_j) = p_j + r_j`` with ``|r_j| <= c EPS ||A|| |x_j|`` (a backward-
+        stable direct solve) gives ``dW_ij = x_i . r_j``: ``s_j = sqrt(EPS ||A||) |x_j|`` (``c`` in the
+        margin of whoever judges it: friction.symmetrize). W from entries of ``A^-1`` (MUMPS, the
+        Schur complement), where no x_j is formed: ``s_i = sqrt(EPS kappa) (|P| sqrt(diag A^-1))_i``
+        with ``kappa = 2 k_i + ||A|| max diag A^-1`` (k_i the dofs of row i: the products with P; the
+        second term, at most A's condition number, for the entries' own round-off).
 
         ``diagonal``: when ``A`` is diagonal (a lumped mass) and no dof is touched by two rows
         (node-to-plane rows, no friction), W is diagonal, ``W_jj = sum_k P_jk^2 / A_kk``: it is
@@ -537,14 +556,23 @@ class Operators:
         The choice depends on global sizes only, so every rank makes the same (solves are
         collective).
         """
-        if diagonal:
+        if diagonal and norm is None:
             found = self._diagonal_delassus(solve)
             if found is not None:
                 return found
         p, N = self.p, self.algebra.sizes[1]
+        eps = np.finfo(float).eps
+        sizes = np.zeros(p)   # |x_j|^2, summed over the ranks' rows
+
+        def found(W, columns):
+            if norm is None:
+                return W, columns
+            return W, columns, np.sqrt(eps * norm * self.algebra.allsum(sizes))
+
         if self._keeps_columns():
             X = self.solve_columns(solve)
-            return self.project(X), Columns(X)
+            sizes = np.einsum("ij,ij->j", X, X) if norm is not None else sizes
+            return found(self.project(X), Columns(X))
         # Serial MUMPS: (A^-1) on the dofs P touches, as the inverse of A's Schur complement on them
         # (a CondensedFactor) or selected entries of the inverse.
         dofs = np.unique(self._P.indices)
@@ -552,6 +580,13 @@ class Operators:
             block = solve.inverse_block(dofs)
             if block is not None:
                 Pd = sparse.csr_matrix(self._P[:, dofs])   # (a few entries a row: two products of p m nnz)
+                scale = None
+                if norm is not None:   # (serial: the entries' bound needs no sum over ranks)
+                    diag = np.abs(np.diagonal(block))
+                    condition = 2.0 * np.diff(Pd.indptr) + norm * diag.max(initial=0.0)
+                    scale = np.sqrt(eps * condition) * (abs(Pd) @ np.sqrt(diag))
+                finish = (lambda W: (W, SolvedColumns(self, solve))) if norm is None else \
+                    (lambda W: (W, SolvedColumns(self, solve), scale))
                 if Pd.shape[0] == Pd.shape[1] and np.all(np.diff(Pd.indptr) == 1) and \
                         np.unique(Pd.indices).size == Pd.shape[1]:
                     # One dof a row, each dof once (normals and tangents along axes): W is the block
@@ -559,15 +594,17 @@ class Operators:
                     W = permuted_in_place(block, Pd.indices)
                     W *= Pd.data[:, None]
                     W *= Pd.data[None, :]
-                    return W, SolvedColumns(self, solve)
-                return np.asarray(Pd @ np.asarray(Pd @ block).T), SolvedColumns(self, solve)
+                    return finish(W)
+                return finish(np.asarray(Pd @ np.asarray(Pd @ block).T))
         W = np.empty((p, p))
         block = max(16, min(RHS_BLOCK, RHS_ENTRIES // max(N, 1)))
         for j0 in range(0, p, block):
             j1 = min(p, j0 + block)
             X = solve.many(self.P_local[:, j0:j1].toarray())
             W[:, j0:j1] = self.project(X)
-        return W, SolvedColumns(self, solve)
+            if norm is not None:
+                sizes[j0:j1] = np.einsum("ij,ij->j", X, X)
+        return found(W, SolvedColumns(self, solve))
 
     def _keeps_columns(self) -> bool:
         """Whether ``delassus`` stores ``A^-1 P^T`` (few rows, or a small replicated system)."""

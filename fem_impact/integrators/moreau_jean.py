@@ -132,7 +132,7 @@ class MoreauJean(ContactScheme):
         self.carnot_rows = self.carnot_rows & ~rigid
         self.rows = ops.with_tangents()
         clock = time.perf_counter()
-        shifted, self.G_all = self.rows.delassus(self.solve_S)
+        shifted, self.G_all, roundoff = self.rows.delassus(self.solve_S, norm=self.alg.norm(self.S))
         self.timings["W with tangents"] = time.perf_counter() - clock
         # The elastic rows' compliance on the normal block (in place: W is (p + pt)^2, the largest
         # array of a frictional run); the step's products W r come from the solution's y = W r + q.
@@ -145,7 +145,7 @@ class MoreauJean(ContactScheme):
             # singular, its impulses not unique; the shift selects the smallest (as lcp.regularized,
             # at the price of a velocity error of 1e-10 of the impulse's).
             np.fill_diagonal(shifted, shifted.diagonal() + REGULARIZATION * np.abs(shifted.diagonal()).max())
-        self.friction = FrictionProblem(shifted, ops.tangent_of, ops.friction, overwrite=True)
+        self.friction = FrictionProblem(shifted, ops.tangent_of, ops.friction, overwrite=True, roundoff=roundoff)
         self.r_prev = np.zeros(ops.p + ops.pt)
         self._persists, self._r_t = None, np.zeros(ops.pt)
         self._stick_D = self._stick_H = None   # P_T M^-1 P_T^T and M^-1 P_T^T, built on the first stick
