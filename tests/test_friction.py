@@ -273,6 +273,11 @@ def test_friction_is_refused_where_it_cannot_be_solved():
             "solver": {"dt": 0.01, "t_end": 0.1}}
     with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: solver.method newmark cannot take friction"):
         fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "newmark"}})
+    # the reduced model takes friction; its Newmark scheme does not: the scheme is named
+    with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: solver.scheme newmark cannot take friction .*"
+                                        r"use solver.scheme: moreau_jean"):
+        fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "modal", "modes": 4,
+                                              "static_correction": False, "scheme": "newmark"}})
     with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: friction is not available with the reduced model's static"):
         fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "modal", "modes": 4}})
     with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: must be >= 0"):

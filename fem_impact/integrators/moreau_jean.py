@@ -78,6 +78,7 @@ class MoreauJean(ContactScheme):
     """
 
     name = "moreau_jean"
+    unconditionally_stable = True   # theta >= 1/2
     takes_friction = True   # Coulomb friction: a cone problem on [P; P_T] (_build_friction)
 
     def __init__(self, ops: Operators, dt: float, theta: float = 0.5, level: str = "position"):
@@ -161,7 +162,7 @@ class MoreauJean(ContactScheme):
         diag = diagonal(self.ops)
         if diag is None or self.friction is not None:
             return None
-        return OpenStep(*diag, self.theta, ~self.position_rows)
+        return OpenStep(*diag, self.theta, ~self.position_rows, self.theta - 0.5)
 
     def open_steps(self, loads: np.ndarray) -> OpenSteps:
         """``len(loads) - 1`` steps without impulse from the state, the loads ``loads`` at the state's
@@ -210,6 +211,7 @@ class MoreauJean(ContactScheme):
         energy = EnergyBudget()
         energy.kinetic, energy.strain = self._quadratic_energies()
         energy.load_scale = self._start_load_scale
+        energy.roundoff = self._start_roundoff
         alg.mult(ops.K, self.U, self.KU)
         alg.mult(ops.K, self.V, self.KV)
         if ops.C is not None:
@@ -270,6 +272,7 @@ class MoreauJean(ContactScheme):
             alg.mult(ops.C, V, self.CV)
         pv_star, pt_star, restitution_loss, percussion = pv, pt, 0.0, impulse
         stick_loss = 0.0
+        numerical_loss = self._numerical_loss(st, impulse, tangential, pv, pt) if theta != 0.5 else 0.0
         if tangential is not None and self._persists is not None:
             pv, pt, tangential, stick_loss = self._stick(impulse, tangential, pv, pt, jump)
         if p:   # the work of the impulse with the step's mean velocity (exact for theta = 1/2)
@@ -309,6 +312,7 @@ class MoreauJean(ContactScheme):
                 energy.friction_loss += float(self._r_t.dot(0.5 * (st.tangential_velocity + pt_star))) + stick_loss
             if ops.static:
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
+        energy.numerical_loss += numerical_loss
         self._step_energies(energy, t1, 1.0 - theta, theta, self.MV, KU=self.KU)
         if corrected and ops.C is not None:   # the next step starts from the corrected velocity
             alg.mult(ops.C, V, self.CV)
@@ -319,6 +323,35 @@ class MoreauJean(ContactScheme):
                 pt = self.rows.project_many(V)[0][p:]
             self.state.tangential, self.state.tangential_velocity = tangential / dt, pt
         return self.state
+
+    def _numerical_loss(self, st: StepState, impulse: np.ndarray, r_t: np.ndarray | None, pv: np.ndarray,
+                        pt: np.ndarray | None) -> float:
+        """The energy the theta weighting removes in the step (before any velocity correction).
+
+        With ``dU = dt V_theta``, ``V_theta = (1 - theta) V0 + theta V1`` and the step's equation ``M dV =
+        dt (R_theta - K U_theta - C V_theta) - Q^T r`` (r every impulse, Q its rows), the kinetic energy
+        changes by ``1/2 (V0 + V1) . M dV`` and ``1/2 (V0 + V1) = V_theta - (theta - 1/2) dV``: the loads,
+        the damping and the impulses do the work the budget books (the impulses with the step's mean
+        velocity, Kelvin's), the strain energy changes by ``dU . K U_theta - (theta - 1/2) dU . K dU``,
+        and what is left is ``(theta - 1/2) (dV . M dV + dU . K dU + r . Q dV)``: the scheme's own
+        dissipation (no physical term), which closes the balance to round-off for any theta.
+        """
+        ops, alg, theta, dt = self.ops, self.alg, self.theta, self.dt
+        if getattr(self, "_dV", None) is None:
+            self._dV, self._MdV = alg.vector(), alg.vector()
+        dV, product = self._dV, self._MdV
+        np.subtract(self.V, self.A, out=dV)   # (A holds V0 until the step's end)
+        alg.mult(ops.M, dV, product)
+        local = [dV @ product]
+        dV *= 1.0 - theta                      # V_theta = V1 - (1 - theta) dV, in place
+        np.subtract(self.V, dV, out=dV)
+        alg.mult(ops.K, dV, product)
+        local.append(dt * dt * (dV @ product))
+        sums = alg.allsum(np.array(local))
+        contact = float(impulse.dot(pv - st.normal_velocity)) if ops.p else 0.0
+        if r_t is not None:
+            contact += float(r_t.dot(pt - st.tangential_velocity))
+        return (theta - 0.5) * (float(sums[0] + sums[1]) + contact)
 
     def _frictional_impulse(self, st: StepState, t1: float, rhs: np.ndarray):
         """The step's impulses with friction: one cone problem on ``[P; P_T]``, applied to V.
