@@ -308,8 +308,9 @@ class MoreauJean(ContactScheme):
                 pu = pu + ops.static.offset(t1) - ops.static.compliance.dot(force)
             energy.contact_loss += step_contact_loss
             energy.impact_loss += restitution_loss
-            if tangential is not None:   # the friction impulses' work with the step's mean sliding velocity
-                energy.friction_loss += float(self._r_t.dot(0.5 * (st.tangential_velocity + pt_star))) + stick_loss
+            if tangential is not None:   # the friction impulses' work (_friction_velocity)
+                energy.friction_loss += float(self._r_t.dot(self._friction_velocity(st.tangential_velocity, pt_star)))
+                energy.friction_loss += stick_loss
             if ops.static:
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
         energy.numerical_loss += numerical_loss
@@ -334,7 +335,9 @@ class MoreauJean(ContactScheme):
         the damping and the impulses do the work the budget books (the impulses with the step's mean
         velocity, Kelvin's), the strain energy changes by ``dU . K U_theta - (theta - 1/2) dU . K dU``,
         and what is left is ``(theta - 1/2) (dV . M dV + dU . K dU + r . Q dV)``: the scheme's own
-        dissipation (no physical term), which closes the balance to round-off for any theta.
+        dissipation (no physical term), which closes the balance to round-off for any theta. (The
+        friction rows under the slip law book their work with V_theta, which holds their part of
+        ``r . Q dV``: only the other rows' part is left here.)
         """
         ops, alg, theta, dt = self.ops, self.alg, self.theta, self.dt
         if getattr(self, "_dV", None) is None:
@@ -349,9 +352,21 @@ class MoreauJean(ContactScheme):
         local.append(dt * dt * (dV @ product))
         sums = alg.allsum(np.array(local))
         contact = float(impulse.dot(pv - st.normal_velocity)) if ops.p else 0.0
-        if r_t is not None:
-            contact += float(r_t.dot(pt - st.tangential_velocity))
+        if r_t is not None:   # (the slip law's rows book their work with V_theta already: _friction_velocity)
+            closing = ~self._persists if self._persists is not None else slice(None)
+            contact += float(r_t[closing].dot((pt - st.tangential_velocity)[closing]))
         return (theta - 0.5) * (float(sums[0] + sums[1]) + contact)
+
+    def _friction_velocity(self, pt0: np.ndarray, pt1: np.ndarray) -> np.ndarray:
+        """The tangential velocity a step's friction impulses are booked with: the step's mean (an
+        impulse's work on the kinetic energy); on the rows under the slip law (a persisting contact),
+        the one Coulomb's law holds on, ``(1 - theta) P_T V0 + theta P_T V1``, the same for theta = 1/2.
+        Each row's work is so >= 0 at any theta (closing rows: _frictional_impulse's retry); the rest of
+        their mean-velocity work is the scheme's dissipation (_numerical_loss)."""
+        mean = 0.5 * (pt0 + pt1)
+        if self.theta == 0.5 or self._persists is None:
+            return mean
+        return np.where(self._persists, (1.0 - self.theta) * pt0 + self.theta * pt1, mean)
 
     def _frictional_impulse(self, st: StepState, t1: float, rhs: np.ndarray):
         """The step's impulses with friction: one cone problem on ``[P; P_T]``, applied to V.
