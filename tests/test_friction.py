@@ -213,6 +213,21 @@ def test_a_sliding_block_stops_where_coulomb_says(dim):
     assert summary["max_friction_residual"] <= FrictionProblem.TOLERANCE
 
 
+@pytest.mark.parametrize("solver", [{"theta": 1.0}, {"theta": 0.7, "level": "velocity"}],
+                         ids=["theta-1", "theta-0.7-velocity"])
+def test_theta_above_one_half_slides_the_block_and_books_its_own_dissipation(solver):
+    """theta > 1/2: a persisting row's Coulomb law holds on (1 - theta) P_T V0 + theta P_T V1, whose
+    work is booked (>= 0 every step: with the mean velocity it went below zero in steps), and the
+    scheme's own dissipation is booked as numerical_loss: the balance closes as at theta = 1/2."""
+    mu, v0 = 0.3, 2.0
+    h, v, summary = block(2, mu, (0.0, -G), v0=v0, t_end=0.9, solver=solver)
+    t = h["t"]
+    travel = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+    assert travel[-1] == pytest.approx(v0 ** 2 / (2 * mu * G), rel=0.01)
+    check_energy(h)
+    assert h["numerical_loss"][-1] > 0.0 and summary["numerical_loss"] == h["numerical_loss"][-1]
+
+
 def test_the_reduced_model_slides_the_block_as_the_full_one():
     """Friction on the modes alone (no static correction yet): 30 modes (3 rigid) of the sliding block."""
     mu, v0 = 0.3, 2.0

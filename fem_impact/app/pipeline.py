@@ -432,7 +432,8 @@ def energy_warning(summary: dict) -> str | None:
     """One line when the run created energy (printed on stderr at the end of a run), else None."""
     if summary.get("energy_created_at") is None:
         return None
-    return (f"warning: the contacts created energy in {summary['case']} ({summary['method']}, dt = "
+    who = "the contacts" if summary.get("constraints", 1) else "the scheme"   # (a run without contact rows)
+    return (f"warning: {who} created energy in {summary['case']} ({summary['method']}, dt = "
             f"{summary['dt']:.4g} s): {summary['energy_created']:.4g} J above E0 + W_ext ("
             f"{summary['energy_created_relative']:.3g} of the energy scale), first at t = "
             f"{summary['energy_created_at']:.6g} s; max E / (E0 + W_ext) = {summary['max_energy_ratio']:.3g}. "

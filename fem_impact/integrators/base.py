@@ -720,8 +720,8 @@ class EnergyBudget:
     # Not a term of the balance: how far round-off alone may take E - E0 at the step, EPS |U|^T |K| |U|
     # (bounded: ContactScheme._roundoff) at the step and at the start. U^T K U is computed from a K U
     # whose entries carry EPS (|K| |U|)_i each, and K's stored entries do not sum to zero over a rigid
-    # translation exactly: a body displaced far from where K U = 0 (sliding, flying) has a strain energy
-    # of 1e-9 J known to 1e-6 J only. The watch does not call that created.
+    # translation exactly: a stiff body displaced far from where K U = 0 (sliding, flying) has a small
+    # strain energy known only to that. The watch does not call that created.
     roundoff: float = 0.0
 
     @property
