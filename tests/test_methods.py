@@ -192,6 +192,7 @@ def test_a_blow_up_says_what_is_true_of_the_scheme_that_ran(scheme, stable, says
     ({"initial.velocity": [1e200]}, "the initial state is not finite"),
     ({"loads": [{"nodes": "right", "force": ["exp(400*t)"]}]}, "Moreau-Jean is stable at any dt, so dt is not the cause"),
 ])
+@pytest.mark.filterwarnings("ignore:overflow:RuntimeWarning")   # (numpy's, on the way to the overflow)
 def test_an_overflow_with_the_default_method_is_named_as_such(changes, says):
     import fem_impact as fi
 
