@@ -213,6 +213,21 @@ def test_a_sliding_block_stops_where_coulomb_says(dim):
     assert summary["max_friction_residual"] <= FrictionProblem.TOLERANCE
 
 
+@pytest.mark.parametrize("solver", [{"theta": 1.0}, {"theta": 0.7, "level": "velocity"}],
+                         ids=["theta-1", "theta-0.7-velocity"])
+def test_theta_above_one_half_slides_the_block_and_books_its_own_dissipation(solver):
+    """theta > 1/2: a persisting row's Coulomb law holds on (1 - theta) P_T V0 + theta P_T V1, whose
+    work is booked (>= 0 every step: with the mean velocity it went below zero in steps), and the
+    scheme's own dissipation is booked as numerical_loss: the balance closes as at theta = 1/2."""
+    mu, v0 = 0.3, 2.0
+    h, v, summary = block(2, mu, (0.0, -G), v0=v0, t_end=0.9, solver=solver)
+    t = h["t"]
+    travel = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+    assert travel[-1] == pytest.approx(v0 ** 2 / (2 * mu * G), rel=0.01)
+    check_energy(h)
+    assert h["numerical_loss"][-1] > 0.0 and summary["numerical_loss"] == h["numerical_loss"][-1]
+
+
 def test_the_reduced_model_slides_the_block_as_the_full_one():
     """Friction on the modes alone (no static correction yet): 30 modes (3 rigid) of the sliding block."""
     mu, v0 = 0.3, 2.0
@@ -273,6 +288,11 @@ def test_friction_is_refused_where_it_cannot_be_solved():
             "solver": {"dt": 0.01, "t_end": 0.1}}
     with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: solver.method newmark cannot take friction"):
         fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "newmark"}})
+    # the reduced model takes friction; its Newmark scheme does not: the scheme is named
+    with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: solver.scheme newmark cannot take friction .*"
+                                        r"use solver.scheme: moreau_jean"):
+        fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "modal", "modes": 4,
+                                              "static_correction": False, "scheme": "newmark"}})
     with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: friction is not available with the reduced model's static"):
         fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "modal", "modes": 4}})
     with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: must be >= 0"):
@@ -451,3 +471,133 @@ def test_an_unsolved_contact_problem_stops_the_run_and_says_where(monkeypatch, t
     with pytest.raises(SimulationError, match=r"the frictional contact problem was not solved at t = .* \(step \d+\): "
                                                r"residual .* after 1 sweeps .* contact row \d+"):
         landing(2, 0.3, 0.0, 8.0)
+
+
+# --- supports that hold a tangent: symmetry planes ------------------------------------------
+
+def dropped_block(dim, length, cells, supports, width=None, mu=0.05, t_end=0.04):
+    """A block (E = 1e7, rho = 1000, nu = 0.3, hexahedra / quadrilaterals: a mesh symmetric about its
+    middle) at the floor falling at 0.5 m/s under gravity, friction mu: on impact its bottom spreads
+    (Poisson) and the friction resists, sticking in the middle and slipping near the ends."""
+    pad = [0.0] * (dim - 2)
+    mesh = {"shape": "bar", "dim": dim, "length": length, "height": 0.05, "cells": cells, "elements": "hex"}
+    if dim == 3:
+        mesh["width"] = width
+    points = {"a": [0.0, 0.0], "b": [0.05, 0.0], "c": [0.1, 0.0], "d": [0.0, 0.05], "e": [0.05, 0.025]}
+    data = {"name": "half", "mesh": mesh,
+            "material": {"E": 1e7, "rho": 1000.0, "nu": 0.3, **({"area": 1.0} if dim == 2 else {})},
+            "initial": {"velocity": [0.0, -0.5] + pad}, "loads": [{"body": "all", "acceleration": [0.0, -G] + pad}],
+            "supports": supports,
+            "contacts": [{"name": "floor", "type": "obstacle", "nodes": "bottom", "normal": [0.0, -1.0] + pad,
+                          "gap": 0.0, "friction": mu, "restitution": 0.0}],
+            "solver": {"dt": 1e-3, "t_end": t_end},
+            "output": {"vtk": False, "probes": {k: v + pad for k, v in points.items()}}}
+    return fi.run(fi.Case.from_dict(data))
+
+
+def same_motion(full, part, parts):
+    """The part model moves as the full one's part: every probe to round-off, the momentum, the friction
+    loss and the energies as ``parts`` times the part's."""
+    hf, hp = full.history, part.history
+    probed = [k for k in hf if k[:2] in ("a.", "b.", "c.", "d.", "e.")]
+    for k in probed:   # (each quantity against the largest of its kind: ux against the uy of the fall)
+        kind = [j for j in probed if j[2] == k[2]]
+        assert np.abs(hf[k] - hp[k]).max() <= 1e-9 * max(np.abs(hf[j]).max() for j in kind), k
+    assert np.abs(hf["bar.py"] - parts * hp["bar.py"]).max() <= 1e-9 * np.abs(hf["bar.py"]).max()
+    for k in ("friction_loss", "kinetic", "strain", "external_work"):
+        assert hf[k][-1] == pytest.approx(parts * hp[k][-1], rel=1e-8), k
+    assert hf["friction_loss"][-1] > 1e-4 * hf["kinetic"][0]   # it slid
+    assert np.abs(hf["c.ux"]).max() <= 1e-9 * np.abs(hf["c.uy"]).max()   # the middle stays in its plane
+    check_energy(hp)
+
+
+def test_a_half_model_on_a_symmetry_plane_slides_as_the_full_one():
+    """A row on the symmetry plane (its node's x held) has no tangent motion: Coulomb's law leaves its
+    friction undetermined (it is the support's reaction) and its row of W singular (a division by zero
+    in the row's stick solve, once). The held tangent is dropped: the half model is the full one."""
+    full = dropped_block(2, 0.2, 8, [])
+    half = dropped_block(2, 0.1, 4, [{"nodes": "right", "fix": ["x"]}])
+    same_motion(full, half, 2)
+
+
+def test_a_quarter_model_on_two_symmetry_planes_slides_as_the_full_one():
+    """3D: the rows on the plane x = L/2 keep their tangent along z, those on z = W/2 along x, the corner
+    row none."""
+    full = dropped_block(3, 0.2, 4, [], width=0.2, t_end=0.02)
+    quarter = dropped_block(3, 0.1, 2, [{"nodes": "right", "fix": ["x"]}, {"nodes": "front", "fix": ["z"]}],
+                            width=0.1, t_end=0.02)
+    same_motion(full, quarter, 4)
+
+
+def test_a_tangent_direction_held_obliquely_is_found_and_dropped():
+    """free_tangents on 3 nodes: a floor normal in the y-z plane, x held at node 0 (the tangent along x
+    dropped, the other kept as it was); x and y held at node 2 under the normal (1, 1, 0) / sqrt(2) (the
+    tangent in the x-y plane dropped); the free node keeps both."""
+    from mpi4py import MPI
+    from scipy import sparse
+
+    from fem_impact.nonsmooth.relation import free_tangents
+
+    def rows(tangents):
+        T = np.zeros((9, 6))
+        for k, t in enumerate(tangents):
+            for node in range(3):
+                T[3 * node:3 * node + 3, 3 * k + node] = t
+        return sparse.csr_matrix(T), np.tile(np.arange(3), 2), np.repeat(tangents, 3, axis=0)
+
+    for normal, held, gone in ((np.array([0.0, -1.0, 1.0]), [0], np.array([1.0, 0.0, 0.0])),
+                               (np.array([1.0, 1.0, 0.0]), [6, 7], np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0))):
+        tangents = tangent_basis(normal / np.linalg.norm(normal))
+        T, tangent_of, dirs = rows(np.array(tangents))
+        free = np.ones(9)
+        free[held] = 0.0
+        node = held[0] // 3
+        Tn, of, d = free_tangents(T, free, tangent_of, dirs, MPI.COMM_SELF)
+        assert np.count_nonzero(of == node) == 1 and np.count_nonzero(of != node) == 4
+        kept = d[of == node][0]
+        assert abs(kept @ gone) <= 1e-12 and abs(kept @ normal) <= 1e-12 and np.linalg.norm(kept) == pytest.approx(1.0)
+        assert np.allclose(Tn[:, np.flatnonzero(of == node)].toarray().ravel()[3 * node:3 * node + 3], kept * free[3 * node:3 * node + 3])
+        # the other nodes: their tangents, unchanged
+        assert np.allclose(np.sort(d[of != node], axis=0), np.sort(dirs[tangent_of != node], axis=0))
+
+
+# --- W from the solves: symmetric to their round-off ---------------------------------------------
+
+def test_a_stiff_block_at_a_large_step_runs_whatever_the_round_off_of_w():
+    """A steel block (8 cells) sliding at dt = 1 ms, a Courant number of 200: W = P S^-1 P^T from the
+    solves is symmetric to 6e-13 of its entries, 0.015 of the solves' round-off bound EPS ||S|| |x_i|
+    |x_j| (it once stopped the run at 1e-13 of its largest entry, with a traceback). Its symmetric part is
+    solved, and the block decelerates at mu g."""
+    case = fi.load_case(CASES / "sliding_block.yaml")
+    result = fi.run(case.with_changes({"material.E": 2.1e11, "material.rho": 7850.0, "material.nu": 0.3,
+                                       "contacts.0.friction": 0.5, "solver.dt": 1e-3, "solver.t_end": 0.1,
+                                       "output.vtk": False}))
+    h, s = result.history, result.summary
+    v = h["bar.px"] / s["body_mass"]["bar"]
+    late = h["t"] > 0.02
+    assert np.polyfit(h["t"][late], v[late], 1)[0] == pytest.approx(-0.5 * G, rel=0.01)
+    assert s["energy_created_at"] is None and s["max_friction_residual"] <= FrictionProblem.TOLERANCE
+    # (the balance to the round-off of U^T K U for a steel block moved by 0.2 m, 3e-8 of its energy: the run
+    # reports it)
+    scale = h["kinetic"][0] + h["external_work"].max()
+    assert np.abs(h["energy_error"]).max() <= s["energy_roundoff"] + 1e-10 * scale
+    check_energy(h, tolerance=s["energy_roundoff"] / scale + 1e-10, balance=s["energy_roundoff"] / scale + 1e-10)
+
+
+def test_a_w_that_is_not_symmetric_beyond_round_off_is_a_plain_error_not_a_traceback():
+    from fem_impact.nonsmooth.friction import symmetrize
+
+    W = np.array([[2.0, 0.5, 0.1], [0.5, 1.0, 0.2], [0.1, 0.2, 1.0]])
+    noisy = W + np.array([[0.0, 1e-15, 0.0], [0.0, 0.0, 0.0], [0.0, -1e-15, 0.0]])
+    problem = FrictionProblem(noisy.copy(), np.array([0, 0]), np.array([0.3]))
+    assert problem.asymmetry < 1.0
+    assert np.array_equal(problem.dense(np.arange(3)), problem.dense(np.arange(3)).T)
+    copy = noisy.copy()
+    symmetrize(copy, np.ones(3))
+    assert np.array_equal(copy, copy.T) and np.abs(copy - W).max() <= 1e-15
+    wrong = W.copy()
+    wrong[0, 1] = 0.4   # (a W built wrong: its two halves disagree)
+    with pytest.raises(ContactSolverError, match="not symmetric: W_ij and W_ji differ by .* times the round-off"):
+        FrictionProblem(wrong, np.array([0, 0]), np.array([0.3]))
+    with pytest.raises(ContactSolverError, match="not finite"):
+        FrictionProblem(np.full((3, 3), np.nan), np.array([0, 0]), np.array([0.3]))

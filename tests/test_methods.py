@@ -164,6 +164,44 @@ def test_blow_up_guard_stops_a_runaway_energy():
         EnergyWatch().check(_state(np.nan))
 
 
+@pytest.mark.parametrize("scheme, stable, says, never", [
+    ("moreau_jean", True, ("stable at any dt, so dt is not the cause", "overflowed float64"), "explicit"),
+    ("newmark", True, ("stable at any dt, so dt is not the cause",), "explicit"),
+    ("central_difference", False, ("explicit and dt is above its stable limit",), "overflowed"),
+    ("newmark", False, ("beta < gamma / 2 is stable only below a step limit",), "overflowed"),
+])
+def test_a_blow_up_says_what_is_true_of_the_scheme_that_ran(scheme, stable, says, never):
+    """A state no longer finite (or energy far past E0 + W_ext) was 'the scheme blew up (for an explicit
+    method: is dt above its stable limit?)' whatever the method: an implicit one has no step limit."""
+    from fem_impact.integrators.base import EnergyWatch
+
+    with pytest.raises(SimulationError) as info:
+        EnergyWatch(scheme=scheme, stable=stable).check(_state(np.inf))
+    assert all(text in str(info.value) for text in says) and never not in str(info.value)
+    watch = EnergyWatch(scheme=scheme, stable=stable)
+    watch.check(_state(1.0))
+    with pytest.raises(SimulationError, match="blew up") as info:
+        watch.check(_state(1000.0))
+    if scheme == "moreau_jean":
+        assert "dt is not the cause" in str(info.value) and "report it" in str(info.value)
+    if scheme == "newmark" and stable:
+        assert "use solver.method: moreau_jean" in str(info.value)
+
+
+@pytest.mark.parametrize("changes, says", [
+    ({"initial.velocity": [1e200]}, "the initial state is not finite"),
+    ({"loads": [{"nodes": "right", "force": ["exp(400*t)"]}]}, "Moreau-Jean is stable at any dt, so dt is not the cause"),
+])
+@pytest.mark.filterwarnings("ignore:overflow:RuntimeWarning")   # (numpy's, on the way to the overflow)
+def test_an_overflow_with_the_default_method_is_named_as_such(changes, says):
+    import fem_impact as fi
+
+    case = load_case(BAR).with_changes({"solver": {"dt": 0.002, "t_end": 2.0}, "output.vtk": False, **changes})
+    with pytest.raises(SimulationError, match=says) as info:
+        fi.run(case)
+    assert "explicit" not in str(info.value)
+
+
 def test_energy_watch_records_created_energy_and_when_it_began():
     """E above E0 + W_ext(t), or the contacts' losses (contact + impact) below zero, by more than 1e-6
     of the scale is energy created; its size and the time it began are recorded, or the run stops

@@ -206,7 +206,7 @@ class HistoryWriter:
 
     def __init__(self, path: Path | None, cons: Constraints, probes: Probes, comm: MPI.Comm, fields,
                  flush_every: int = 2000, momenta: BodyMomenta | None = None, scheme_energy: bool = False,
-                 name: str = "run", reactions: list[str] = ()):
+                 name: str = "run", reactions: list[str] = (), numerical_loss: bool = False):
         self.cons, self.probes, self.comm, self.fields = cons, probes, comm, fields
         self.name = name
         # FEM_IMPACT_RECORD=DIR: every run also keeps its rows unrounded in DIR (tools/same_histories.py).
@@ -230,6 +230,9 @@ class HistoryWriter:
             self.columns += self.friction.columns()
         self.reactions = list(reactions)   # moving supports (fem/prescribed.py): N, the support's force on the body
         self.columns += self.reactions
+        self.numerical_loss = numerical_loss   # a scheme that books its own dissipation (Moreau-Jean, theta > 1/2)
+        if numerical_loss:
+            self.columns.append("numerical_loss")
         self._keep = comm.rank == 0
         self.path = path
         self._file = open(path, "w", newline="") if comm.rank == 0 and path is not None else None
@@ -254,6 +257,8 @@ class HistoryWriter:
             row += self.friction.values(state)
         if self.reactions:
             row += state.reaction.tolist()
+        if self.numerical_loss:
+            row.append(e.numerical_loss)
         if self._keep:
             self.rows.append(row)
             self._pending += 1
@@ -276,6 +281,8 @@ class HistoryWriter:
             columns.append(self.momenta.values_block(block))
         if self.scheme_energy:
             columns.append(e.scheme)
+        if self.numerical_loss:
+            columns.append(e.numerical_loss)
         if self._keep:
             self._keep_rows()
             self._chunks.append(np.column_stack(columns))

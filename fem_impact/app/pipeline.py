@@ -300,7 +300,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     # What a checkpoint holds: the state of every part of the run that carries one from step to step.
     raw = integrator.integrator if model.motion is not None else integrator
     impacts = ImpactLog(cons)
-    watch = EnergyWatch(stop_on_energy_gain)
+    watch = EnergyWatch(stop_on_energy_gain, scheme=raw.name, stable=getattr(raw, "unconditionally_stable", None))
     parts = {"integrator": raw, "fields": system.fields, "watch": watch, "impacts": impacts}
     if model.motion is not None:
         parts["motion"] = integrator
@@ -340,7 +340,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         momenta = BodyMomenta(model, fields)
         history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
                                 scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name,
-                                reactions=model.motion.names if model.motion else ())
+                                reactions=model.motion.names if model.motion else (),
+                                numerical_loss=getattr(raw, "theta", 0.5) != 0.5)
         stats = RunStatistics(cons)
         observers = [history, stats, impacts]
         vtk = None
@@ -405,6 +406,11 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "max_energy_ratio": watch.max_ratio,
             "impact_loss": final.energy.impact_loss,
             "contact_loss": final.energy.contact_loss,
+            # the scheme's own dissipation (Moreau-Jean, theta > 1/2; booked in the balance) and the round-off
+            # that U^T K U may carry at the displacements reached (EnergyBudget.roundoff)
+            "numerical_loss": final.energy.numerical_loss,
+            "energy_roundoff": watch.roundoff,
+            **({"gamma": solver.gamma} if getattr(solver, "gamma", 0.5) != 0.5 else {}),
             "total_impulse": stats.total_impulse,
             "impacts": {c.name: sum(e[1] == c.name for e in impacts.close()) for c in cons.contacts},
             "body_mass": momenta.mass,
@@ -481,7 +487,8 @@ def energy_warning(summary: dict) -> str | None:
     """One line when the run created energy (printed on stderr at the end of a run), else None."""
     if summary.get("energy_created_at") is None:
         return None
-    return (f"warning: the contacts created energy in {summary['case']} ({summary['method']}, dt = "
+    who = "the contacts" if summary.get("constraints", 1) else "the scheme"   # (a run without contact rows)
+    return (f"warning: {who} created energy in {summary['case']} ({summary['method']}, dt = "
             f"{summary['dt']:.4g} s): {summary['energy_created']:.4g} J above E0 + W_ext ("
             f"{summary['energy_created_relative']:.3g} of the energy scale), first at t = "
             f"{summary['energy_created_at']:.6g} s; max E / (E0 + W_ext) = {summary['max_energy_ratio']:.3g}. "
@@ -518,11 +525,29 @@ def describe(summary: dict) -> str:
         + (f", elastic stops compressed by up to {summary['max_stop_compression']:.3g}"
            if summary.get("max_stop_compression") else "")
         + "; energy-balance residual "
-        f"{summary['max_energy_error']:.3g} ({summary['max_energy_error_relative']:.2g} of the energy scale); "
-        f"impact loss {summary['impact_loss']:.4g}, contact loss {summary['contact_loss']:.4g}. "
+        f"{summary['max_energy_error']:.3g} ({summary['max_energy_error_relative']:.2g} of the energy scale"
+        f"{_residual_note(summary)}); "
+        f"impact loss {summary['impact_loss']:.4g}, contact loss {summary['contact_loss']:.4g}"
+        + (f", numerical dissipation {summary['numerical_loss']:.4g} (the scheme's, theta > 1/2: booked in the "
+           "balance)" if summary.get("numerical_loss") else "") + ". "
         f"Results in {summary['outdir']} ({', '.join(_files_written(summary))})."
         + _reduction_note(summary)
     )
+
+
+def _residual_note(summary: dict) -> str:
+    """What a residual above round-off of the energy scale is, where the run knows it."""
+    from ..integrators.base import ENERGY_TOLERANCE
+
+    if summary["max_energy_error_relative"] <= ENERGY_TOLERANCE:
+        return ""
+    if summary.get("gamma", 0.5) > 0.5:
+        return (f"; Newmark's gamma = {summary['gamma']:.4g} > 1/2 damps the high frequencies: the residual is "
+                "that numerical dissipation, which the balance does not book")
+    if summary["max_energy_error"] <= summary.get("energy_roundoff", 0.0):
+        return (f"; within the round-off of the strain energy U^T K U at the displacements reached, "
+                f"{summary['energy_roundoff']:.3g}: a stiff body moved far from where K U = 0")
+    return ""
 
 
 def _files_written(summary: dict) -> list[str]:

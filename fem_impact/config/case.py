@@ -1220,9 +1220,12 @@ def _check_friction(case: Case) -> None:
                                                           "correction yet: use solver.static_correction: false (modes "
                                                           "alone) or solver.method: moreau_jean")
         if not getattr(integrator_class(scheme_of(case.solver)), "takes_friction", False):
+            # (the reduced model's time scheme is the cause: the model itself takes friction)
+            key, use = (("solver.scheme", "solver.scheme: moreau_jean") if is_reduced(case.solver) else
+                        ("solver.method", "solver.method: moreau_jean"))
             raise case.error(("contacts", i, "friction"),
-                             f"solver.method {case.solver.method} cannot take friction (its contact step is an "
-                             "LCP on normal forces only): use solver.method: moreau_jean")
+                             f"{key} {scheme_of(case.solver)} cannot take friction (its contact step is an "
+                             f"LCP on normal forces only): use {use}")
 
 
 def _check_moving_supports(case: Case) -> None:

@@ -104,6 +104,11 @@ class PETScAlgebra:
     def diagonal(self, A: PETSc.Mat) -> np.ndarray:
         return A.getDiagonal().array_r.copy()
 
+    @staticmethod
+    def norm(A: PETSc.Mat) -> float:
+        """``||A||_inf``, the largest row sum of |A| (collective)."""
+        return float(A.norm(PETSc.NormType.INFINITY))
+
     def row_sums(self, A: PETSc.Mat) -> np.ndarray:
         ones, sums = A.createVecs()
         ones.set(1.0)
@@ -147,6 +152,11 @@ class DenseAlgebra:
     @staticmethod
     def diagonal(A: np.ndarray) -> np.ndarray:
         return A.copy() if A.ndim == 1 else np.diag(A).copy()
+
+    @staticmethod
+    def norm(A: np.ndarray) -> float:
+        """``||A||_inf``, the largest row sum of |A|."""
+        return float(np.abs(A).max(initial=0.0) if A.ndim == 1 else np.abs(A).sum(axis=1).max(initial=0.0))
 
     @staticmethod
     def row_sums(A: np.ndarray) -> np.ndarray:
@@ -525,8 +535,17 @@ class Operators:
             out[:, j] = x
         return out
 
-    def delassus(self, solve, diagonal: bool = False) -> tuple[np.ndarray, Columns | SolvedColumns]:
-        """``W = P A^-1 P^T`` (p x p, on every rank) and the correction ``y -= A^-1 P^T c``.
+    def delassus(self, solve, diagonal: bool = False, norm: float | None = None
+                 ) -> tuple[np.ndarray, Columns | SolvedColumns] | tuple[np.ndarray, Columns | SolvedColumns, np.ndarray]:
+        """``W = P A^-1 P^T`` (p x p, on every rank) and the correction ``y -= A^-1 P^T c``; with ``norm``
+        (``||A||_inf``) also the round-off bound of W's entries, s (p) with ``|dW_ij| <= s_i s_j``.
+
+        W from solves: ``A (x_j + dx_j) = p_j + r_j`` with ``|r_j| <= c EPS ||A|| |x_j|`` (a backward-
+        stable direct solve) gives ``dW_ij = x_i . r_j``: ``s_j = sqrt(EPS ||A||) |x_j|`` (``c`` in the
+        margin of whoever judges it: friction.symmetrize). W from entries of ``A^-1`` (MUMPS, the
+        Schur complement), where no x_j is formed: ``s_i = sqrt(EPS kappa) (|P| sqrt(diag A^-1))_i``
+        with ``kappa = 2 k_i + ||A|| max diag A^-1`` (k_i the dofs of row i: the products with P; the
+        second term, at most A's condition number, for the entries' own round-off).
 
         ``diagonal``: when ``A`` is diagonal (a lumped mass) and no dof is touched by two rows
         (node-to-plane rows, no friction), W is diagonal, ``W_jj = sum_k P_jk^2 / A_kk``: it is
@@ -539,14 +558,23 @@ class Operators:
         The choice depends on global sizes only, so every rank makes the same (solves are
         collective).
         """
-        if diagonal:
+        if diagonal and norm is None:
             found = self._diagonal_delassus(solve)
             if found is not None:
                 return found
         p, N = self.p, self.algebra.sizes[1]
+        eps = np.finfo(float).eps
+        sizes = np.zeros(p)   # |x_j|^2, summed over the ranks' rows
+
+        def found(W, columns):
+            if norm is None:
+                return W, columns
+            return W, columns, np.sqrt(eps * norm * self.algebra.allsum(sizes))
+
         if self._keeps_columns():
             X = self.solve_columns(solve)
-            return self.project(X), Columns(X)
+            sizes = np.einsum("ij,ij->j", X, X) if norm is not None else sizes
+            return found(self.project(X), Columns(X))
         # Serial MUMPS: (A^-1) on the dofs P touches, as the inverse of A's Schur complement on them
         # (a CondensedFactor) or selected entries of the inverse.
         dofs = np.unique(self._P.indices)
@@ -554,6 +582,13 @@ class Operators:
             block = solve.inverse_block(dofs)
             if block is not None:
                 Pd = sparse.csr_matrix(self._P[:, dofs])   # (a few entries a row: two products of p m nnz)
+                scale = None
+                if norm is not None:   # (serial: the entries' bound needs no sum over ranks)
+                    diag = np.abs(np.diagonal(block))
+                    condition = 2.0 * np.diff(Pd.indptr) + norm * diag.max(initial=0.0)
+                    scale = np.sqrt(eps * condition) * (abs(Pd) @ np.sqrt(diag))
+                finish = (lambda W: (W, SolvedColumns(self, solve))) if norm is None else \
+                    (lambda W: (W, SolvedColumns(self, solve), scale))
                 if Pd.shape[0] == Pd.shape[1] and np.all(np.diff(Pd.indptr) == 1) and \
                         np.unique(Pd.indices).size == Pd.shape[1]:
                     # One dof a row, each dof once (normals and tangents along axes): W is the block
@@ -561,15 +596,17 @@ class Operators:
                     W = permuted_in_place(block, Pd.indices)
                     W *= Pd.data[:, None]
                     W *= Pd.data[None, :]
-                    return W, SolvedColumns(self, solve)
-                return np.asarray(Pd @ np.asarray(Pd @ block).T), SolvedColumns(self, solve)
+                    return finish(W)
+                return finish(np.asarray(Pd @ np.asarray(Pd @ block).T))
         W = np.empty((p, p))
         block = max(16, min(RHS_BLOCK, RHS_ENTRIES // max(N, 1)))
         for j0 in range(0, p, block):
             j1 = min(p, j0 + block)
             X = solve.many(self.P_local[:, j0:j1].toarray())
             W[:, j0:j1] = self.project(X)
-        return W, SolvedColumns(self, solve)
+            if norm is not None:
+                sizes[j0:j1] = np.einsum("ij,ij->j", X, X)
+        return found(W, SolvedColumns(self, solve))
 
     def _keeps_columns(self) -> bool:
         """Whether ``delassus`` stores ``A^-1 P^T`` (few rows, or a small replicated system)."""
@@ -679,6 +716,15 @@ class EnergyBudget:
     # (ContactScheme._load_energy), the watch's scale while E0 + W_ext is still zero or tiny.
     load_scale: float = 0.0
     friction_loss: float = 0.0   # the work of the friction impulses, lost (docs/theory.md s. 11)
+    # The scheme's own dissipation: Moreau-Jean with theta > 1/2 damps the high frequencies, by
+    # (theta - 1/2) (dV.M dV + dU.K dU + r.Q dV) a step (MoreauJean.step); zero for theta = 1/2.
+    numerical_loss: float = 0.0
+    # Not a term of the balance: how far round-off alone may take E - E0 at the step, EPS |U|^T |K| |U|
+    # (bounded: ContactScheme._roundoff) at the step and at the start. U^T K U is computed from a K U
+    # whose entries carry EPS (|K| |U|)_i each, and K's stored entries do not sum to zero over a rigid
+    # translation exactly: a stiff body displaced far from where K U = 0 (sliding, flying) has a small
+    # strain energy known only to that. The watch does not call that created.
+    roundoff: float = 0.0
 
     @property
     def total(self) -> float:
@@ -689,12 +735,13 @@ class EnergyBudget:
         """Residual of the balance: E - E0 - W_ext + damping + impact + contact losses."""
         return (
             self.total - self.initial - self.external_work
-            + self.damping_loss + self.impact_loss + self.contact_loss + self.friction_loss
+            + self.damping_loss + self.impact_loss + self.contact_loss + self.friction_loss + self.numerical_loss
         )
 
     def copy(self) -> EnergyBudget:
         return EnergyBudget(self.kinetic, self.strain, self.external_work, self.damping_loss, self.impact_loss,
-                            self.contact_loss, self.initial, self.scheme, self.load_scale, self.friction_loss)
+                            self.contact_loss, self.initial, self.scheme, self.load_scale, self.friction_loss,
+                            self.numerical_loss, self.roundoff)
 
 
 @dataclass
@@ -721,6 +768,10 @@ class Observer(Protocol):
     def write(self, state: StepState) -> None: ...
 
 
+# The schemes' names in a sentence (EnergyWatch's messages).
+TITLES = {"moreau_jean": "Moreau-Jean", "newmark": "Newmark (beta >= gamma / 2)", "central_difference": "central difference"}
+
+
 class EnergyCreated(SimulationError):
     """The contacts created energy and the run was asked to stop on it (``stop_on_energy_gain``)."""
 
@@ -729,8 +780,9 @@ class EnergyWatch:
     """Watches the energy of every step: that none is created, and that the run has not blown up.
 
     A scheme that holds keeps ``E(t) <= E0 + W_ext(t)`` (every loss >= 0; the balance residual is
-    round-off). The watch records the largest amount by which the energy exceeds that bound or a
-    loss falls below zero (the contacts' -- contact plus impact loss -- or the damping's), and when
+    round-off). The watch records the largest amount by which the energy exceeds that bound (beyond
+    what round-off can put into the strain energy's measure, ``EnergyBudget.roundoff``) or a loss
+    falls below zero (the contacts' -- contact plus impact loss -- or the damping's), and when
     it first did so by more than
     ``tolerance`` of the energy scale, ``max E0 + W_ext`` reached so far: energy created, although
     the balance may still close (position-level contact forces doing negative work). With
@@ -741,15 +793,19 @@ class EnergyWatch:
     writing ever larger numbers (and then NaN).
     """
 
-    __checkpoint__ = ("scale", "created", "created_at", "max_ratio")   # (what it found so far: a restart goes on)
+    __checkpoint__ = ("scale", "created", "created_at", "max_ratio", "roundoff")   # (what it found so far: a restart goes on)
 
     def __init__(self, stop_on_energy_gain: bool = False, tolerance: float = ENERGY_TOLERANCE,
-                 blow_up: float = BLOW_UP):
+                 blow_up: float = BLOW_UP, scheme: str = "", stable: bool | None = None):
         self.stop, self.tolerance, self.factor = stop_on_energy_gain, tolerance, blow_up
+        # The integrator's name, and whether it is stable at any dt (``unconditionally_stable``): what a
+        # blow-up says of its cause.
+        self.scheme, self.stable = scheme, stable
         self.scale = 0.0          # E0 + W_ext(t) or the load's energy scale, the largest so far
         self.created = 0.0        # the largest excess (energy units)
         self.created_at: float | None = None
         self.max_ratio = 0.0      # max E / scale
+        self.roundoff = 0.0       # the largest round-off bound of E - E0 (EnergyBudget.roundoff)
 
     @property
     def created_relative(self) -> float:
@@ -758,8 +814,7 @@ class EnergyWatch:
     def check(self, state: StepState) -> None:
         e = state.energy
         if not np.isfinite(e.total):
-            raise SimulationError(f"the solution is no longer finite at t = {state.t:.6g} (step {state.step}): "
-                                  "the scheme blew up (for an explicit method: is dt above its stable limit?)")
+            raise SimulationError(self._not_finite(state))
         # A run from rest has E0 = 0 and, over its first steps, W_ext tiny against what round-off leaves
         # in E: the load's own energy scale keeps the measure sound from the first step.
         self.scale = max(self.scale, e.initial + e.external_work, e.initial, e.load_scale)
@@ -767,9 +822,10 @@ class EnergyWatch:
             return
         # The contacts' losses together: Carnot's impulses and the position-level forces are one
         # contact model (on an impact the forces may give back a little of what the impulse took).
-        excess = max(e.total - e.initial - e.external_work, -(e.contact_loss + e.impact_loss), -e.damping_loss,
-                     -e.friction_loss)
+        excess = max(e.total - e.initial - e.external_work - e.roundoff, -(e.contact_loss + e.impact_loss),
+                     -e.damping_loss, -e.friction_loss)
         self.max_ratio = max(self.max_ratio, e.total / self.scale)
+        self.roundoff = max(self.roundoff, e.roundoff)
         if excess > self.created:
             self.created = excess
             if self.created_at is None and excess > self.tolerance * self.scale:
@@ -783,7 +839,47 @@ class EnergyWatch:
             raise SimulationError(
                 f"blew up at t = {state.t:.6g} (step {state.step}): kinetic + strain energy {physical:.4g} is "
                 f"{physical / self.scale:.3g} times the initial energy plus the work put in so far "
-                f"({self.scale:.4g}); the scheme is unstable at this time step")
+                f"({self.scale:.4g}); {self._growth_cause()}")
+
+    def _not_finite(self, state: StepState) -> str:
+        """Why the energy is no longer finite, as far as the scheme that ran tells."""
+        e = state.energy
+        if state.step == 0:
+            return (f"the initial state is not finite (kinetic energy {e.kinetic:.4g}, strain energy {e.strain:.4g}): "
+                    "initial.velocity and initial.displacement must be numbers whose squares float64 holds (below "
+                    "about 1e150)")
+        where = f"the solution is no longer finite at t = {state.t:.6g} (step {state.step}): "
+        if self.stable is False:
+            return where + "the scheme blew up: " + self._step_limit()
+        overflow = ("the energies overflowed float64 (1.8e308), from a load or an initial value too large for it "
+                    f"(the load's energy over the last step: {e.load_scale:.3g})")
+        if self.stable:
+            return where + f"{TITLES.get(self.scheme, self.scheme)} is stable at any dt, so dt is not the cause: " + overflow
+        return where + "the scheme blew up (is dt above a stable limit?), or " + overflow
+
+    def _step_limit(self) -> str:
+        """A conditionally stable scheme's limit, in words."""
+        if self.scheme == "central_difference":
+            return ("central difference is explicit and dt is above its stable limit, 2 / omega_max (c dt / h <= 1 "
+                    "on the smallest cell): use a smaller dt, or solver.method: moreau_jean")
+        if self.scheme == "newmark":
+            return ("Newmark with beta < gamma / 2 is stable only below a step limit: use beta >= gamma / 2 (the "
+                    "trapezoidal rule: beta 1/4, gamma 1/2), or a smaller dt")
+        return "dt is above the scheme's stable limit"
+
+    def _growth_cause(self) -> str:
+        """What energy growing far past E0 + W_ext means for the scheme that ran."""
+        if self.stable is False:
+            return self._step_limit()
+        if self.scheme == "newmark":
+            return ("the paper's Newmark scheme is stable at any dt without contact, but its position-level contact "
+                    "forces create energy at large steps in persistent contact: use solver.method: moreau_jean (its "
+                    "contacts cannot create energy), or a smaller dt")
+        if self.scheme == "moreau_jean":
+            return ("Moreau-Jean (theta >= 1/2) is stable at any dt and its contacts cannot create energy, so dt is "
+                    "not the cause (the reduced model's compliant rows aside: under loads that vary within a step "
+                    "they gain energy of order dt^2); otherwise this is a defect: please report it")
+        return "the scheme is unstable at this time step"
 
     def check_block(self, block) -> int:
         """``check`` on each step of a block of steps (fem_impact/integrators/blocks.py) at once.
@@ -811,7 +907,7 @@ class EnergyWatch:
             self.scale = float(scale[-1])
             return size
         live = slice(a, size)
-        excess = total[live] - initial[a:] - work[a:]
+        excess = total[live] - initial[a:] - work[a:] - e.roundoff[live]
         np.maximum(excess, -(e.contact_loss[live] + e.impact_loss[live]), out=excess)
         np.maximum(excess, -e.damping_loss[live], out=excess)
         np.maximum(excess, -e.friction_loss[live], out=excess)
@@ -836,6 +932,7 @@ class EnergyWatch:
             kept = stop - a
             self.created = max(self.created, float(excess[:kept].max()))
             self.max_ratio = max(self.max_ratio, float((total[a:stop] / at[:kept]).max()))
+            self.roundoff = max(self.roundoff, float(e.roundoff[a:stop].max()))
             if created_at is not None and created_at < stop:
                 self.created_at = float(block.t[created_at])
         return stop

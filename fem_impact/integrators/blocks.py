@@ -54,6 +54,9 @@ class OpenStep:
     damping: np.ndarray | None
     weight: float
     predicted_rows: np.ndarray
+    # the scheme's own dissipation that its budget books, this times dV.M dV + dU.K dU a step
+    # (Moreau-Jean: theta - 1/2, EnergyBudget.numerical_loss); 0: none booked
+    dissipation: float = 0.0
 
 
 @dataclass
@@ -103,7 +106,14 @@ def compiled() -> bool:
 @dataclass
 class BlockEnergy(EnergyBudget):
     """An ``EnergyBudget`` whose terms are arrays over a block's steps; ``total`` and ``error``
-    (EnergyBudget's, the same operations on each step) computed once."""
+    (EnergyBudget's, the same operations on each step) computed once. A term given as a number
+    (one not given: its default) is that number at every step."""
+
+    def __post_init__(self):
+        size = np.shape(self.kinetic)
+        for name in _ENERGY:
+            if np.ndim(getattr(self, name)) == 0:
+                setattr(self, name, np.full(size, float(getattr(self, name))))
 
     @cached_property
     def total(self) -> np.ndarray:
@@ -297,13 +307,22 @@ class BlockStepper:
             static_work = static.works_for(coefficients[:-1], coefficients[1:], w)
             if it.loaded:
                 load_scale += stored
+        numerical = None
+        if self.open_step.dissipation:
+            V0 = np.concatenate((it.V[None], V[:-1]))
+            dV, V_w = V - V0, (1.0 - w) * V0 + w * V
+            numerical = self.open_step.dissipation * (
+                dV * dV @ self.open_step.mass + it.dt ** 2 * (V_w * V_w @ self.open_step.stiffness))
         constant = lambda value: np.full(size, value)   # noqa: E731
         energy = BlockEnergy(
             kinetic=kinetic, strain=strain, external_work=_accumulate(e0.external_work, work, static_work),
             damping_loss=_accumulate(e0.damping_loss, damping) if damping is not None else constant(e0.damping_loss),
             impact_loss=constant(e0.impact_loss), contact_loss=constant(e0.contact_loss),
             initial=constant(e0.initial), scheme=np.zeros(size), load_scale=load_scale,
-            friction_loss=constant(e0.friction_loss))
+            friction_loss=constant(e0.friction_loss),
+            numerical_loss=_accumulate(e0.numerical_loss, numerical) if numerical is not None else
+            constant(e0.numerical_loss),
+            roundoff=np.finfo(float).eps * ((U * U) @ np.abs(self.open_step.stiffness)) + it._start_roundoff)
         return StepBlock(np.arange(st.step + 1, st.step + size + 1), t, U, V, steps.A, ops.d0 - pu, zeros,
                          zeros.copy(), energy, pu, steps.PV, st,
                          coefficients[1:] if coefficients is not None else None, dict(steps.carry, R=loads[1:]))

@@ -48,6 +48,7 @@ class CentralDifference(ContactScheme):
     name = "central_difference"
     __checkpoint__ = ContactScheme.__checkpoint__ + ("_stop_force",)   # (the force of the step before, for the stops)
     scheme_energy = True
+    unconditionally_stable = False   # dt <= 2 / omega_max
     diagonal_delassus = True   # a lumped mass and node-to-plane rows: a projection per row
 
     def __init__(self, ops: Operators, dt: float):
@@ -88,6 +89,7 @@ class CentralDifference(ContactScheme):
         energy = EnergyBudget()
         energy.kinetic, energy.strain = self._quadratic_energies()   # (sets M A)
         energy.load_scale = self._start_load_scale
+        energy.roundoff = self._start_roundoff
         energy.scheme = SCHEME_ENERGY * dt * dt * float(self.alg.allsum(np.array([self.A @ self.MA]))[0])
         self._stop_force = np.zeros(ops.p)   # at t0 an elastic stop is relaxed (the initial gaps are open)
         energy.initial = energy.total

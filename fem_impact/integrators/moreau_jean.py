@@ -78,6 +78,7 @@ class MoreauJean(ContactScheme):
     """
 
     name = "moreau_jean"
+    unconditionally_stable = True   # theta >= 1/2
     takes_friction = True   # Coulomb friction: a cone problem on [P; P_T] (_build_friction)
     # K U and K V (kept by the step), P U of the dynamic part; with friction the last impulses and the
     # friction solver's warm start (its guess), and the solver's extremes over the run (the summary's)
@@ -137,7 +138,7 @@ class MoreauJean(ContactScheme):
         self.carnot_rows = self.carnot_rows & ~rigid
         self.rows = ops.with_tangents()
         clock = time.perf_counter()
-        shifted, self.G_all = self.rows.delassus(self.solve_S)
+        shifted, self.G_all, roundoff = self.rows.delassus(self.solve_S, norm=self.alg.norm(self.S))
         self.timings["W with tangents"] = time.perf_counter() - clock
         # The elastic rows' compliance on the normal block (in place: W is (p + pt)^2, the largest
         # array of a frictional run); the step's products W r come from the solution's y = W r + q.
@@ -150,7 +151,7 @@ class MoreauJean(ContactScheme):
             # singular, its impulses not unique; the shift selects the smallest (as lcp.regularized,
             # at the price of a velocity error of 1e-10 of the impulse's).
             np.fill_diagonal(shifted, shifted.diagonal() + REGULARIZATION * np.abs(shifted.diagonal()).max())
-        self.friction = FrictionProblem(shifted, ops.tangent_of, ops.friction, overwrite=True)
+        self.friction = FrictionProblem(shifted, ops.tangent_of, ops.friction, overwrite=True, roundoff=roundoff)
         self.r_prev = np.zeros(ops.p + ops.pt)
         self._persists, self._r_t = None, np.zeros(ops.pt)
         self._stick_D = self._stick_H = None   # P_T M^-1 P_T^T and M^-1 P_T^T, built on the first stick
@@ -166,7 +167,7 @@ class MoreauJean(ContactScheme):
         diag = diagonal(self.ops)
         if diag is None or self.friction is not None:
             return None
-        return OpenStep(*diag, self.theta, ~self.position_rows)
+        return OpenStep(*diag, self.theta, ~self.position_rows, self.theta - 0.5)
 
     def open_steps(self, loads: np.ndarray) -> OpenSteps:
         """``len(loads) - 1`` steps without impulse from the state, the loads ``loads`` at the state's
@@ -215,6 +216,7 @@ class MoreauJean(ContactScheme):
         energy = EnergyBudget()
         energy.kinetic, energy.strain = self._quadratic_energies()
         energy.load_scale = self._start_load_scale
+        energy.roundoff = self._start_roundoff
         alg.mult(ops.K, self.U, self.KU)
         alg.mult(ops.K, self.V, self.KV)
         if ops.C is not None:
@@ -275,6 +277,7 @@ class MoreauJean(ContactScheme):
             alg.mult(ops.C, V, self.CV)
         pv_star, pt_star, restitution_loss, percussion = pv, pt, 0.0, impulse
         stick_loss = 0.0
+        numerical_loss = self._numerical_loss(st, impulse, tangential, pv, pt) if theta != 0.5 else 0.0
         if tangential is not None and self._persists is not None:
             pv, pt, tangential, stick_loss = self._stick(impulse, tangential, pv, pt, jump)
         if p:   # the work of the impulse with the step's mean velocity (exact for theta = 1/2)
@@ -310,10 +313,12 @@ class MoreauJean(ContactScheme):
                 pu = pu + ops.static.offset(t1) - ops.static.compliance.dot(force)
             energy.contact_loss += step_contact_loss
             energy.impact_loss += restitution_loss
-            if tangential is not None:   # the friction impulses' work with the step's mean sliding velocity
-                energy.friction_loss += float(self._r_t.dot(0.5 * (st.tangential_velocity + pt_star))) + stick_loss
+            if tangential is not None:   # the friction impulses' work (_friction_velocity)
+                energy.friction_loss += float(self._r_t.dot(self._friction_velocity(st.tangential_velocity, pt_star)))
+                energy.friction_loss += stick_loss
             if ops.static:
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
+        energy.numerical_loss += numerical_loss
         self._step_energies(energy, t1, 1.0 - theta, theta, self.MV, KU=self.KU)
         if corrected and ops.C is not None:   # the next step starts from the corrected velocity
             alg.mult(ops.C, V, self.CV)
@@ -324,6 +329,49 @@ class MoreauJean(ContactScheme):
                 pt = self.rows.project_many(V)[0][p:]
             self.state.tangential, self.state.tangential_velocity = tangential / dt, pt
         return self.state
+
+    def _numerical_loss(self, st: StepState, impulse: np.ndarray, r_t: np.ndarray | None, pv: np.ndarray,
+                        pt: np.ndarray | None) -> float:
+        """The energy the theta weighting removes in the step (before any velocity correction).
+
+        With ``dU = dt V_theta``, ``V_theta = (1 - theta) V0 + theta V1`` and the step's equation ``M dV =
+        dt (R_theta - K U_theta - C V_theta) - Q^T r`` (r every impulse, Q its rows), the kinetic energy
+        changes by ``1/2 (V0 + V1) . M dV`` and ``1/2 (V0 + V1) = V_theta - (theta - 1/2) dV``: the loads,
+        the damping and the impulses do the work the budget books (the impulses with the step's mean
+        velocity, Kelvin's), the strain energy changes by ``dU . K U_theta - (theta - 1/2) dU . K dU``,
+        and what is left is ``(theta - 1/2) (dV . M dV + dU . K dU + r . Q dV)``: the scheme's own
+        dissipation (no physical term), which closes the balance to round-off for any theta. (The
+        friction rows under the slip law book their work with V_theta, which holds their part of
+        ``r . Q dV``: only the other rows' part is left here.)
+        """
+        ops, alg, theta, dt = self.ops, self.alg, self.theta, self.dt
+        if getattr(self, "_dV", None) is None:
+            self._dV, self._MdV = alg.vector(), alg.vector()
+        dV, product = self._dV, self._MdV
+        np.subtract(self.V, self.A, out=dV)   # (A holds V0 until the step's end)
+        alg.mult(ops.M, dV, product)
+        local = [dV @ product]
+        dV *= 1.0 - theta                      # V_theta = V1 - (1 - theta) dV, in place
+        np.subtract(self.V, dV, out=dV)
+        alg.mult(ops.K, dV, product)
+        local.append(dt * dt * (dV @ product))
+        sums = alg.allsum(np.array(local))
+        contact = float(impulse.dot(pv - st.normal_velocity)) if ops.p else 0.0
+        if r_t is not None:   # (the slip law's rows book their work with V_theta already: _friction_velocity)
+            closing = ~self._persists if self._persists is not None else slice(None)
+            contact += float(r_t[closing].dot((pt - st.tangential_velocity)[closing]))
+        return (theta - 0.5) * (float(sums[0] + sums[1]) + contact)
+
+    def _friction_velocity(self, pt0: np.ndarray, pt1: np.ndarray) -> np.ndarray:
+        """The tangential velocity a step's friction impulses are booked with: the step's mean (an
+        impulse's work on the kinetic energy); on the rows under the slip law (a persisting contact),
+        the one Coulomb's law holds on, ``(1 - theta) P_T V0 + theta P_T V1``, the same for theta = 1/2.
+        Each row's work is so >= 0 at any theta (closing rows: _frictional_impulse's retry); the rest of
+        their mean-velocity work is the scheme's dissipation (_numerical_loss)."""
+        mean = 0.5 * (pt0 + pt1)
+        if self.theta == 0.5 or self._persists is None:
+            return mean
+        return np.where(self._persists, (1.0 - self.theta) * pt0 + self.theta * pt1, mean)
 
     def _frictional_impulse(self, st: StepState, t1: float, rhs: np.ndarray):
         """The step's impulses with friction: one cone problem on ``[P; P_T]``, applied to V.

@@ -44,6 +44,7 @@ class Newmark(ContactScheme):
         if beta <= 0.0:
             raise ValueError("Newmark needs beta > 0 for position-level contact multipliers")
         self.beta, self.gamma = beta, gamma
+        self.unconditionally_stable = 2.0 * beta >= gamma   # (gamma >= 1/2: the case refuses less)
         S = ops.algebra.combine((1.0, ops.M), (beta * dt * dt, ops.K), (gamma * dt, ops.C))
         super().__init__(ops, dt, S, impact_correction)
         # A quasi-static part (reduced model) makes the contact rows compliant: lam0 then

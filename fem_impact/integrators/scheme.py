@@ -14,6 +14,7 @@ from .base import EnergyBudget, Operators, StepState, owned_values
 from .condensed import CondensedFactor
 
 log = logging.getLogger(__name__)
+EPS = np.finfo(float).eps
 
 
 class ContactScheme:
@@ -38,6 +39,9 @@ class ContactScheme:
     # step takes them that way
     diagonal_delassus = False
     scheme_energy = False   # whether the scheme conserves an energy term beyond kinetic + strain (EnergyBudget.scheme)
+    # Whether the scheme is stable at any dt on a linear system (what a blow-up says of dt: EnergyWatch);
+    # None: not known.
+    unconditionally_stable: bool | None = None
 
     def __init__(self, ops: Operators, dt: float, S, impact_correction: bool = True):
         alg = ops.algebra
@@ -225,9 +229,21 @@ class ContactScheme:
         alg.mult(ops.M, self.V, self.MV)
         alg.mult(ops.M, self.A, self.MA)
         alg.mult(ops.K, self.U, self.work)
-        sums = alg.allsum(np.array([self.V @ self.MV, self.U @ self.work, self._load_energy()]))
+        sums = alg.allsum(np.array([self.V @ self.MV, self.U @ self.work, self._load_energy(), self._roundoff(self.U)]))
         self._start_load_scale = sums[2] + self._static_load_energy(self.t0)
+        self._start_roundoff = EPS * sums[3]
         return 0.5 * sums[0], 0.5 * sums[1]
+
+    def _roundoff(self, U: np.ndarray) -> float:
+        """This rank's part of ``|U|^T |K| |U|``: exactly for a replicated K (the reduced model's: a rigid
+        mode has no stiffness, whatever its coordinate), else its bound ``||K||_inf |U|^2`` (no product)."""
+        if getattr(self, "_abs_K", None) is None:
+            K = self.ops.K
+            self._abs_K = np.abs(K) if isinstance(K, np.ndarray) else self.alg.norm(K)
+        weights = self._abs_K
+        if isinstance(weights, float):
+            return weights * float(U @ U)
+        return float(U @ (weights * U) if weights.ndim == 1 else U @ (weights @ U))
 
     def _step_energies(self, energy: EnergyBudget, t1: float, w_prev: float, w_new: float, MV: np.ndarray,
                        KU_rest: np.ndarray | None = None, force_work: float = 0.0,
@@ -246,8 +262,9 @@ class ContactScheme:
         ``scheme_weight A.M A`` (``self.MA`` = M A at the step).
         """
         U, R, CV = self.U, self.R, self.CV
-        sums = np.zeros(6)
+        sums = np.zeros(7)
         sums[5] = self._load_energy()
+        sums[6] = self._roundoff(U)
         sums[0] = self.V @ MV
         if KU is not None:
             sums[1] = U @ KU
@@ -277,6 +294,7 @@ class ContactScheme:
         energy.damping_loss += sums[3]
         energy.scheme = scheme_weight * sums[4]
         energy.load_scale = sums[5] + self._static_load_energy(t1)
+        energy.roundoff = EPS * sums[6] + self._start_roundoff
 
     def _initial_state(self, U0, V0, t0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """U, V from (U0, V0); R(t0); the free initial acceleration ``M A = R - K U - C V``; (P U, P V, P A)."""
@@ -375,6 +393,7 @@ class ContactScheme:
             force, impulse, pu, pv = self._initial_contacts(pu, pv, pa, energy)
         energy.kinetic, energy.strain = self._quadratic_energies()
         energy.load_scale = self._start_load_scale
+        energy.roundoff = self._start_roundoff
         self._book_stops(energy, force, force)
         if ops.static:
             energy.strain += ops.static.energy(t0, force)

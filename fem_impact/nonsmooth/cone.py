@@ -117,10 +117,14 @@ def _directions(W, q, mu):
 
 @njit(cache=True)
 def _solve_small(W, q):
-    """``W^-1 q`` for a 2 x 2 or 3 x 3 W (explicitly: no LAPACK call and no copy in the sweeps)."""
+    """``W^-1 q`` for a 2 x 2 or 3 x 3 W (explicitly: no LAPACK call and no copy in the sweeps); NaN
+    where W is singular (no stick candidate: the row's other candidates decide)."""
     x = np.empty(q.size)
     if q.size == 2:
         det = W[0, 0] * W[1, 1] - W[0, 1] * W[1, 0]
+        if det == 0.0:
+            x[:] = np.nan
+            return x
         x[0] = (W[1, 1] * q[0] - W[0, 1] * q[1]) / det
         x[1] = (W[0, 0] * q[1] - W[1, 0] * q[0]) / det
         return x
@@ -128,6 +132,9 @@ def _solve_small(W, q):
     c01 = W[1, 2] * W[2, 0] - W[1, 0] * W[2, 2]
     c02 = W[1, 0] * W[2, 1] - W[1, 1] * W[2, 0]
     det = W[0, 0] * c00 + W[0, 1] * c01 + W[0, 2] * c02
+    if det == 0.0:
+        x[:] = np.nan
+        return x
     x[0] = (c00 * q[0] + (W[0, 2] * W[2, 1] - W[0, 1] * W[2, 2]) * q[1]
             + (W[0, 1] * W[1, 2] - W[0, 2] * W[1, 1]) * q[2]) / det
     x[1] = (c01 * q[0] + (W[0, 0] * W[2, 2] - W[0, 2] * W[2, 0]) * q[1]

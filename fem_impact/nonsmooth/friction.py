@@ -86,11 +86,37 @@ def _kernels():
     return cone
 
 
-def _symmetric(W: np.ndarray, rows: int = 512) -> bool:
-    """W = W^T to 1e-13 of its largest entry, by blocks of rows (no temporary of W's size)."""
-    scale = 1e-13 * max((np.abs(W[i:i + rows]).max(initial=0.0) for i in range(0, W.shape[0], rows)), default=0.0)
-    return all(np.abs(W[i:i + rows] - W[:, i:i + rows].T).max(initial=0.0) <= scale
-               for i in range(0, W.shape[0], rows))
+EPS = np.finfo(float).eps
+# |W_ij - W_ji| above this many times the round-off bound s_i s_j of the two entries: not round-off (a
+# backward-stable solve stays below the bound itself).
+ASYMMETRY_MARGIN = 100.0
+
+
+def symmetrize(W: np.ndarray, scale: np.ndarray, rows: int = 512) -> float:
+    """``W <- (W + W^T) / 2`` in place, by blocks (no temporary of W's size); returns the largest
+    ``|W_ij - W_ji| / (s_i s_j)``, the asymmetry against the round-off bound of the entries (``scale``:
+    s, non-negative).
+
+    W = P S^-1 P^T is symmetric, but computed from solves with S (or from S^-1's entries) each
+    entry carries round-off of order ``EPS ||S|| |S^-1 p_i| |S^-1 p_j|``, which grows with S's
+    conditioning (a large step on a stiff model): W and W^T then differ by that much. The sweeps
+    read W's rows as its columns, so they work on the symmetric part, the problem W stands for.
+    """
+    n = W.shape[0]
+    worst = 0.0
+    for i in range(0, n, rows):
+        for j in range(i, n, rows):
+            a, b = W[i:i + rows, j:j + rows], W[j:j + rows, i:i + rows]
+            if not (np.isfinite(a).all() and np.isfinite(b).all()):
+                return np.nan
+            gap = np.abs(a - b.T)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = np.where(gap > 0.0, gap / np.outer(scale[i:i + rows], scale[j:j + rows]), 0.0)
+            worst = max(worst, float(ratio.max(initial=0.0)))
+            mean = 0.5 * (a + b.T)
+            a[...] = mean
+            b[...] = mean.T
+    return worst
 
 
 class FrictionProblem:
@@ -109,7 +135,11 @@ class FrictionProblem:
     __checkpoint__ = ("_last",)   # the warm start: part of a run's state (fem_impact/app/checkpoint.py)
     SINGLE_TARGET = 1e-7  # the first float32 round's (its round-off floor: about 3e-8 on the landing plate)
 
-    def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray, overwrite: bool = False):
+    def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray, overwrite: bool = False,
+                 roundoff: np.ndarray | None = None):
+        """``roundoff``: s per unknown (W's order), the round-off bound of W's entries ``|dW_ij| <= s_i s_j``
+        (``Operators.delassus``); by default that of an entry computed to a few ulps of its size,
+        ``sqrt(64 EPS W_ii)``."""
         _kernels()   # (fails here, and clearly, without Numba)
         self.p, self.mu = mu.size, np.asarray(mu, dtype=float)
         self.blocks = [np.array([i] + [self.p + k for k in np.flatnonzero(tangent_of == i)])
@@ -123,9 +153,21 @@ class FrictionProblem:
             W = permuted_in_place(W, self.order)   # (the caller's W, no second copy: the largest array)
         else:
             W = np.ascontiguousarray(np.asarray(W, dtype=float)[np.ix_(self.order, self.order)])
-        # The sweeps update y along rows of W, which are its columns: W = H S^-1 H^T is symmetric.
-        if not _symmetric(W):
-            raise ValueError("the frictional contact problem's matrix W must be symmetric")
+        # The sweeps update y along rows of W, which are its columns: W = H S^-1 H^T is symmetric, to
+        # the round-off of the solves that made it. Its symmetric part is taken; an asymmetry beyond
+        # that round-off is no round-off, but a W that is not what it should be.
+        if roundoff is None:
+            roundoff = np.sqrt(64.0 * EPS * np.abs(np.diagonal(W)))
+        scale = np.ascontiguousarray(np.asarray(roundoff, dtype=float)[self.order])
+        self.asymmetry = symmetrize(W, scale)
+        if not self.asymmetry <= ASYMMETRY_MARGIN:
+            from ..errors import ContactSolverError
+
+            what = "holds values that are not finite" if np.isnan(self.asymmetry) else (
+                f"is not symmetric: W_ij and W_ji differ by {self.asymmetry:.3g} times the round-off of the "
+                "solves that made them")
+            raise ContactSolverError(f"the frictional contact problem's Delassus matrix W = P S^-1 P^T {what} (S, "
+                                     "the step matrix, singular or W built wrong): this is a defect, please report it")
         self.rho = 1.0 / W[self.start, self.start]
         if W.shape[0] >= self.SINGLE_FROM:
             # Many rows: W kept as upper + lower, both float32, equal to W to float32's round-off

@@ -142,17 +142,81 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
     cons = Constraints(P_local, np.concatenate(gaps), np.concatenate(restitution), contacts,
                        np.concatenate(compliance), np.concatenate(friction))
     if tangent_columns:
-        # Rows of a tangent direction held by a support carry no friction there (zero columns).
-        cons.tangent_local = (sparse.diags(free) @ sparse.hstack(tangent_columns)).tocsr()
-        cons.tangent_local.eliminate_zeros()
-        cons.tangent_of = np.concatenate(tangent_of)
-        cons.tangent_dirs = np.concatenate(tangent_dirs)
+        # A support's held dofs take no part in a tangent row either (its force there goes to the support).
+        cons.tangent_local, cons.tangent_of, cons.tangent_dirs = free_tangents(
+            sparse.hstack(tangent_columns).tocsr(), free, np.concatenate(tangent_of), np.concatenate(tangent_dirs),
+            model.comm)
     norms = np.sqrt(model.comm.allreduce(np.asarray(P_local.power(2).sum(axis=0)).ravel(), op=MPI.SUM))
     for c in contacts:
         if np.any(norms[c.rows] == 0.0):
             raise ModelInputError(("contacts", c.index, "nodes"),
                                   "acts on nodes whose normal direction is fixed by a support")
     return cons
+
+
+HELD = 1e-12   # a tangent direction whose free part has at most this share of its squared norm is held
+
+
+def free_tangents(T: sparse.csr_matrix, free: np.ndarray, tangent_of: np.ndarray, dirs: np.ndarray,
+                  comm: MPI.Comm) -> tuple[sparse.csr_matrix, np.ndarray, np.ndarray]:
+    """The tangent rows without the directions a support holds: ``(P_T^T, tangent_of, dirs)``.
+
+    ``T`` (owned rows of P_T^T, n_local x pt) holds each row's orthonormal tangents (1 in 2D, 2 in
+    3D, equal norms), ``free`` is 0 on the held dofs. On the free dofs alone, a direction of a row's
+    tangent plane in which every dof it moves is held (a node on a symmetry plane that the plane's
+    support holds, a radial dof on an axisymmetric axis) has a zero column: no sliding along it, and
+    an impulse along it that moves nothing, so Coulomb's law leaves it undetermined and the Delassus
+    block singular. Its friction force is the support's reaction: that direction is dropped. A row's
+    two tangents are first turned in their plane to the eigenvectors of the Gram matrix of their free
+    parts (held directions: eigenvalue 0), so an oblique held direction is found too; rows with none
+    keep their tangents unchanged.
+    """
+    Tf = (sparse.diags(free) @ T).tocsr()
+    Tf.eliminate_zeros()
+    pt = tangent_of.size
+    norms = allsum(comm, np.asarray(T.multiply(T).sum(axis=0)).ravel())
+    gram = allsum(comm, np.asarray(Tf.multiply(Tf).sum(axis=0)).ravel())
+    # The rows' tangent slots: a row's first tangent, and its second in 3D (-1 in 2D).
+    order = np.argsort(tangent_of, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(tangent_of[order]) != 0])
+    first = order[starts]
+    sizes = np.diff(np.r_[starts, pt])
+    second = np.where(sizes == 2, order[np.minimum(starts + 1, pt - 1)], -1)
+    pairs = second >= 0
+    a, b = first[pairs], second[pairs]
+    cross = allsum(comm, np.asarray(Tf[:, a].multiply(Tf[:, b]).sum(axis=0)).ravel()) if a.size else np.zeros(0)
+    # Each row: the eigenpairs of the Gram matrix of its free tangents, relative to the full ones'.
+    lam = np.zeros((first.size, 2))
+    vec = np.tile(np.eye(2), (first.size, 1, 1))
+    lam[:, 0] = gram[first] / norms[first]
+    lam[~pairs, 1] = 1.0
+    if a.size:
+        G = np.stack([np.stack([gram[a], cross], -1), np.stack([cross, gram[b]], -1)], -2) / norms[a][:, None, None]
+        lam[pairs], vec[pairs] = np.linalg.eigh(G)
+        # (a sign per eigenvector: its larger component positive; unturned rows keep their own tangents)
+        big = np.take_along_axis(vec, np.abs(vec).argmax(axis=1)[:, None, :], axis=1)
+        vec *= np.sign(big)
+    held = lam <= HELD
+    if not held.any():
+        return Tf, tangent_of, dirs
+    turned = pairs & held.any(axis=1)
+    # R (pt x kept): each kept direction as a combination of its row's tangents, in the slot of the
+    # row's first tangent where the row was turned (it keeps one direction at most), the kept
+    # directions in slot order.
+    keep_first = ~held[:, 0]
+    keep_second = pairs & ~held[:, 1]
+    plain = [(first[~turned & keep_first], first[~turned & keep_first], np.ones(np.count_nonzero(~turned & keep_first))),
+             (second[~turned & keep_second], second[~turned & keep_second],
+              np.ones(np.count_nonzero(~turned & keep_second)))]
+    for e, keep in enumerate((keep_first, keep_second)):
+        r = turned & keep
+        plain += [(first[r], first[r], vec[r, 0, e]), (second[r], first[r], vec[r, 1, e])]
+    rows, slots, values = (np.concatenate(x) for x in zip(*plain))
+    kept = np.unique(slots)
+    R = sparse.csr_matrix((values, (rows, np.searchsorted(kept, slots))), shape=(pt, kept.size))
+    Tn = (Tf @ R).tocsr()
+    Tn.eliminate_zeros()
+    return Tn, tangent_of[kept], np.asarray(R.T @ dirs)
 
 
 def tangent_basis(normal: np.ndarray) -> list[np.ndarray]:
