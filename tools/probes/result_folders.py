@@ -283,10 +283,10 @@ def _legacy_sweep(ctx):
     if bad:
         return bad
     _strip_manifest(out)
-    (out / "run01" / "remarks.md").write_text("# mine\n")
-    _keep(ctx, out, ["run01/remarks.md"])
+    (out / "run01" / "remarks.txt").write_text("# mine\n")
+    _keep(ctx, out, ["run01/remarks.txt"])
     r = ctx.run(*COMMANDS["sweep"][1], "-o", out)
-    return _judge(ctx, r, out, "run01/remarks.md")
+    return _judge(ctx, r, out, "run01/remarks.txt")
 
 
 @probe("result-folders", "a rerun over its own result (nothing of the user's) replaces it")
