@@ -73,6 +73,12 @@ def test_a_run_continued_from_its_checkpoint_is_the_uninterrupted_run(tmp_path, 
     assert continued.summary["restarted_from"]["t"] == pytest.approx(0.5 * t_end, rel=1e-9)
     assert continued.history["t"][0] == half.history["t"][-1]
     assert_same_from(full.history, continued.history)
+    # the summary's extremes and totals are the whole run's, as the uninterrupted run's are
+    for key in ("max_penetration", "max_stop_compression", "max_energy", "max_energy_error"):
+        assert continued.summary[key] == pytest.approx(full.summary[key], rel=1e-9, abs=1e-12 * full.summary[
+            "initial_energy"]), key
+    for name, impulse in full.summary["total_impulse"].items():
+        assert continued.summary["total_impulse"][name] == pytest.approx(impulse, rel=1e-9, abs=1e-12), name
     if run.endswith("_blocks"):
         assert full.summary["steps_in_blocks"] > 0 and continued.summary["steps_in_blocks"] > 0
     state = json.loads((tmp_path / "half" / "checkpoint" / "state.json").read_text())

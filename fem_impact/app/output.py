@@ -475,6 +475,10 @@ class RunStatistics:
     """Extremes and totals over the run for the summary: penetration (rigid rows), compression
     of the elastic stops, energy residual, impulses."""
 
+    # (checkpointed: a restarted run's summary covers the whole run from t = 0, as its energy watch does)
+    __checkpoint__ = ("max_penetration", "max_stop_compression", "max_energy_error", "energy_scale", "max_energy",
+                      "total_impulse", "step")
+
     def __init__(self, cons: Constraints):
         self.cons = cons
         self.elastic = cons.compliance > 0.0
@@ -484,6 +488,7 @@ class RunStatistics:
         self.energy_scale = 0.0
         self.max_energy = 0.0
         self.total_impulse = {c.name: 0.0 for c in cons.contacts}
+        self.step = -1   # the last step whose impulses are counted (a restart writes its checkpoint's step again)
 
     def write(self, state: StepState) -> None:
         e = state.energy
@@ -496,8 +501,10 @@ class RunStatistics:
         # (with the load's own energy scale, as the energy watch: a body pressed on a stop at rest does no work)
         self.energy_scale = max(self.energy_scale, e.initial, abs(e.external_work), e.load_scale)
         self.max_energy = max(self.max_energy, e.total)
-        for c in self.cons.contacts:
-            self.total_impulse[c.name] += float(state.impulse[c.rows].sum())
+        if state.step > self.step:
+            for c in self.cons.contacts:
+                self.total_impulse[c.name] += float(state.impulse[c.rows].sum())
+            self.step = state.step
 
     def write_block(self, block) -> None:
         """``write`` for every step of a block at once."""
@@ -516,3 +523,4 @@ class RunStatistics:
             for c in self.cons.contacts:   # (summed in the order step by step would)
                 sums = np.concatenate(([self.total_impulse[c.name]], block.impulse[:, c.rows].sum(axis=1)))
                 self.total_impulse[c.name] = float(np.cumsum(sums)[-1])
+        self.step = int(block.step[-1])

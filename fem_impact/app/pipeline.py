@@ -300,8 +300,9 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     # What a checkpoint holds: the state of every part of the run that carries one from step to step.
     raw = integrator.integrator if model.motion is not None else integrator
     impacts = ImpactLog(cons)
+    stats = RunStatistics(cons)
     watch = EnergyWatch(stop_on_energy_gain, scheme=raw.name, stable=getattr(raw, "unconditionally_stable", None))
-    parts = {"integrator": raw, "fields": system.fields, "watch": watch, "impacts": impacts}
+    parts = {"integrator": raw, "fields": system.fields, "watch": watch, "impacts": impacts, "statistics": stats}
     if model.motion is not None:
         parts["motion"] = integrator
     model_keys = checkpoint.model_keys(case)
@@ -342,7 +343,6 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                                 scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name,
                                 reactions=model.motion.names if model.motion else (),
                                 numerical_loss=getattr(raw, "theta", 0.5) != 0.5)
-        stats = RunStatistics(cons)
         observers = [history, stats, impacts]
         vtk = None
         if case.output.vtk and stage is not None:
