@@ -5,6 +5,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from conftest import ROOT
 
 
@@ -16,6 +18,7 @@ def test_contact_scale_runs_at_its_smallest_size():
     assert [r[:2] for r in rows] == [["1", "mean"], ["121", "each"]]
 
 
+@pytest.mark.slow   # (16 runs; tests/test_mpi.py checks every method's serial and 2-rank histories in the default tier)
 def test_scaling_runs_at_a_small_size_with_equal_histories():
     """benchmarks/scaling.py at 20 cells (252 unknowns), 12 steps, every method: serial and 2 ranks run and
     give the same history (to 1e-9 of each column's scale; the figures of time are the benchmark's); and the

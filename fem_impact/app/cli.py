@@ -322,11 +322,21 @@ def _main(argv=None) -> int:
 
         return animate_main(args)
 
+    case = args.case
+    if _rank_and_size()[1] == 1:
+        # Outside mpirun the case is read before MPI starts (a third of a second): bad input is told at once.
+        from ..config.case import load_case
+
+        loaded = []
+        status = _guarded(lambda: loaded.append(load_case(args.case, args.overrides)), "the run failed")
+        if status:
+            return status
+        case = loaded[0]
     # Heavy imports (dolfinx, PETSc) only once the arguments are known to be sound.
     from .pipeline import describe, energy_warning, run_case
 
     def run():
-        summary = run_case(args.case, args.output, args.overrides, comm=_comm(), progress=not args.quiet,
+        summary = run_case(case, args.output, args.overrides, comm=_comm(), progress=not args.quiet,
                            stop_on_energy_gain=args.stop_on_energy_gain, force=args.force, restart=args.restart)
         if _comm().rank == 0 and not args.quiet:
             print(describe(summary))
@@ -349,6 +359,17 @@ def _comm():
     return MPI.COMM_WORLD
 
 
+class _Rank:
+    def __init__(self, rank: int, size: int):
+        self.rank, self.size = rank, size
+
+
+def _started_comm():
+    """MPI's world where MPI has started; else this process's rank and size from the launcher, without
+    starting MPI for a message (bad input found before the run began)."""
+    return _comm() if "mpi4py.MPI" in sys.modules else _Rank(*_rank_and_size())
+
+
 def _guarded(action, failure: str) -> int:
     """Run ``action``; bad input -> one line and status 2, a failed computation -> status 3."""
     from ..config.case import CaseError
@@ -358,7 +379,7 @@ def _guarded(action, failure: str) -> int:
     try:
         action()
     except (CaseError, _UsageError) as err:
-        return _fail(_comm(), f"error: {err}", 2)
+        return _fail(_started_comm(), f"error: {err}", 2)
     except SimulationError as err:
         status = _fail(_comm(), f"{failure}: {err} ({_left(err)})", 3)
         if _comm().size > 1 and isinstance(err, OutputWriteError):

@@ -256,9 +256,10 @@ def run_case(path, outdir=None, overrides=(), comm: MPI.Comm = MPI.COMM_WORLD, p
              stop_on_energy_gain: bool = False, force: bool = False, restart=None) -> dict:
     """Run a case file into ``outdir`` (default ``results/<name>``); returns the summary.
 
-    The command's path: :func:`load_case` with the ``--set`` overrides, then :func:`run`.
+    The command's path: :func:`load_case` with the ``--set`` overrides (or ``path`` is the Case they gave
+    already), then :func:`run`.
     """
-    case = load_case(path, overrides)
+    case = path if isinstance(path, Case) else load_case(path, overrides)
     return run(case, outdir if outdir is not None else default_outdir(case), progress, comm,
                stop_on_energy_gain, force, restart).summary
 

@@ -12,7 +12,6 @@ import ufl
 from dolfinx import cpp as _cpp
 from dolfinx import fem, io, mesh
 from dolfinx.fem import petsc as fem_petsc
-from dolfinx.io import gmshio
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -93,6 +92,8 @@ def gmsh_cells_to_mesh(comm: MPI.Comm, gmsh_type: int, cells: np.ndarray, x: np.
     ``cells`` holds node numbers (rows of ``x``) in Gmsh's local order; a node's number is its input
     index (``input_nodes_to_vertices``). As ``gmshio.model_to_mesh``, without a gmsh model in this process.
     """
+    from dolfinx.io import gmshio   # (it loads the gmsh library: a fifth of a run's start, for Gmsh files only)
+
     try:
         domain = gmshio.ufl_mesh(gmsh_type, gdim)
     except KeyError:
