@@ -302,3 +302,21 @@ def test_a_bar_built_or_read_on_two_ranks_is_cut_straight_across_its_middle():
         (n0, lo0, hi0), (n1, lo1, hi1) = sorted(result[name], key=lambda r: r[1])
         assert n0 == n1 == 100 * per_layer, name
         assert hi0 < 0.5 < lo1, name
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
+def test_a_command_started_alone_starts_mpi_for_one_process_and_mpirun_ranks_keep_their_own():
+    """The command line started alone sets Open MPI's start for one process (no daemon, shared memory and self
+    only), unless the user set those keys; the ranks of mpirun get none of it (they may span machines)."""
+    from fem_impact.app.cli import SERIAL_MPI
+
+    show = "import os, fem_impact.app.cli; print({k: os.environ.get(k) for k in fem_impact.app.cli.SERIAL_MPI})"
+    env = {k: v for k, v in mpirun_environment().items() if k not in SERIAL_MPI}
+    alone = subprocess.run([sys.executable, "-c", show], capture_output=True, text=True, env=env, check=True)
+    assert eval(alone.stdout) == SERIAL_MPI
+    own = subprocess.run([sys.executable, "-c", show], capture_output=True, text=True, check=True,
+                         env={**env, "OMPI_MCA_btl": "self,tcp"})
+    assert eval(own.stdout)["OMPI_MCA_btl"] == "self,tcp"
+    ranks = subprocess.run(["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-c", show],
+                           capture_output=True, text=True, env=env, check=True)
+    assert [eval(line) for line in ranks.stdout.splitlines()] == [dict.fromkeys(SERIAL_MPI)] * 2
