@@ -15,6 +15,10 @@ import pytest
 # Modes and static solves are cached on disk: tests keep their own cache, away from the user's.
 os.environ["FEM_IMPACT_CACHE"] = tempfile.mkdtemp(prefix="fem-impact-cache-")
 
+# Open MPI started for one process, as the command line starts it (fem_impact/app/cli.py, SERIAL_MPI): in
+# this process and the interpreters the tests start (mpirun's ranks are told otherwise by mpirun).
+import fem_impact.app.cli  # noqa: E402, F401
+
 ROOT = Path(__file__).resolve().parents[1]
 CASES = ROOT / "cases"
 
