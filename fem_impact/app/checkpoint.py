@@ -603,13 +603,14 @@ class Saved:
         return self.state["step"]
 
 
-def agree(comm, problem: Damaged | None) -> Damaged | None:
-    """The first problem any rank found (in rank order), on every rank: one collective call, which every
+def agree(comm, problem: Damaged | None) -> None:
+    """Raise the first problem any rank found (in rank order), on every rank: one collective call, which every
     rank makes, so that no rank goes on (or waits) while another stops."""
     found = comm.allgather(None if problem is None else (problem.file, problem.message)) if comm.size > 1 \
         else [None if problem is None else (problem.file, problem.message)]
     first = next((p for p in found if p is not None), None)
-    return None if first is None else Damaged(*first)
+    if first is not None:
+        raise Damaged(*first)
 
 
 def open_checkpoint(path, comm) -> Saved:
@@ -621,9 +622,7 @@ def open_checkpoint(path, comm) -> Saved:
         saved = Saved(folder, _read_state(folder / STATE, comm))
     except Damaged as err:
         problem = err
-    problem = agree(comm, problem)
-    if problem is not None:
-        raise problem
+    agree(comm, problem)
     return saved
 
 
@@ -697,9 +696,7 @@ def read_parts(saved: Saved, comm, now: dict, dof_keys: np.ndarray | None = None
             parts = _redistributed(folder, state, parts, dof_keys)
     except Damaged as err:
         problem = err
-    problem = agree(comm, problem)
-    if problem is not None:
-        raise problem
+    agree(comm, problem)
     return parts
 
 
@@ -769,9 +766,7 @@ def restore_parts(parts: dict, trees: dict, saved: Saved, comm) -> None:
         except ValueError as err:
             problem = Damaged(file, f"its {name} does not fit this case: {err} (the checkpoint is damaged)")
             break
-    problem = agree(comm, problem)
-    if problem is not None:
-        raise problem
+    agree(comm, problem)
     for name, part in parts.items():
         restore(part, trees[name])
 
@@ -796,9 +791,7 @@ def initial_state(path, comm, model: dict, reduced: bool, now: dict, U0, dof_key
     elif U.size != size or V.size != size:
         problem = Damaged(saved.folder / f"rank-{comm.rank}.h5", f"its state has {U.size} unknowns on this rank, "
                                                                  f"the case {size} (another mesh or count of modes)")
-    problem = agree(comm, problem)
-    if problem is not None:
-        raise problem
+    agree(comm, problem)
     return U.copy(), V.copy()
 
 
