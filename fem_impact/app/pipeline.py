@@ -144,8 +144,9 @@ class Result:
 
 @dataclass
 class Fields:
-    """A run's nodal fields: ``t`` (frames,), ``points`` (nodes, 3) and ``values[name]`` (frames, nodes, 3)
-    for u, v, a and contact_force (1D and 2D fields padded to 3 components, zeros)."""
+    """A run's nodal fields: ``t`` (frames,), ``points`` (nodes, the coordinates as written: 2 columns in 1D
+    and 2D, 3 in 3D) and ``values[name]`` (frames, nodes, 3) for u, v, a and contact_force (1D and 2D fields
+    padded to 3 components, zeros)."""
 
     t: np.ndarray
     points: np.ndarray
