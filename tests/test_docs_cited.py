@@ -7,8 +7,9 @@ with ``../``. Each must be a tracked file (or folder) of the repository: a path 
 the citing file's folder or from the repository's root (a ``../`` path also from a top-level
 folder, as a case file's ``mesh.file`` is), a bare name must be the name of some tracked file.
 A section cited as ``s. N`` (or ``section N``, ``B2``) right after a document's path must be a
-heading of that document (``## N. ...``, ``### N.M ...``, a heading naming B2). This file is not
-scanned: its examples are not citations.
+heading of that document (``## N. ...``, ``### N.M ...``, a heading naming B2). What ``make docs``
+writes (``docs/_build/``, ``docs/_generated/``: the site and the generated case reference, not tracked)
+may be cited. This file is not scanned: its examples are not citations.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ LINK = re.compile(r"\]\(([^)\s]+)\)")
 # What follows a document's name when a section of it is cited (across a line break, a comment's #).
 SECTION = re.compile(r"`?[,;:]?\s*(?:#\s*)?(?:s\.|sections?\b)\s*(\d+(?:\.\d+)*)|`?[,;:]?\s+(B\d+)[a-z]?\b")
 HEADING = re.compile(r"^#{1,6}\s+(.*\S)\s*$", re.MULTILINE)
+BUILT = ("docs/_build", "docs/_generated")   # written by `make docs` (gitignored)
 
 
 @dataclass(frozen=True)
@@ -125,11 +127,19 @@ def has_section(titles: list[str], section: str) -> bool:
     return any(re.match(rf"{re.escape(section)}\.?\s", t) for t in titles)
 
 
+def is_built(ref: Reference) -> bool:
+    """Whether a reference names what the site's build writes (from the root or the citing file's folder)."""
+    paths = {os.path.normpath(ref.target), os.path.normpath(Path(ref.file).parent / ref.target)}
+    return any(p == b or p.startswith(b + "/") for p in paths for b in BUILT)
+
+
 def problems(root: Path, files: list[str]) -> list[str]:
     """One line per reference to a document that is not in the repository, or to a section it lacks."""
     out = []
     for ref in references(root, files):
         where = f"{ref.file}:{ref.line}: {ref.target!r}"
+        if is_built(ref):
+            continue
         path = resolve(root, files, ref)
         if path is None:
             out.append(f"{where} is not in the repository")
@@ -164,6 +174,7 @@ def test_the_check_is_not_fooled(tmp_path):
         "docs/bar.png": "",
         "meshes/two_bars.msh": "",
         "README.md": (f"See [the theory](docs/{doc}), ![a bar](docs/bar.png), [gone](docs/gone.md),\n"
+                      f"the site in docs/_build/html, [built](docs/_generated/keys.md) and [gone](docs/_built/x.md),\n"
                       f"![lost](docs/lost.png) and `../shared/peers/`; a case file's `../meshes/two_bars.msh`.\n"),
         "fem_impact/a.py": (f'"""The step (docs/{doc} s. 1.2; docs/{doc}\n# section 1).\n'
                             f'Wrong: docs/{doc} s. 3, docs/{doc} B3, {missing}, docs/{doc} B2."""\n'),
@@ -175,8 +186,9 @@ def test_the_check_is_not_fooled(tmp_path):
     found = problems(tmp_path, sorted(files))
     assert sorted(found) == sorted([
         "README.md:1: 'docs/gone.md' is not in the repository",
-        "README.md:2: 'docs/lost.png' is not in the repository",
-        "README.md:2: '../shared/peers/' is not in the repository",
+        "README.md:2: 'docs/_built/x.md' is not in the repository",
+        "README.md:3: 'docs/lost.png' is not in the repository",
+        "README.md:3: '../shared/peers/' is not in the repository",
         f"fem_impact/a.py:3: 'docs/{doc}' has no section 3",
         f"fem_impact/a.py:3: 'docs/{doc}' has no section B3",
         f"fem_impact/a.py:3: '{missing}' is not in the repository",

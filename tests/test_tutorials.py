@@ -14,7 +14,7 @@ TUTORIALS = ROOT / "docs" / "tutorials"
 
 
 def tutorial(name: str, tmp_path, monkeypatch):
-    """The script ``docs/tutorials/NAME.py`` as a module, run from an empty folder it must leave empty."""
+    """The script ``docs/tutorials/<name>.py`` as a module, run from an empty folder it must leave empty."""
     monkeypatch.chdir(tmp_path)
     spec = importlib.util.spec_from_file_location(f"tutorial_{name}", TUTORIALS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
@@ -35,7 +35,7 @@ def test_impacting_bar(cells, tmp_path, monkeypatch):
     rows = tutorial("impacting_bar", tmp_path, monkeypatch).main(cells)
     dt = 0.5 / cells
     for method, r in rows.items():   # B2a's exact answer (docs/benchmarks.md B2) to the scheme's accuracy
-        assert r["start"] == pytest.approx(0.1, abs=dt * 1.01) and r["end"] == pytest.approx(2.1, abs=2 * dt)
+        assert r["start"] == pytest.approx(0.1, abs=2.5 * dt) and r["end"] == pytest.approx(2.1, abs=2.5 * dt)
         assert r["force"] == pytest.approx(1.0, rel=0.01) and r["rebound"] == pytest.approx(1.0, rel=0.02)
         assert r["loss"] == pytest.approx(1 / (2 * math.sqrt(3) * cells), rel=1e-3)
         assert r["residual"] < 1e-10, method
@@ -70,14 +70,16 @@ def test_convergence_study(cells, tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("values, periods", [
-    ((0.5, 0.667), {0.5: 1, 0.667: 2}),
+@pytest.mark.parametrize("values, periods, shooting", [
+    ((0.5, 0.667), {0.5: 1, 0.667: 2}, False),
     pytest.param((0.45, 0.5, 0.64, 0.66, 0.6645, 0.667), {0.45: 1, 0.5: 1, 0.64: 1, 0.66: 1, 0.6645: 2, 0.667: 2},
-                 marks=pytest.mark.slow)])
-def test_response_sweep(values, periods, tmp_path, monkeypatch):
+                 True, marks=pytest.mark.slow)])
+def test_response_sweep(values, periods, shooting, tmp_path, monkeypatch):
     module = tutorial("response_sweep", tmp_path, monkeypatch)
-    out = module.main(values, tmp_path / "sweep")
-    assert out["periods"] == periods
-    (mark,) = out["study"]["bifurcations"]
-    assert mark["kind"] == "period_doubling"
+    out = module.main(values, tmp_path / "sweep", shooting=shooting)
+    assert out["periods"] == periods   # period 1 below the period doubling, 2 above
     assert (tmp_path / "sweep" / "response.csv").is_file()
+    if shooting:   # located between the last period-1 and the first period-2 level: w = 4 f = 2.6533
+        (mark,) = out["study"]["bifurcations"]
+        assert mark["kind"] == "period_doubling" and mark["between"] == [0.66, 0.6645]
+        assert 4 * mark["parameters.f"] == pytest.approx(2.6533477, abs=0.005)

@@ -24,10 +24,10 @@ CASE = Path(__file__).resolve().parents[2] / "cases" / "impact_oscillator.yaml"
 
 
 def main(values=(0.45, 0.5, 0.64, 0.66, 0.6645, 0.667), outdir="results/impact_oscillator-response",
-         settle: int = 150, periods: int = 8) -> dict:
+         settle: int = 150, periods: int = 8, shooting: bool = True) -> dict:
     case = fem_impact.load_case(CASE)
     study = response_study(case, "parameters.f=" + ",".join(map(str, values)), outdir, settle=settle,
-                           periods=periods, flight="events", quiet=True)
+                           periods=periods, flight="events", shooting=shooting, quiet=True)
     by_level: dict[float, list] = {}
     for row in study["rows"]:
         by_level.setdefault(row["parameters.f"], []).append(row)
@@ -45,5 +45,6 @@ if __name__ == "__main__":
     parser.add_argument("--values", type=float, nargs="+", default=[0.45, 0.5, 0.64, 0.66, 0.6645, 0.667],
                         help="the drive frequencies in Hz (parameters.f)")
     parser.add_argument("-o", "--outdir", default="results/impact_oscillator-response", help="the study's folder")
+    parser.add_argument("--no-shooting", action="store_true", help="no shooting: the sections only (quicker)")
     args = parser.parse_args()
-    main(tuple(args.values), args.outdir)
+    main(tuple(args.values), args.outdir, shooting=not args.no_shooting)
