@@ -59,7 +59,7 @@ def _readme(app, env, node, contnode):
     """docs/theory.md links the repository's README (``../README.md``), which is not a page of the site:
     the link goes to the site's front page, which the README points to."""
     target = node.get("reftarget", "")
-    if node.get("refdomain") is None and target.endswith("README.md") or target in ("../README.md", "README.md"):
+    if target.endswith("README.md"):
         from sphinx.util.nodes import make_refnode
         return make_refnode(app.builder, node.get("refdoc", ""), root_doc, "", contnode)
     return None
