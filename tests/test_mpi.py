@@ -8,6 +8,7 @@ import shutil
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -320,3 +321,27 @@ def test_a_command_started_alone_starts_mpi_for_one_process_and_mpirun_ranks_kee
     ranks = subprocess.run(["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-c", show],
                            capture_output=True, text=True, env=env, check=True)
     assert [eval(line) for line in ranks.stdout.splitlines()] == [dict.fromkeys(SERIAL_MPI)] * 2
+
+
+def test_commands_started_alone_have_session_folders_of_their_own_removed_at_exit(tmp_path):
+    """Isolated processes share Open MPI's job family 0: in one session folder, one process's MPI_Finalize
+    removed the folder another's MPI_Init was creating ("Local abort before MPI_INIT completed"). Each
+    process started alone has its own, inherited or not, and removes it; a user's own base is kept."""
+    show = ("import os, fem_impact.app.cli; from mpi4py import MPI; MPI.COMM_WORLD.barrier(); "
+            "base = os.environ['OMPI_MCA_orte_tmpdir_base']; print(base, os.path.isdir(base))")
+    env = {k: v for k, v in mpirun_environment().items() if not k.startswith("OMPI_MCA_orte_tmpdir")}
+    children = [subprocess.Popen([sys.executable, "-c", show], stdout=subprocess.PIPE, text=True,
+                                 env={**env, **inherited}) for inherited in
+                ({}, {}, {"OMPI_MCA_orte_tmpdir_base": os.environ.get("OMPI_MCA_orte_tmpdir_base", "/tmp"),
+                      "FEM_IMPACT_MPI_SESSION_BASE": os.environ.get("OMPI_MCA_orte_tmpdir_base", "/tmp")})]
+    seen = [child.communicate(timeout=120)[0].split() for child in children]
+    assert [child.returncode for child in children] == [0, 0, 0]
+    bases = [base for base, existed in seen]
+    assert all(existed == "True" for _, existed in seen) and len(set(bases)) == 3
+    assert os.environ.get("OMPI_MCA_orte_tmpdir_base") not in bases
+    assert not any(Path(base).exists() for base in bases)
+    user = tmp_path / "mine"
+    user.mkdir()
+    own = subprocess.run([sys.executable, "-c", show], capture_output=True, text=True, check=True,
+                         env={**env, "OMPI_MCA_orte_tmpdir_base": str(user)})
+    assert own.stdout.split() == [str(user), "True"] and user.is_dir()

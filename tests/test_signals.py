@@ -363,3 +363,23 @@ def test_study_with_children_interrupted_by_sigterm(earlier):
     assert outside_levels(out) == before
     assert not [p for p in (out / "levels").iterdir() if p.name.startswith(".")]   # no staging folder, no lock
     assert debris(out.parent) == []
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT])
+def test_a_signal_once_petsc_has_started_is_the_runs_to_answer(sig):
+    """PETSc's own handler would abort (status 59, the staging folder and lock left); the run's answers."""
+    script = f"""
+import os, signal, sys
+import fem_impact.app.cli
+from fem_impact.app.outdir import Interrupted, install_signal_handlers
+install_signal_handlers()
+from petsc4py import PETSc   # starts PETSc, which installs its handlers unless told not to
+PETSc.COMM_WORLD.barrier()
+try:
+    os.kill(os.getpid(), {int(sig)})
+except Interrupted as err:
+    sys.exit(100 + err.signum)
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env(), timeout=120)
+    assert done.returncode == 100 + sig, done.stderr
+    assert "PETSC ERROR" not in done.stderr
