@@ -133,7 +133,7 @@ def test_an_interrupted_run_keeps_its_last_checkpoint_and_continues_to_the_same_
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine.checkpoint").mkdir()
     (tmp_path / "mine.checkpoint" / "state.json").write_text("{}")
-    from fem_impact.app.outdir import _keep_checkpoint
+    from fem_impact.app.outdir.claim import _keep_checkpoint
 
     import shutil
 

@@ -287,7 +287,7 @@ def _add_study_parser(sub) -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from .outdir import install_signal_handlers
+    from .outdir.interruption import install_signal_handlers
 
     install_signal_handlers()   # SIGTERM, SIGHUP, SIGQUIT end every command as Ctrl-C does
     try:
@@ -295,7 +295,7 @@ def main(argv=None) -> int:
     except KeyboardInterrupt as err:   # (while the command line or the libraries load)
         return _interrupted(err)
     except Exception:
-        from .outdir import Interrupted, received
+        from .outdir.interruption import Interrupted, received
 
         if received() is None:
             raise
@@ -382,7 +382,7 @@ def _guarded(action, failure: str) -> int:
     """Run ``action``; bad input -> one line and status 2, a failed computation -> status 3."""
     from ..config.case import CaseError
     from ..errors import SimulationError
-    from .outdir import OutputWriteError
+    from .outdir.writes import OutputWriteError
 
     try:
         action()
@@ -404,7 +404,8 @@ def _guarded(action, failure: str) -> int:
 
 def _interrupted(err: KeyboardInterrupt) -> int:
     """One line for Ctrl-C, SIGTERM, SIGHUP or SIGQUIT (on its own line after a progress bar); 128 + signal."""
-    from .outdir import exit_status, ignore_signals, rank_zero_stuck, signal_name, wait_for_cleanup
+    from .outdir.claim import wait_for_cleanup
+    from .outdir.interruption import exit_status, ignore_signals, rank_zero_stuck, signal_name
 
     ignore_signals()
     if "fem_impact.app.progress" in sys.modules:
@@ -551,7 +552,8 @@ def _run_study(args) -> None:
     from pathlib import Path
 
     from ..config.case import load_case
-    from .outdir import case_inputs, written_in_place
+    from .outdir.in_place import written_in_place
+    from .outdir.policy import case_inputs
     from .studies.common import default_outdir
 
     # Every level is a copy of the case with changes: its method's, then the --set options (so that they win
@@ -618,7 +620,8 @@ def _study_in(args, case) -> None:
 def _plot(outdir: str, png) -> int:
     from pathlib import Path
 
-    from .outdir import OutputFolderError, OutputWriteError
+    from ..errors import OutputFolderError
+    from .outdir.writes import OutputWriteError
     from .plots import PlotError, plot_history
 
     if not (Path(outdir) / "history.csv").is_file():

@@ -42,7 +42,7 @@ import numpy as np
 
 from ...config.case import Case
 from ...errors import CaseError, SimulationError, type_name
-from ..outdir import replacing
+from ..outdir.writes import replacing
 from .common import StudyInputError, case_record, given_changes, pyplot, save_figure, study_folder, write_json
 from .levels import Level, run_levels, slug
 
