@@ -16,7 +16,8 @@ import pytest
 
 import fem_impact as fi
 from fem_impact.app.studies.common import StudyInputError
-from fem_impact.app.studies.response import detect_period, response_study
+from fem_impact.app.studies.response import response_study
+from fem_impact.app.studies.response_period import detect_period
 from fem_impact.periodic import oscillator as exact
 from fem_impact.periodic.shooting import reduced_scene, shoot
 

@@ -591,7 +591,8 @@ def _study_in(args, case) -> None:
         if not quiet:
             print(format_pareto(result))
     elif args.study == "response":
-        from .studies.response import format_response, response_study
+        from .studies.response import response_study
+        from .studies.response_output import format_response
 
         if jobs != 1:
             raise StudyInputError(f"-j {jobs}: the response study runs its levels one after the other (each starts "
