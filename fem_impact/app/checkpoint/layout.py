@@ -18,6 +18,9 @@ def _digest(meta: dict) -> str:
     """A digest of state.json's content (not its layout): each rank file carries it."""
     return hashlib.sha256(json.dumps(meta, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
+
+# A state tree (``state.capture``'s) in an HDF5 group: arrays as datasets, numbers and strings as
+# attributes, nested values as subgroups that name their kind.
 def _write(group, tree: dict) -> None:
     for name, value in tree.items():
         _write_value(group, name, value)

@@ -23,6 +23,7 @@ class Damaged(Exception):
         super().__init__(f"{file}: {message}")
         self.file, self.message = str(file), message
 
+
 def find(path, option: str = "--restart") -> Path:
     """The checkpoint folder of ``path``: a run's output folder, or the checkpoint folder itself."""
     path = Path(path)

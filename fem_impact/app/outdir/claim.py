@@ -46,7 +46,8 @@ def _remove_while_written(stage: Path, linger: float) -> None:
             return
         time.sleep(0.05)
 
-_CLEANUP: list[threading.Thread] = []
+
+_CLEANUP: list[threading.Thread] = []   # removals of an interrupted run's staging folder, under way
 
 
 def wait_for_cleanup(timeout: float = 1.5) -> None:
@@ -54,6 +55,7 @@ def wait_for_cleanup(timeout: float = 1.5) -> None:
     end = time.monotonic() + timeout
     while _CLEANUP:
         _CLEANUP.pop().join(max(0.0, end - time.monotonic()))
+
 
 def _is_checkpoint(folder: Path) -> bool:
     """A checkpoint folder fem-impact wrote: state.json naming its version, rank-R.h5 files, nothing else."""

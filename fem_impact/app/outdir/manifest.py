@@ -31,8 +31,6 @@ def is_result(folder: Path) -> bool:
     return any(all((folder / name).exists() for name in names) for names in legacy)
 
 
-# --- what a result folder holds: its manifest ---------------------------------------------------
-#
 # The marker records the relative paths a command wrote (``files``: folders with a trailing "/"). A rerun
 # may replace or remove those, never anything else: a folder that holds other entries is refused, and
 # removing a result removes its own entries only (:func:`remove_result`). Two kinds of entries are the

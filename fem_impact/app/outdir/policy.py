@@ -24,6 +24,7 @@ class OutputFolderChanged(OutputFolderError):
         super().__init__(where, message)
         self.kept = Path(kept)
 
+
 def _real(path) -> Path:
     return Path(os.path.realpath(path))
 
@@ -51,6 +52,7 @@ def _protected(protect=()) -> dict[Path, str]:
 def case_inputs(case) -> tuple:
     """The files a case reads (the case file, a mesh file): their folders are never output folders."""
     return tuple(p for p in (case.path, case.mesh.file) if p is not None)
+
 
 def check(outdir, protect=(), option: str = "-o") -> Path:
     """The absolute output folder if the policy allows writing it; raises OutputFolderError.
