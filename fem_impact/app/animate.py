@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SimulationError
+from ..errors import OutputFolderError, SimulationError
 from .progress import Progress
 
 # --field NAME -> (point array, label)
@@ -608,7 +608,6 @@ def animate(outdir, field: str = "v", scale: float | None = None, output=None, f
         raise AnimateError(f"--time {when}: must be a number")
     if not out.parent.is_dir():
         raise AnimateError(f"-o {out}: no folder {out.parent}")
-    from ..errors import OutputFolderError
     from .outdir.single_file import atomic_file, check_file
 
     try:
