@@ -1,4 +1,4 @@
-"""The output folder never destroys what fem-impact did not write (issue 11; fem_impact/app/outdir.py).
+"""The output folder never destroys what fem-impact did not write (fem_impact/app/outdir/).
 
 Every command that writes is pointed at folders holding a user's files (the case file itself, notes,
 a thesis): each must refuse with one line and status 2 and leave every file byte for byte as it
@@ -279,7 +279,8 @@ def test_a_folder_made_during_the_run_is_left_and_the_result_kept_beside(tmp_pat
     earlier result) and puts a file in it. The run must not replace it: the file stays, the result is
     kept beside it and the error says where."""
     import fem_impact
-    from fem_impact.app.outdir import OutputFolderChanged, is_result
+    from fem_impact.app.outdir.manifest import is_result
+    from fem_impact.app.outdir.policy import OutputFolderChanged
 
     out = tmp_path / "out"
     if earlier:
@@ -315,7 +316,7 @@ def test_an_empty_folder_made_during_the_run_is_replaced(tmp_path):
 
 def test_a_file_at_the_output_path_made_during_the_run_is_left(tmp_path):
     import fem_impact
-    from fem_impact.app.outdir import OutputFolderChanged
+    from fem_impact.app.outdir.policy import OutputFolderChanged
 
     out = tmp_path / "out"
     with pytest.raises(OutputFolderChanged, match="not a folder"):
@@ -329,8 +330,7 @@ def test_a_folder_filled_between_the_check_and_the_move_is_not_replaced(tmp_path
     """The move itself: files that appear after the last check (here: just before the rename) make
     rename(2) fail; they are not replaced, and the result is kept beside them."""
     import fem_impact
-    from fem_impact.app import outdir
-    from fem_impact.app.outdir import OutputFolderChanged
+    from fem_impact.app.outdir.policy import OutputFolderChanged
 
     out = tmp_path / "out"
     out.mkdir()
@@ -341,7 +341,7 @@ def test_a_folder_filled_between_the_check_and_the_move_is_not_replaced(tmp_path
             (out / "thesis.tex").write_text("x\n")
         return real(src, dst, *args, **kwargs)
 
-    monkeypatch.setattr(outdir.os, "rename", rename)
+    monkeypatch.setattr(os, "rename", rename)
     with pytest.raises(OutputFolderChanged):
         fem_impact.run(small_case(), out)
     assert snapshot(out) == {"thesis.tex": b"x\n"}
@@ -394,7 +394,7 @@ def test_a_picture_made_during_the_rendering_is_left(tmp_path, monkeypatch):
     import matplotlib.figure
 
     import fem_impact
-    from fem_impact.app.outdir import OutputFolderChanged
+    from fem_impact.app.outdir.policy import OutputFolderChanged
     from fem_impact.app.plots import plot_history
 
     out = fem_impact.run(small_case(), tmp_path / "run").outdir
@@ -421,7 +421,7 @@ ENOSPC = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 def full_disk_at(where: str, monkeypatch):
     """Make the run's writing fail as on a full disk at ``where`` (the errors a real one gives: a failed
     write names no file; dolfinx leaves a frame's file cut short and says nothing)."""
-    from fem_impact.app import outdir, output
+    from fem_impact.app import output
     from fem_impact.fem import dolfinx_api
 
     if where == "first VTK frame":
@@ -467,7 +467,7 @@ def full_disk_at(where: str, monkeypatch):
                 raise OSError(errno.EIO, os.strerror(errno.EIO), src, None, dst)
             return rename(src, dst, *args, **kwargs)
 
-        monkeypatch.setattr(outdir.os, "rename", hooked)
+        monkeypatch.setattr(os, "rename", hooked)
 
 
 WRITE_FAILURES = {"first VTK frame": ("out/results_p0_000000.vtu", "No space left on device"),
@@ -479,7 +479,7 @@ WRITE_FAILURES = {"first VTK frame": ("out/results_p0_000000.vtu", "No space lef
 @pytest.mark.parametrize("where", list(WRITE_FAILURES))
 def test_a_failed_write_leaves_the_earlier_result(tmp_path, monkeypatch, where):
     import fem_impact
-    from fem_impact.app.outdir import OutputWriteError
+    from fem_impact.app.outdir.writes import OutputWriteError
 
     out = tmp_path / "out"
     fem_impact.run(small_case(), out)
@@ -626,7 +626,7 @@ USERS_ENTRIES = {"nested in checkpoint/": "checkpoint/why.txt", "hidden": ".ipyn
 @pytest.mark.parametrize("where", list(USERS_ENTRIES))
 def test_a_result_holding_an_entry_of_the_user_is_refused(tmp_path, where):
     import fem_impact
-    from fem_impact.app.outdir import OutputFolderError
+    from fem_impact.errors import OutputFolderError
 
     out = tmp_path / "out"
     fem_impact.run(small_case(), out)
@@ -645,7 +645,7 @@ def test_the_manifest_lists_what_was_written_and_a_rerun_replaces_it(tmp_path):
     import json
 
     import fem_impact
-    from fem_impact.app.outdir import tree
+    from fem_impact.app.outdir.manifest import tree
     from fem_impact.app.plots import plot_history
 
     out = tmp_path / "out"
@@ -668,7 +668,8 @@ def test_a_file_written_into_the_folder_during_the_rerun_is_kept(tmp_path):
     """Written while the rerun integrates: at the final move the folder is not the result it was; the file
     stays, the result goes beside it."""
     import fem_impact
-    from fem_impact.app.outdir import OutputFolderChanged, is_result
+    from fem_impact.app.outdir.manifest import is_result
+    from fem_impact.app.outdir.policy import OutputFolderChanged
 
     out = tmp_path / "out"
     fem_impact.run(small_case(), out)
@@ -682,7 +683,9 @@ def test_a_file_written_into_the_folder_during_the_rerun_is_kept(tmp_path):
 def test_a_study_folder_holding_a_file_of_the_user_in_its_levels_is_refused(tmp_path):
     """A study's levels are its own (a study killed before it completes lists none of them); anything
     else under levels/ is the user's."""
-    from fem_impact.app.outdir import OutputFolderError, check, write_marker_data
+    from fem_impact.app.outdir.manifest import write_marker_data
+    from fem_impact.app.outdir.policy import check
+    from fem_impact.errors import OutputFolderError
 
     study = tmp_path / "S"
     level = study / "levels" / "00-mesh.cells_10"
@@ -703,7 +706,7 @@ def test_a_study_folder_holding_a_file_of_the_user_in_its_levels_is_refused(tmp_
 def test_a_failed_level_rerun_keeps_the_users_file(tmp_path):
     """A level that fails on a rerun replaces the earlier level's result by its record: the earlier run's
     files go, a file of the user's in the folder stays."""
-    from fem_impact.app.outdir import write_marker_data
+    from fem_impact.app.outdir.manifest import write_marker_data
     from fem_impact.app.studies.levels import Level, Outcome, _record
 
     folder = tmp_path / "levels" / "00-a"
@@ -723,7 +726,7 @@ def test_stale_debris_never_removes_a_users_file(tmp_path):
     .NAME.old-PID. The next claim puts it back when the folder is missing; when the folder is there, it
     removes the earlier result's own files and puts the note back into the folder."""
     import fem_impact
-    from fem_impact.app.outdir import _remove_stale
+    from fem_impact.app.outdir.claim import _remove_stale
 
     out = tmp_path / "out"
     fem_impact.run(small_case(), out)

@@ -4,7 +4,6 @@ and the time left; its line is ended before a message."""
 from __future__ import annotations
 
 import io
-import time
 from types import SimpleNamespace
 
 from fem_impact.app.progress import Progress
@@ -15,27 +14,40 @@ class Terminal(io.StringIO):
         return True
 
 
+class Clock:
+    """A clock the test moves: the bar redraws at most every 0.2 s of it."""
+
+    def __init__(self):
+        self.now = 1000.0
+
+    def __call__(self):
+        return self.now
+
+
 def test_a_bar_shows_the_label_the_count_and_the_time_left_and_ends_its_line():
-    stream = Terminal()
-    bar = Progress(SimpleNamespace(rank=0), label="time loop", stream=stream)
+    stream, clock = Terminal(), Clock()
+    bar = Progress(SimpleNamespace(rank=0), label="time loop", stream=stream, clock=clock)
     bar(1, 4)
-    time.sleep(0.25)   # past the bar's minimum interval between redraws
+    clock.now += 0.5   # past the bar's minimum interval between redraws: 2 steps in 0.5 s, 2 left
     bar(2, 4)
     text = stream.getvalue()
-    assert "time loop" in text and "step 2/4" in text and " 50.0%" in text and "eta " in text
+    assert "time loop" in text and "step 2/4" in text and " 50.0%" in text and "eta 0.5 s" in text
     assert not text.endswith("\n")
+    clock.now += 0.1   # within the interval: not drawn
+    bar(3, 4)
+    assert stream.getvalue() == text
     bar(4, 4)
     assert stream.getvalue().endswith("\n") and "step 4/4" in stream.getvalue()
     assert Progress.open_bar is None
 
 
 def test_a_long_run_shows_its_time_left_as_a_person_reads_it():
-    stream = Terminal()
-    bar = Progress(None, stream=stream)
+    stream, clock = Terminal(), Clock()
+    bar = Progress(None, stream=stream, clock=clock)
     bar(1, 10**9)
-    time.sleep(0.25)
+    clock.now += 0.25   # 2 steps in 0.25 s: 1e9 steps take 1.25e8 s
     bar(2, 10**9)
-    assert "years" in stream.getvalue()
+    assert "eta 4 years" in stream.getvalue()
     Progress.end_line()
     assert stream.getvalue().endswith("\n")
 

@@ -16,7 +16,8 @@ import pytest
 
 import fem_impact as fi
 from fem_impact.app.studies.common import StudyInputError
-from fem_impact.app.studies.response import detect_period, response_study
+from fem_impact.app.studies.response import response_study
+from fem_impact.app.studies.response_period import detect_period
 from fem_impact.periodic import oscillator as exact
 from fem_impact.periodic.shooting import reduced_scene, shoot
 
@@ -371,7 +372,8 @@ def test_a_study_called_from_python_claims_its_folder_as_the_command_does(tmp_pa
     """From Python a study wrote into any folder, over a user's files of its names, and left no manifest: it is
     claimed as on the command line (refused over files fem-impact did not write, the user's file unchanged;
     a result with its manifest, which a rerun replaces)."""
-    from fem_impact.app.outdir import MARKER, OutputFolderError
+    from fem_impact.app.outdir.manifest import MARKER
+    from fem_impact.errors import OutputFolderError
 
     case = fi.load_case(CASES / "impact_oscillator.yaml")
     mine = tmp_path / "mine"

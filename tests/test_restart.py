@@ -1,4 +1,4 @@
-"""Checkpoint and restart (fem_impact/app/checkpoint.py): a run continued from its checkpoint gives the
+"""Checkpoint and restart (fem_impact/app/checkpoint/): a run continued from its checkpoint gives the
 uninterrupted run's history from that time on, to round-off, for every method; an interrupted run
 keeps its last checkpoint beside its output folder and continues from it to the same end."""
 
@@ -133,7 +133,7 @@ def test_an_interrupted_run_keeps_its_last_checkpoint_and_continues_to_the_same_
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine.checkpoint").mkdir()
     (tmp_path / "mine.checkpoint" / "state.json").write_text("{}")
-    from fem_impact.app.outdir import _keep_checkpoint
+    from fem_impact.app.outdir.claim import _keep_checkpoint
 
     import shutil
 
@@ -161,7 +161,7 @@ def test_a_checkpoint_is_read_back_by_the_dofs_numbers_when_the_mesh_is_distribu
     by them. Here the dofs come back in another order: every vector follows it, the rest stays."""
     from mpi4py import MPI
 
-    from fem_impact.app.checkpoint import Damaged, open_checkpoint, read_parts
+    from fem_impact.app.checkpoint.reading import Damaged, open_checkpoint, read_parts
 
     case = fi.load_case(CASES / "impacting_bar.yaml", ["output.vtk=false", "solver.t_end=0.5", "mesh.dim=2",
                                                        "mesh.cells=20"])

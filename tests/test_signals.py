@@ -1,4 +1,4 @@
-"""Interrupted runs leave the earlier result intact and no staging folder (issue 11; fem_impact/app/outdir.py).
+"""Interrupted runs leave the earlier result intact and no staging folder (fem_impact/app/outdir/).
 
 A long run into a folder that holds an earlier result is killed in its time loop with SIGTERM,
 SIGHUP, SIGQUIT or SIGINT (serial: 128 + the signal number, one line; under ``mpirun -n 2`` the
@@ -230,7 +230,7 @@ STUDY = ["study", "convergence", CASE, "--vary", "mesh.cells=10,20,40", "--set",
 
 INTERRUPT_HOOK = """
 import signal, sys
-from fem_impact.app.outdir import Interrupted
+from fem_impact.app.outdir.interruption import Interrupted
 from fem_impact.app.studies import levels, worker
 
 after = int(sys.argv[1])   # SIGTERM once this many levels are recorded (0: when the first level starts)
@@ -296,7 +296,7 @@ def test_study_interrupted_before_a_level_completes_leaves_the_folder_as_it_was(
 def test_a_new_study_folder_interrupted_stays_a_result(tmp_path):
     """Interrupted after a level in a folder it made: the folder keeps its marker with the level (a
     rerun takes it, as a result); interrupted before any level: no folder is left."""
-    from fem_impact.app.outdir import is_result
+    from fem_impact.app.outdir.manifest import is_result
 
     out = tmp_path / "S"
     assert interrupted_study(out, 0).returncode == 143

@@ -1,8 +1,6 @@
-"""The study commands (issue 5): exact references, the method registry, running levels (resume,
-parallel processes, failures), the coarse version of each `fem-impact study` command, bad input,
-and the stability tests of "Done when" 2.
-
-Tests of a method skip where the case file does not accept its overrides (a version without it).
+"""The study commands: exact references, the method registry, running levels (resume, parallel
+processes, failures), the coarse version of each `fem-impact study` command, bad input, and where
+each method fails. Every method runs on the impacting bar: a test of one never skips.
 """
 
 from __future__ import annotations
@@ -37,11 +35,6 @@ SIGNORINI = CASES / "signorini_bar.yaml"
 def read_csv(path):
     with open(path) as f:
         return list(csv.DictReader(f))
-
-
-def skip_unless(method):
-    return pytest.mark.skipif(not registry.available(method, load_case(BAR)),
-                              reason=f"{method} is not available in this version yet")
 
 
 # --- exact references --------------------------------------------------------------------------
@@ -148,13 +141,13 @@ def test_reference_key_is_validated_and_resolved(tmp_path):
 # --- the method registry ---------------------------------------------------------------------------
 
 
-def test_every_method_is_available_or_says_why():
+def test_every_method_runs_on_the_impacting_bar():
+    """Every registered method takes the frictionless bar (the tests of each method below rely on it:
+    a method that stops accepting it fails here, not as a skip)."""
     for method in registry.METHODS.values():
-        why = registry.availability(method, load_case(BAR))
-        assert why is None or why.startswith("does not run on this case"), (method.name, why)
+        assert registry.availability(method, load_case(BAR)) is None, method.name
+        assert registry.available(method.name, load_case(BAR)), method.name
         assert method.description and method.stability and method.knob in ("mesh", "modes")
-    for name in ("trapezoidal", "damped-newmark", "modal-static", "modal-truncated"):
-        assert registry.available(name, load_case(BAR)), name
     assert registry.METHODS["central-difference"].max_courant == 1.0
     with pytest.raises(registry.UnknownMethod, match="unknown method 'verlet'"):
         registry.parse_methods("trapezoidal,verlet")
@@ -384,7 +377,7 @@ def test_convergence_command(tmp_path):
 
 
 def test_pareto_command(tmp_path):
-    """Two rungs per method on a coarse B2a; the columns of the issue; a front; unavailable methods noted."""
+    """Two rungs per method on a coarse B2a; the columns of the issue; a front; every method given runs."""
     out = tmp_path / "pareto"
     proc = run_cli("study", "pareto", str(BAR), "--methods", "trapezoidal,modal-static,position-only",
                    "--levels", "2", "-o", str(out), *sets("mesh.cells=80", "solver.t_end=2.5"))
@@ -395,10 +388,7 @@ def test_pareto_command(tmp_path):
         assert column in rows[0], column
     got = {(r["method"], r["resolution"]) for r in rows}
     assert {("trapezoidal", "10"), ("trapezoidal", "20"), ("modal-static", "5"), ("modal-static", "10")} <= got
-    if registry.available("position-only", load_case(BAR)):
-        assert ("position-only", "10") in got
-    else:
-        assert "note: position-only skipped: does not run on this case" in proc.stderr
+    assert ("position-only", "10") in got and "position-only skipped" not in proc.stderr
     assert "Pareto front, displacement" in proc.stdout
     assert (out / "pareto.png").stat().st_size > 20_000
 
@@ -485,7 +475,6 @@ def test_newmark_beyond_its_stability_limit_is_detected_unconditional_schemes_ar
     assert all(r["outcome"] != "failed" and r["energy_growth"] < 1e-9 for r in result["rows"])
 
 
-@skip_unless("central-difference")
 def test_central_difference_blows_up_above_the_cfl_limit(tmp_path):
     """Explicit central difference with a lumped mass: stable for c dt / h <= 1 (1D); above, the
     highest mode grows every step and the run stops with a blow-up that the study records."""
@@ -498,9 +487,9 @@ def test_central_difference_blows_up_above_the_cfl_limit(tmp_path):
 
 @pytest.mark.parametrize("case", [BAR, SIGNORINI], ids=["b2", "b1"])
 @pytest.mark.parametrize("method, oscillates", [
-    pytest.param("position-only", True, marks=skip_unless("position-only")),
+    ("position-only", True),
     ("trapezoidal", False),
-    pytest.param("mass-redistribution", False, marks=skip_unless("mass-redistribution")),
+    ("mass-redistribution", False),
 ])
 def test_position_level_multipliers_alone_make_the_contact_force_oscillate(tmp_path, case, method, oscillates):
     """The contact force's RMS deviation from the exact force over the contact phases, relative to

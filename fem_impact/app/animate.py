@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SimulationError
+from ..errors import OutputFolderError, SimulationError
 from .progress import Progress
 
 # --field NAME -> (point array, label)
@@ -608,7 +608,7 @@ def animate(outdir, field: str = "v", scale: float | None = None, output=None, f
         raise AnimateError(f"--time {when}: must be a number")
     if not out.parent.is_dir():
         raise AnimateError(f"-o {out}: no folder {out.parent}")
-    from .outdir import OutputFolderError, atomic_file, check_file
+    from .outdir.single_file import atomic_file, check_file
 
     try:
         out = check_file(out)
@@ -691,7 +691,7 @@ def main(args) -> int:
         print(f"fem-impact: the rendering failed: {err}", file=sys.stderr)
         return 3
     except KeyboardInterrupt as err:
-        from .outdir import exit_status, signal_name
+        from .outdir.interruption import exit_status, signal_name
 
         Progress.end_line()
         print(f"fem-impact: interrupted by {signal_name(err)}", file=sys.stderr)

@@ -308,7 +308,7 @@ def _add_study_parser(sub) -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from .outdir import install_signal_handlers
+    from .outdir.interruption import install_signal_handlers
 
     install_signal_handlers()   # SIGTERM, SIGHUP, SIGQUIT end every command as Ctrl-C does
     try:
@@ -316,7 +316,7 @@ def main(argv=None) -> int:
     except KeyboardInterrupt as err:   # (while the command line or the libraries load)
         return _interrupted(err)
     except Exception:
-        from .outdir import Interrupted, received
+        from .outdir.interruption import Interrupted, received
 
         if received() is None:
             raise
@@ -403,7 +403,7 @@ def _guarded(action, failure: str) -> int:
     """Run ``action``; bad input -> one line and status 2, a failed computation -> status 3."""
     from ..config.case import CaseError
     from ..errors import SimulationError
-    from .outdir import OutputWriteError
+    from .outdir.writes import OutputWriteError
 
     try:
         action()
@@ -425,7 +425,8 @@ def _guarded(action, failure: str) -> int:
 
 def _interrupted(err: KeyboardInterrupt) -> int:
     """One line for Ctrl-C, SIGTERM, SIGHUP or SIGQUIT (on its own line after a progress bar); 128 + signal."""
-    from .outdir import exit_status, ignore_signals, rank_zero_stuck, signal_name, wait_for_cleanup
+    from .outdir.claim import wait_for_cleanup
+    from .outdir.interruption import exit_status, ignore_signals, rank_zero_stuck, signal_name
 
     ignore_signals()
     if "fem_impact.app.progress" in sys.modules:
@@ -572,7 +573,8 @@ def _run_study(args) -> None:
     from pathlib import Path
 
     from ..config.case import load_case
-    from .outdir import case_inputs, written_in_place
+    from .outdir.in_place import written_in_place
+    from .outdir.policy import case_inputs
     from .studies.common import default_outdir
 
     # Every level is a copy of the case with changes: its method's, then the --set options (so that they win
@@ -610,7 +612,8 @@ def _study_in(args, case) -> None:
         if not quiet:
             print(format_pareto(result))
     elif args.study == "response":
-        from .studies.response import format_response, response_study
+        from .studies.response import response_study
+        from .studies.response_output import format_response
 
         if jobs != 1:
             raise StudyInputError(f"-j {jobs}: the response study runs its levels one after the other (each starts "
@@ -639,7 +642,8 @@ def _study_in(args, case) -> None:
 def _plot(outdir: str, png) -> int:
     from pathlib import Path
 
-    from .outdir import OutputFolderError, OutputWriteError
+    from ..errors import OutputFolderError
+    from .outdir.writes import OutputWriteError
     from .plots import PlotError, plot_history
 
     if not (Path(outdir) / "history.csv").is_file():

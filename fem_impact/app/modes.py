@@ -9,7 +9,10 @@ from pathlib import Path
 from mpi4py import MPI
 
 from ..errors import ModelInputError
-from .outdir import case_inputs, claim, install_signal_handlers, writing
+from .outdir.claim import claim
+from .outdir.interruption import install_signal_handlers
+from .outdir.policy import case_inputs
+from .outdir.writes import writing
 
 DEFAULT_COUNT = 10
 

@@ -18,7 +18,7 @@ from ..nonsmooth.relation import Constraints
 from ..errors import ModelInputError
 from ..integrators import StepState
 from ..fem.model import AXES, Model, pad_vector
-from .outdir import writing
+from .outdir.writes import writing
 from ..parallel import allsum
 from .progress import Progress, duration  # noqa: F401  (re-exported: pipeline, sweep, cli)
 

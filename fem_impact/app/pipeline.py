@@ -17,7 +17,9 @@ from .._version import __version__
 from ..config.case import Case, load_case
 from ..errors import CaseError, SimulationError, wrong_type
 from .limits import check_limits
-from .outdir import case_inputs, claim, writing
+from .outdir.claim import claim
+from .outdir.policy import case_inputs
+from .outdir.writes import writing
 
 log = logging.getLogger(__name__)
 
@@ -280,7 +282,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     from ..integrators import EnergyWatch, integrate, is_reduced, steps_for
     from ..nonsmooth.relation import build_constraints, check_initial_state
     from . import checkpoint
-    from .outdir import install_signal_handlers
+    from .outdir.interruption import install_signal_handlers
     from .output import BodyMomenta, HistoryWriter, ImpactLog, Progress, RunStatistics, VTKWriter, find_probes
 
     install_signal_handlers()   # again: PETSc, imported just now, installs its own (SIGHUP, SIGQUIT)

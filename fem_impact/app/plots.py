@@ -45,7 +45,8 @@ def plot_history(outdir, png=None, units: dict | None = None) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .outdir import OutputFolderError, atomic_file, check_file
+    from ..errors import OutputFolderError
+    from .outdir.single_file import atomic_file, check_file
 
     outdir = Path(outdir)
     png = check_file(png if png is not None else outdir / "history.png", protect=[outdir / "history.csv"])

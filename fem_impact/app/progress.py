@@ -35,6 +35,12 @@ class _Bar(tqdm):
     # No monitor thread: the loops call often enough, and a thread would outlive a Ctrl-C.
     monitor_interval = 0
 
+    def __init__(self, *args, clock=None, **kwargs):
+        super().__init__(*args, **kwargs)
+        if clock is not None:   # (a test's clock: redraws and the time left without waiting)
+            self._time = clock
+            self.start_t = self.last_print_t = clock()
+
     @property
     def format_dict(self):
         d = super().format_dict
@@ -64,16 +70,18 @@ class Progress:
         What is counted: ``step 450/1000``.
     enabled : bool, optional
         None (default): when ``stream`` is a terminal; True or False to force it (on rank 0).
+    clock : callable, optional
+        Seconds now, for the redraw interval and the time left; default the wall clock.
     """
 
     open_bar = None   # the bar whose line is unfinished: end_line() needs no instance
 
     def __init__(self, comm=None, label: str = "time loop", stream=None, unit: str = "step",
-                 enabled: bool | None = None):
+                 enabled: bool | None = None, clock=None):
         self.stream = stream or sys.stderr
         on_rank_0 = comm is None or comm.rank == 0
         self.enabled = on_rank_0 and (self.stream.isatty() if enabled is None else enabled)
-        self.label, self.unit = label, unit
+        self.label, self.unit, self.clock = label, unit, clock
         self._bar = None
 
     def __call__(self, step: int, total: int) -> None:
@@ -81,7 +89,7 @@ class Progress:
             return
         if self._bar is None:
             self._bar = _Bar(total=total, desc=self.label, file=self.stream, leave=True, mininterval=0.2,
-                             dynamic_ncols=True,
+                             dynamic_ncols=True, clock=self.clock,
                              bar_format="{desc} |{bar}| {percentage:5.1f}% " + self.unit + " {n}/{total} eta {left}")
             Progress.open_bar = self._bar
         self._bar.update(step - self._bar.n)

@@ -141,7 +141,8 @@ def run_sweep(case, vary: str, target: Target | None = None, outdir=None, comm: 
 
     Raises SweepError or CaseError on bad input before anything runs or is written.
     """
-    from .outdir import case_inputs, writing
+    from .outdir.policy import case_inputs
+    from .outdir.writes import writing
     from .output import Progress
     from .pipeline import run, staged_directory
 

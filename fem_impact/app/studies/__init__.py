@@ -13,6 +13,9 @@ Every study works on a :class:`~fem_impact.config.case.Case`: each run is a copy
 - ``convergence``, ``pareto``, ``stability``: the three ``fem-impact study`` commands;
 - ``common``, ``resolution``: what they share (files, error rows, order fits; c, h, Courant number);
 - ``reduction``: ``fem-impact reduction``.
+- ``response`` (the sweep and its options), ``response_period`` (the Poincare section's period),
+  ``response_orbits`` (event-driven levels, shooting), ``response_output`` (response.csv, the chart, the
+  table): ``fem-impact study response``.
 """
 
 __all__ = ["REDUCTION_COLUMNS", "format_reduction", "reduction_table"]

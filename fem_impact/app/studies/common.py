@@ -14,7 +14,7 @@ import numpy as np
 import yaml
 
 from ...config.case import CaseError, yaml_value
-from ..outdir import replacing
+from ..outdir.writes import replacing
 from ...config.references import ERROR_MEASURES, RunReference, energy_growth, errors
 from . import resolution
 from .levels import Outcome
@@ -37,9 +37,10 @@ def default_outdir(case, study: str) -> Path:
 
 
 def study_folder(outdir: Path, command: str, case):
-    """The study's folder claimed under the output-folder policy (fem_impact.app.outdir.written_in_place: checked,
+    """The study's folder claimed under the output-folder policy (``outdir.in_place.written_in_place``: checked,
     locked, its manifest written at the end), unless this process claimed it already (the command line does)."""
-    from ..outdir import case_inputs, in_place
+    from ..outdir.in_place import in_place
+    from ..outdir.policy import case_inputs
 
     return in_place(outdir, command, protect=case_inputs(case), source=case.path)
 

@@ -47,7 +47,8 @@ import numpy as np
 from ...cache import code_fingerprint
 from ...config.case import Case
 from ...integrators.parameters import steps_for
-from ..outdir import remove_result, replacing
+from ..outdir.manifest import remove_result
+from ..outdir.writes import replacing
 from ..plots import history_columns
 from ..progress import duration
 from . import worker
@@ -299,7 +300,7 @@ def _from_child(lv: Level, folder: Path, case: Case, returncode: int, status_fil
     except OSError:
         said = ""
     if returncode == worker.WRITE_FAILED:   # it could not write its results: not the level's outcome, the study's
-        from ..outdir import OutputWriteError
+        from ..outdir.writes import OutputWriteError
 
         raise OutputWriteError(said.splitlines()[-1] if said else f"level {lv.label}: cannot write its results")
     if said:

@@ -180,7 +180,7 @@ def availability(method: Method | str, case: Case, changes=()) -> str | None:
 
 
 def available(name: str, case: Case) -> bool:
-    """Whether the method ``name`` runs on the case (for tests: skip until a method lands)."""
+    """Whether the method ``name`` runs on the case (``availability`` says why not)."""
     return availability(name, case) is None
 
 

@@ -13,7 +13,8 @@ from mpi4py import MPI
 
 from ...errors import CaseError
 from ...integrators.parameters import MODAL_SCHEMES, REDUCED
-from ..outdir import case_inputs, writing
+from ..outdir.policy import case_inputs
+from ..outdir.writes import writing
 from ..pipeline import run, staged_directory
 from ..plots import history_columns, plot_reduction
 

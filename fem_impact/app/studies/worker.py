@@ -52,7 +52,7 @@ def run_level(case, folder: Path) -> dict:
     """
     from mpi4py import MPI
 
-    from ..outdir import OutputWriteError
+    from ..outdir.writes import OutputWriteError
     from ..pipeline import run
 
     try:
@@ -98,7 +98,7 @@ def read_status(path: Path) -> dict | None:
 
 
 def _write_json(path: Path, data) -> None:
-    from ..outdir import replacing
+    from ..outdir.writes import replacing
 
     with replacing(path) as tmp:
         tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
@@ -107,7 +107,8 @@ def _write_json(path: Path, data) -> None:
 def main(argv=None) -> int:
     import logging
 
-    from ..outdir import OutputWriteError, exit_status, install_signal_handlers, write_error
+    from ..outdir.interruption import exit_status, install_signal_handlers
+    from ..outdir.writes import OutputWriteError, write_error
 
     argv = sys.argv[1:] if argv is None else argv
     if len(argv) != 1:
