@@ -10,14 +10,11 @@ import pytest
 from mpi4py import MPI
 
 from conftest import CASES, run_case_file, run_cli
+from fem_impact.build import finite_element_model, model_and_constraints
 from fem_impact.config.case import load_case
-from fem_impact.nonsmooth.relation import build_constraints
 from fem_impact.errors import SimulationError
 from fem_impact.integrators import Operators
 from fem_impact.integrators.central_difference import critical_time_step
-from fem_impact.fem.mesh import build_mesh
-from fem_impact.fem.model import build_model
-from fem_impact.config.build import model_spec
 from test_bar_benchmarks import assert_b2
 
 BAR = CASES / "impacting_bar.yaml"
@@ -25,8 +22,7 @@ BAR = CASES / "impacting_bar.yaml"
 
 def model_of(case_file, *overrides):
     case = load_case(case_file, list(overrides))
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
-    return case, model, build_constraints(case.contacts, model)
+    return (case, *model_and_constraints(case, MPI.COMM_WORLD))
 
 
 def test_central_difference_meets_b2a_and_conserves_its_energy(tmp_path):
@@ -139,17 +135,18 @@ def test_mass_redistribution_starts_the_massless_node_in_equilibrium(tmp_path):
 
 
 def _state(total, work=0.0, contact_loss=0.0, t=0.1):
-    from fem_impact.integrators.base import EnergyBudget, StepState
+    from fem_impact.integrators.state import StepState
+    from fem_impact.mechanics.energy import EnergyBudget
 
     e = EnergyBudget(kinetic=total, external_work=work, contact_loss=contact_loss, initial=1.0)
-    return StepState(1, t, np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(0), np.zeros(0), np.zeros(0),
-                     e, np.zeros(0), np.zeros(0))
+    return StepState(step=1, t=t, U=np.zeros(1), V=np.zeros(1), A=np.zeros(1), gap=np.zeros(0), force=np.zeros(0),
+                     impulse=np.zeros(0), energy=e, normal_displacement=np.zeros(0), normal_velocity=np.zeros(0))
 
 
 def test_blow_up_guard_stops_a_runaway_energy():
     """The guard's bound is E0 + W_ext(t) reached so far (work taken out does not raise it); a state
     100 times above it stops the run."""
-    from fem_impact.integrators.base import EnergyWatch
+    from fem_impact.mechanics.energy import EnergyWatch
 
     watch = EnergyWatch()
     watch.check(_state(0.5, work=-10.0))      # work taken out: the bound stays E0 = 1
@@ -173,7 +170,7 @@ def test_blow_up_guard_stops_a_runaway_energy():
 def test_a_blow_up_says_what_is_true_of_the_scheme_that_ran(scheme, stable, says, never):
     """A state no longer finite (or energy far past E0 + W_ext) was 'the scheme blew up (for an explicit
     method: is dt above its stable limit?)' whatever the method: an implicit one has no step limit."""
-    from fem_impact.integrators.base import EnergyWatch
+    from fem_impact.mechanics.energy import EnergyWatch
 
     with pytest.raises(SimulationError) as info:
         EnergyWatch(scheme=scheme, stable=stable).check(_state(np.inf))
@@ -206,7 +203,7 @@ def test_energy_watch_records_created_energy_and_when_it_began():
     """E above E0 + W_ext(t), or the contacts' losses (contact + impact) below zero, by more than 1e-6
     of the scale is energy created; its size and the time it began are recorded, or the run stops
     (EnergyCreated)."""
-    from fem_impact.integrators.base import EnergyCreated, EnergyWatch
+    from fem_impact.mechanics.energy import EnergyCreated, EnergyWatch
 
     watch = EnergyWatch()
     watch.check(_state(1.0 + 0.5e-6, t=0.1))                 # within the tolerance: round-off
@@ -273,18 +270,16 @@ def test_a_diagonal_system_is_divided_not_factorized():
     the 3D bar of 72 963 unknowns: 36.9 ms a step before, 1.9 ms after, 2.8 to 3.0 ms serial)."""
     from mpi4py import MPI
 
-    from fem_impact.config.build import model_spec
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
-    from fem_impact.integrators.base import DiagonalFactor, Factor, PETScAlgebra, is_diagonal
+    from fem_impact.linalg.backends import PETScAlgebra
+    from fem_impact.linalg.factor import DiagonalFactor, Factor, is_diagonal
 
     case = load_case(CASES / "impacting_bar.yaml", ["mesh.dim=2", "mesh.cells=40"])   # (newmark: consistent mass)
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+    model = finite_element_model(case, MPI.COMM_WORLD)
     alg = PETScAlgebra(model.M)
     assert not is_diagonal(model.M) and not is_diagonal(model.K)
     lumped = load_case(CASES / "impacting_bar.yaml", ["mesh.dim=2", "mesh.cells=40", "solver.method=central_difference",
                                                       "solver.mass=lumped"])
-    M = build_model(model_spec(lumped), build_mesh(lumped.mesh, MPI.COMM_WORLD)).M
+    M = finite_element_model(lumped, MPI.COMM_WORLD).M
     solve = alg.factorize(M, spd=True)
     assert is_diagonal(M) and isinstance(solve, DiagonalFactor)
     assert isinstance(alg.factorize(model.M, spd=True), Factor)

@@ -371,7 +371,7 @@ def test_a_signal_once_petsc_has_started_is_the_runs_to_answer(sig):
     script = f"""
 import os, signal, sys
 import fem_impact.app.cli
-from fem_impact.app.outdir import Interrupted, install_signal_handlers
+from fem_impact.app.outdir.interruption import Interrupted, install_signal_handlers
 install_signal_handlers()
 from petsc4py import PETSc   # starts PETSc, which installs its handlers unless told not to
 PETSc.COMM_WORLD.barrier()

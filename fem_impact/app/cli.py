@@ -8,38 +8,16 @@ import logging
 import os
 import sys
 
+from .. import mpi_start
+
 # The dense products of the time loop (N x p, p small) are memory bound: BLAS threads gain
 # nothing there and would compete with MPI ranks for the cores.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-# A command started alone (not by mpirun) is one MPI process: Open MPI need not start a daemon nor probe
-# the network's transports for it (most of a tiny run's start). Set before MPI starts in this process (and
-# in the study workers it starts, also alone); a user's own settings win; mpirun's ranks keep theirs.
-SERIAL_MPI = {"OMPI_MCA_ess_singleton_isolated": "1", "OMPI_MCA_pml": "ob1", "OMPI_MCA_btl": "self"}
-SESSION_BASE = "FEM_IMPACT_MPI_SESSION_BASE"   # the session folder's base this program chose (not the user)
-
-
-def _own_mpi_session() -> None:
-    """Isolated processes all take Open MPI's job family 0, so they would share one session folder, and one
-    process's MPI_Finalize could remove it while another's MPI_Init creates its own inside: each process
-    started alone gets a base of its own (a child inherits its parent's and replaces it), removed at exit."""
-    base = os.environ.get("OMPI_MCA_orte_tmpdir_base")
-    if base is not None and base != os.environ.get(SESSION_BASE):
-        return   # the user's
-    import atexit
-    import shutil
-    import tempfile
-
-    folder = tempfile.mkdtemp(prefix="fem-impact-mpi-")
-    os.environ["OMPI_MCA_orte_tmpdir_base"] = os.environ[SESSION_BASE] = folder
-    atexit.register(shutil.rmtree, folder, True)   # (after MPI_Finalize: registered before mpi4py loads)
-
-
-if not any(key in os.environ for key in ("OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK", "PMI_SIZE")):
-    for _key, _value in SERIAL_MPI.items():
-        os.environ.setdefault(_key, _value)
-    if os.environ["OMPI_MCA_ess_singleton_isolated"] == "1":
-        _own_mpi_session()
+# A command started alone starts Open MPI for one process (mpi_start.py), before MPI loads in this process
+# and in the study workers it starts.
+SERIAL_MPI = mpi_start.SERIAL_MPI
+mpi_start.serial_start()
 
 DESCRIPTION = """\
 fem-impact: dynamics of elastic structures with unilateral constraints.

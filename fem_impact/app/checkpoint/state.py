@@ -8,7 +8,8 @@ import math
 
 import numpy as np
 
-from ...integrators.base import EnergyBudget, StepState
+from ...integrators.state import StepState
+from ...mechanics.energy import EnergyBudget
 from .keys import _shown
 
 _DATACLASSES = {"StepState": StepState, "EnergyBudget": EnergyBudget}

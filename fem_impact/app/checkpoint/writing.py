@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..._version import __version__
-from ...integrators.base import StepState
+from ...integrators.state import StepState
 from .layout import FOLDER, FORMAT, STATE, _digest, _write
 from .state import capture
 
