@@ -15,7 +15,7 @@ import pytest
 import fem_impact as fi
 from conftest import CASES, read_history
 from fem_impact.errors import SimulationError
-from fem_impact.integrators.base import EnergyBudget, EnergyWatch
+from fem_impact.mechanics.energy import EnergyBudget, EnergyWatch
 
 ROUND_OFF = 1e-12   # of each column's scale
 
@@ -251,7 +251,7 @@ def test_the_energy_watch_sees_a_block_as_its_steps(seed, stop):
     block = StepBlock(np.arange(1, n + 1), t, zeros, zeros, zeros, zeros, zeros, zeros, e, zeros, zeros, None)
     sequential, at_once = EnergyWatch(stop), EnergyWatch(stop)
     for watch in (sequential, at_once):
-        watch.check(SimpleNamespace(t=0.0, step=0, energy=EnergyBudget(1.0, 0.2, initial=initial)))
+        watch.check(SimpleNamespace(t=0.0, step=0, energy=EnergyBudget(kinetic=1.0, strain=0.2, initial=initial)))
     passed = 0
     try:
         for j in range(n):

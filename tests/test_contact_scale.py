@@ -171,7 +171,7 @@ def test_w_from_inverse_entries_in_place_equals_the_solves(monkeypatch, entries)
     entries are asked for in blocks of columns (151 columns a block: 9 blocks, the last short)."""
     from mpi4py import MPI
 
-    from fem_impact.fem import petsc_api
+    from fem_impact.linalg import petsc_api
 
     if entries is not None:
         monkeypatch.setattr(petsc_api, "INVERSE_ENTRIES", entries)
@@ -213,14 +213,16 @@ def test_a_condensed_step_matrix_gives_w_and_the_contact_steps_of_a_plain_factor
     from fem_impact.config.case import load_case
     from fem_impact.fem.mesh import build_mesh
     from fem_impact.fem.model import build_model
-    from fem_impact.integrators import Operators, base
-    from fem_impact.integrators.condensed import CondensedFactor
+    from fem_impact.integrators import Operators
+    from fem_impact.linalg import factor
+    from fem_impact.linalg.condensed import CondensedFactor
+    from fem_impact.mechanics import system
     from fem_impact.nonsmooth.relation import build_constraints
 
-    monkeypatch.setattr(base, "KEEP_COLUMNS", 0)   # (6615 x 441 columns would be kept: W from them)
+    monkeypatch.setattr(system, "KEEP_COLUMNS", 0)   # (6615 x 441 columns would be kept: W from them)
     routes = []
-    original = base.mumps_inverse_block
-    monkeypatch.setattr(base, "mumps_inverse_block", lambda *a: routes.append(a[1].size) or original(*a))
+    original = factor.mumps_inverse_block
+    monkeypatch.setattr(factor, "mumps_inverse_block", lambda *a: routes.append(a[1].size) or original(*a))
     dt = courant * 0.25   # (c = 1, h = 1/4)
     case = load_case(PLATE, ["mesh.cells=4", f"solver.dt={dt}", f"contacts.0.gap={1.5 * dt}", f"solver.method={method}"])
     model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))

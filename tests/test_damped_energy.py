@@ -213,11 +213,13 @@ def test_the_watch_still_sees_energy_created_beyond_the_round_off():
     """The floor of the strain energy's round-off is no blanket: at rest (U = 0) it is zero, and energy
     given to the block (an EnergyBudget altered by 1e-5 of the scale) is reported."""
     from fem_impact.integrators import EnergyWatch
-    from fem_impact.integrators.base import EnergyBudget, StepState
+    from fem_impact.integrators.state import StepState
+    from fem_impact.mechanics.energy import EnergyBudget
 
     watch = EnergyWatch()
     e = EnergyBudget(kinetic=1.0, initial=1.0, roundoff=1e-7)
-    state = StepState(1, 0.1, None, None, None, None, None, None, e, None, None)
+    state = StepState(step=1, t=0.1, U=None, V=None, A=None, gap=None, force=None, impulse=None, energy=e,
+                      normal_displacement=None, normal_velocity=None)
     watch.check(state)
     assert not watch.energy_was_created
     e.kinetic = 1.0 + 1e-5

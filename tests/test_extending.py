@@ -11,7 +11,9 @@ import pytest
 
 import fem_impact
 from fem_impact.integrators import parameters
-from fem_impact.integrators.base import EnergyBudget, StepState, owned_values
+from fem_impact.integrators.state import StepState
+from fem_impact.linalg.backends import owned_values
+from fem_impact.mechanics.energy import EnergyBudget
 from fem_impact.integrators.parameters import SolverParameters
 from fem_impact.nonsmooth import laws
 
@@ -66,7 +68,8 @@ class ExplicitEuler:
                                     self.U @ alg.mult(self.ops.K, self.U, alg.vector())]))
         energy.kinetic, energy.strain = 0.5 * sums[0], 0.5 * sums[1]
         none = np.zeros(0)
-        self.state = StepState(step, t, self.U, self.V, self.A, none, none, none, energy, none, none)
+        self.state = StepState(step=step, t=t, U=self.U, V=self.V, A=self.A, gap=none, force=none, impulse=none,
+                               energy=energy, normal_displacement=none, normal_velocity=none)
         return self.state
 
     def start(self, U0, V0, t0: float = 0.0) -> StepState:

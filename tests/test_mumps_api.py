@@ -1,12 +1,12 @@
-"""MUMPS' Schur complement and split solves through its C interface (fem_impact/fem/mumps_api.py), and the
-factor that solves through them (fem_impact/integrators/condensed.py), against dense algebra."""
+"""MUMPS' Schur complement and split solves through its C interface (fem_impact/linalg/mumps_api.py), and the
+factor that solves through them (fem_impact/linalg/condensed.py), against dense algebra."""
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 from petsc4py import PETSc
 
-from fem_impact.fem import mumps_api
+from fem_impact.linalg import mumps_api
 
 pytestmark = pytest.mark.skipif(mumps_api._library() is None, reason="MUMPS 5.5's C library is not installed")
 
@@ -49,7 +49,7 @@ def test_a_condensed_factor_solves_and_gives_the_inverse_block_of_the_dense_matr
     """CondensedFactor: solves (one, a block, one in two halves with the kept values corrected between)
     and the block of A^-1 on the kept dofs or some of them, against dense algebra; None where it does
     not pay."""
-    from fem_impact.integrators import condensed
+    from fem_impact.linalg import condensed
 
     n, kept = 300, np.arange(1, 300, 4)
     A, dense = spd_matrix(n, seed=7)

@@ -48,7 +48,8 @@ import numpy as np
 
 from .._version import __version__
 from ..errors import CaseError
-from ..integrators.base import EnergyBudget, StepState
+from ..integrators.state import StepState
+from ..mechanics.energy import EnergyBudget
 from ..integrators.parameters import REDUCED
 
 FORMAT = 2

@@ -539,7 +539,7 @@ def describe(summary: dict) -> str:
 
 def _residual_note(summary: dict) -> str:
     """What a residual above round-off of the energy scale is, where the run knows it."""
-    from ..integrators.base import ENERGY_TOLERANCE
+    from ..mechanics.energy import ENERGY_TOLERANCE
 
     if summary["max_energy_error_relative"] <= ENERGY_TOLERANCE:
         return ""

@@ -12,20 +12,24 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
 from .. import cache
-from ..nonsmooth.relation import Constraints
 from ..errors import ModelInputError
-from ..integrators import Operators, StepState
-from ..integrators.base import direct_solver_settings, factorize
+from ..linalg.factor import direct_solver_settings, factorize
+from ..mechanics.system import Operators
 from .specs import ReductionSpec
 from .model import Model, load_factor
 from .modes import ModeCountError, Modes, compute_modes, free_dof_count, solver_settings, warn_if_split
 from ..parallel import allsum
+
+if TYPE_CHECKING:   # (type hints only: the contact rows and the steps this model is read from)
+    from ..integrators.state import StepState
+    from ..nonsmooth.relation import Constraints
 
 log = logging.getLogger(__name__)
 

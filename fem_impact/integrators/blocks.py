@@ -29,7 +29,8 @@ from functools import cached_property
 import numpy as np
 
 from ..nonsmooth.lcp import TINY
-from .base import EnergyBudget, StepState
+from ..mechanics.energy import EnergyBudget
+from .state import StepState
 
 SAFETY = 1e-9          # a gap counts as open above this fraction of the magnitudes it is made of
 # solver.blocks: auto takes blocks from this many steps on: loading Numba and the compiled steps costs
@@ -165,10 +166,11 @@ class StepBlock:
 
     def state(self, j: int) -> StepState:
         """Step j of the block as a ``StepState`` (its arrays: views of the block's)."""
-        energy = EnergyBudget(*(float(getattr(self.energy, name)[j]) for name in _ENERGY))
-        return StepState(int(self.step[j]), float(self.t[j]), self.U[j], self.V[j], self.A[j], self.gap[j],
-                         self.force[j], self.impulse[j], energy, self.normal_displacement[j],
-                         self.normal_velocity[j])
+        energy = EnergyBudget(**{name: float(getattr(self.energy, name)[j]) for name in _ENERGY})
+        return StepState(step=int(self.step[j]), t=float(self.t[j]), U=self.U[j], V=self.V[j], A=self.A[j],
+                         gap=self.gap[j], force=self.force[j], impulse=self.impulse[j], energy=energy,
+                         normal_displacement=self.normal_displacement[j],
+                         normal_velocity=self.normal_velocity[j])
 
     def states(self):
         """The steps one by one, as ``StepState``s."""

@@ -9,7 +9,10 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from ..nonsmooth.lcp import delassus_solver
-from .base import EnergyBudget, Operators, StepState, axpy
+from ..linalg.dense import axpy
+from ..mechanics.energy import EnergyBudget
+from ..mechanics.system import Operators
+from .state import StepState
 from .scheme import ContactScheme
 
 log = logging.getLogger(__name__)
@@ -93,7 +96,9 @@ class CentralDifference(ContactScheme):
         energy.scheme = SCHEME_ENERGY * dt * dt * float(self.alg.allsum(np.array([self.A @ self.MA]))[0])
         self._stop_force = np.zeros(ops.p)   # at t0 an elastic stop is relaxed (the initial gaps are open)
         energy.initial = energy.total
-        self.state = StepState(0, t0, self.U, self.V, self.A, ops.d0 - pu, force, np.zeros(ops.p), energy, pu, pv)
+        self.state = StepState(step=0, t=t0, U=self.U, V=self.V, A=self.A, gap=ops.d0 - pu, force=force,
+                               impulse=np.zeros(ops.p), energy=energy, normal_displacement=pu,
+                               normal_velocity=pv)
         return self.state
 
     def step(self) -> StepState:
@@ -140,7 +145,8 @@ class CentralDifference(ContactScheme):
         # The force of step n keeps the gaps at t_n+1: an elastic stop holds c F_n^2 / 2 at t1.
         self._book_stops(energy, self._stop_force, st.force)
         self._stop_force = st.force
-        self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, impulse, energy, pu, pv)
+        self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=ops.d0 - pu, force=force,
+                               impulse=impulse, energy=energy, normal_displacement=pu, normal_velocity=pv)
         return self.state
 
 

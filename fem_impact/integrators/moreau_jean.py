@@ -43,7 +43,11 @@ from ..errors import ContactSolverError
 from ..nonsmooth.friction import FrictionProblem
 from ..nonsmooth.lcp import TINY, Delassus, solve_lcp
 from .blocks import OpenStep, OpenSteps, diagonal
-from .base import DenseAlgebra, EnergyBudget, Operators, StepState, axpy
+from ..linalg.backends import DenseAlgebra
+from ..linalg.dense import axpy
+from ..mechanics.energy import EnergyBudget
+from ..mechanics.system import Operators
+from .state import StepState
 from .scheme import ContactScheme
 
 CHECK_EVERY = 32   # steps: K U and K V by products with K instead of from the step's identity
@@ -225,7 +229,9 @@ class MoreauJean(ContactScheme):
         if ops.static:
             energy.strain += ops.static.energy(t0, force)
         energy.initial = energy.total
-        self.state = StepState(0, t0, self.U, self.V, self.A, ops.d0 - pu, force, np.zeros(ops.p), energy, pu, pv)
+        self.state = StepState(step=0, t=t0, U=self.U, V=self.V, A=self.A, gap=ops.d0 - pu, force=force,
+                               impulse=np.zeros(ops.p), energy=energy, normal_displacement=pu,
+                               normal_velocity=pv)
         if self.friction is not None:
             self.state.tangential = np.zeros(ops.pt)
             self.state.tangential_velocity = self.rows.project_many(self.V)[0][ops.p:]
@@ -323,7 +329,8 @@ class MoreauJean(ContactScheme):
         if corrected and ops.C is not None:   # the next step starts from the corrected velocity
             alg.mult(ops.C, V, self.CV)
         self._book_stored(energy, st, force, t1, theta)
-        self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, percussion, energy, pu, pv)
+        self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=ops.d0 - pu, force=force,
+                               impulse=percussion, energy=energy, normal_displacement=pu, normal_velocity=pv)
         if tangential is not None:
             if corrected:   # a velocity correction moved the tangent rows' dofs too
                 pt = self.rows.project_many(V)[0][p:]

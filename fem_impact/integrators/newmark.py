@@ -8,7 +8,9 @@ import numpy as np
 
 from ..nonsmooth.lcp import Delassus, impact_correction
 from .blocks import OpenStep, OpenSteps, diagonal
-from .base import Operators, StepState, axpy
+from ..linalg.dense import axpy
+from ..mechanics.system import Operators
+from .state import StepState
 from .scheme import ContactScheme
 
 log = logging.getLogger(__name__)
@@ -211,5 +213,6 @@ class Newmark(ContactScheme):
         self._step_energies(energy, t1, 1.0 - gamma, gamma, self.MV, KU_rest, float(pu_dyn.dot(force)) if p else 0.0)
         self._book_stored(energy, st, force, t1, gamma)
 
-        self.state = StepState(st.step + 1, t1, U, V, A, ops.d0 - pu, force, impulse, energy, pu, pv)
+        self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=ops.d0 - pu, force=force,
+                               impulse=impulse, energy=energy, normal_displacement=pu, normal_velocity=pv)
         return self.state

@@ -10,8 +10,11 @@ import numpy as np
 from scipy import sparse
 
 from ..nonsmooth.lcp import TINY, Delassus, ImpactResult, delassus_solver, impact_correction, solve_lcp
-from .base import EnergyBudget, Operators, StepState, owned_values
-from .condensed import CondensedFactor
+from ..linalg.backends import owned_values
+from ..linalg.condensed import CondensedFactor
+from ..mechanics.energy import EnergyBudget
+from ..mechanics.system import Operators
+from .state import StepState
 
 log = logging.getLogger(__name__)
 EPS = np.finfo(float).eps
@@ -398,5 +401,6 @@ class ContactScheme:
         if ops.static:
             energy.strain += ops.static.energy(t0, force)
         energy.initial = energy.total + energy.impact_loss
-        self.state = StepState(0, t0, self.U, self.V, self.A, ops.d0 - pu, force, impulse, energy, pu, pv)
+        self.state = StepState(step=0, t=t0, U=self.U, V=self.V, A=self.A, gap=ops.d0 - pu, force=force,
+                               impulse=impulse, energy=energy, normal_displacement=pu, normal_velocity=pv)
         return self.state

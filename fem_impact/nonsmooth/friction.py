@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lcp import permuted_in_place
+from ..linalg.dense import permuted_in_place
 
 
 @dataclass

@@ -73,27 +73,6 @@ def _is_symmetric(A: np.ndarray) -> bool:
     return bool(np.all(np.abs(A - A.T) <= 1e-10 * scale))
 
 
-def permuted_in_place(W: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """``W[order][:, order]`` in W's own memory (one row of scratch): each row's entries, then the rows
-    along the permutation's cycles. For the large dense matrices of many contact rows, where a copy
-    would not fit beside them."""
-    for i in range(W.shape[0]):
-        W[i] = W[i, order]
-    done = order == np.arange(order.size)
-    for start in np.flatnonzero(~done):
-        if done[start]:
-            continue
-        held, j = W[start].copy(), start
-        while True:
-            done[j] = True
-            source = order[j]
-            if source == start:
-                W[j] = held
-                break
-            W[j] = W[source]
-            j = source
-    return W
-
 
 
 def delassus_solver(A, shift: np.ndarray | None = None) -> Delassus | DiagonalDelassus:

@@ -145,10 +145,9 @@ class SchurFactor:
     side ``b_k - A_ko A_oo^-1 b_o``) and ``expand`` (the others from the kept ones' values),
     MUMPS' ICNTL(19) = 1 and ICNTL(26) = 1, 2.
 
-    MUMPS orders by AMD alone once it is to keep a Schur complement (the 6561-row plate's S:
-    168 s); the other variables are ordered here as MUMPS' analysis orders them without the kept
-    ones (PORD on this machine), the kept ones last (80 s). Build with :meth:`create`; ``close``
-    frees MUMPS' memory.
+    MUMPS orders by AMD alone once it is to keep a Schur complement, which is slow on 3D models;
+    the other variables are ordered here as MUMPS' analysis orders them without the kept
+    ones, the kept ones last. Build with :meth:`create`; ``close`` frees MUMPS' memory.
     """
 
     @classmethod

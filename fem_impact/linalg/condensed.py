@@ -11,13 +11,11 @@ also solves with A, split at C:
     x_C = S_C^-1 r_C                              (the dense Cholesky factor of S_C)
     expand:    x_O = A_OO^-1 (b_O - A_OC x_C)     (their backward one)
 
-so ``A`` is factorized once, not once plainly and once more for W: on the 6561-row plate (334 611
-unknowns) a plain factorization took 43.7 s and a solve 672 ms, the condensed one 65.7 s (with the
-complement) and a solve 765 to 850 ms, of which 33 ms are the dense part. A contact step needs
-the free solution on C alone (``P x`` reads only C) before its impulse, and the impulse's
-correction ``A^-1 P^T c`` changes x_C by ``S_C^-1 P_C^T c`` (the expansion is linear in x_C, and
-``P^T c`` is zero off C): so the step condenses once, solves its contact problem on C, and
-expands once (``begin``, ``finish``), where a plain factor takes two solves.
+so ``A`` is factorized once, not once plainly and once more for W. A contact step needs the free
+solution on C alone (``P x`` reads only C) before its impulse, and the impulse's correction
+``A^-1 P^T c`` changes x_C by ``S_C^-1 P_C^T c`` (the expansion is linear in x_C, and ``P^T c`` is
+zero off C): so the step condenses once, solves its contact problem on C, and expands once
+(``begin``, ``finish``), where a plain factor takes two solves.
 """
 
 from __future__ import annotations
@@ -26,19 +24,18 @@ import numpy as np
 from petsc4py import PETSc
 from scipy.linalg import lapack
 
-from ..fem.mumps_api import SchurFactor, mirror_lower
+from .mumps_api import SchurFactor, mirror_lower
 
 # The condensed factorization is taken where eliminating the other dofs takes more than this many times
 # m^3 flops (m kept dofs; the dense factorizations of S_C take m^3): W then costs about one factorization,
-# against several for MUMPS' selected inverse entries. The plate's S (3D elasticity) took 11, 6.1 and
-# 4.3 m^3 at 441, 1681 and 6561 rows; with friction's tangent rows (3 dofs a node) 0.16 m^3 at 6561,
-# which this ratio leaves to a plain factor and selected entries (as a mass matrix, 0.5 to 1.4 m^3).
+# against several for MUMPS' selected inverse entries. Below (a mass matrix, or friction's tangent rows
+# on 3D elasticity), a plain factor and selected entries are cheaper.
 SCHUR_FLOPS = 2.0
 
 
 class CondensedFactor:
     """``A^-1`` for a serial SPD ``A`` from a MUMPS factorization that keeps the dofs ``kept`` out
-    (``fem.mumps_api.SchurFactor``) and the dense Cholesky factor of their Schur complement:
+    (``mumps_api.SchurFactor``) and the dense Cholesky factor of their Schur complement:
     ``solve(b, x)``, ``many(B)``, a solve in two halves (``begin``, ``finish``) with the kept
     values in between, and ``inverse_block(dofs)`` for dofs among the kept ones. Build with
     :meth:`create`."""

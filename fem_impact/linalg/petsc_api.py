@@ -15,8 +15,8 @@ import numpy as np
 from petsc4py import PETSc
 
 _LIBRARIES = ("libpetsc_real.so.3.18", "libpetsc_real.so", "libpetsc.so")
-# MUMPS' blocking of the right-hand sides (ICNTL(27)) while it computes inverse entries: the face
-# of the 1681-row plate took 11.1 s with its default (-32), 5.7 s with -128, 6.0 s with -512.
+# MUMPS' blocking of the right-hand sides (ICNTL(27)) while it computes inverse entries: wider blocks
+# than its default (-32) take about half the time on a face of many rows.
 INVERSE_BLOCKING = -128
 # Entries of A^-1 asked for in one call (the pattern: 12 bytes an entry, 400 MB).
 INVERSE_ENTRIES = 1 << 25
@@ -51,12 +51,11 @@ def mumps_inverse_block(factor: PETSc.Mat, dofs: np.ndarray, out: np.ndarray | N
     """``(A^-1)[dofs][:, dofs]`` (dense, m x m) from a serial MUMPS factor of a symmetric ``A``.
 
     MUMPS computes selected entries of the inverse (ICNTL(30)) with the sparsity of the right-
-    hand sides: on the face of a 45 000-unknown plate (1681 dofs) several times faster than 1681
-    solves. The entries are asked for by blocks of columns, each from its diagonal down (the
-    rest by symmetry: half the entries), so that the pattern PETSc and MUMPS hold (12 bytes an
-    entry) stays near INVERSE_ENTRIES whatever m (at 19 683 dofs the whole pattern took 4.6 GB
-    beside the result). ``dofs`` sorted; ``out`` (m x m, float64) is filled if given. None when
-    the factor is not a serial MUMPS factor.
+    hand sides, much faster than a solve per dof. The entries are asked for by blocks of columns,
+    each from its diagonal down (the rest by symmetry: half the entries), so that the pattern PETSc
+    and MUMPS hold (12 bytes an entry) stays near INVERSE_ENTRIES whatever m (the whole pattern of
+    a large face would take gigabytes beside the result). ``dofs`` sorted; ``out`` (m x m, float64)
+    is filled if given. None when the factor is not a serial MUMPS factor.
     """
     lib = _library()
     if lib is None or factor.getComm().getSize() > 1 or factor.getType() != "mumps":
