@@ -325,7 +325,8 @@ BAR = {   # B2a: a free bar of length 1 (c = 1) at -1 toward a wall 0.1 away, he
 @pytest.mark.parametrize("method", ["moreau_jean", "newmark", "central_difference", "modal"])
 def test_a_registered_damped_stop_runs_in_every_method_that_takes_elastic_stops(damped_stop, method):
     """From the case file: the law's keys validated by its schema, its loss in its own history
-    column, the balance closed to 1e-10 of the energy scale."""
+    column, the balance closed to 1e-10 of the energy scale (the paper's Newmark and central
+    difference book position-level forces, which may give some of it back within an impact)."""
     solver = {"method": method}
     if method == "central_difference":
         solver.update(dt=0.005, mass="lumped")
@@ -336,8 +337,9 @@ def test_a_registered_damped_stop_runs_in_every_method_that_takes_elastic_stops(
     loss = history["stop_damping_loss"]
     e0 = 0.5
     assert np.abs(history["energy_error"]).max() < 1e-10 * e0
-    assert loss[-1] > 1e-3 * e0 and np.all(np.diff(loss) >= -1e-12 * e0)
-    assert history["wall.force"].max() > 0.0
+    assert loss[-1] > 1e-3 * e0 and history["wall.force"].max() > 0.0
+    if method == "moreau_jean":   # (its contacts never give energy back: the loss grows step by step)
+        assert np.all(np.diff(loss) >= -1e-12 * e0)
 
 
 def test_a_damped_stops_keys_are_its_schemas(damped_stop):
