@@ -22,7 +22,14 @@ from .outdir import writing
 from ..parallel import allsum
 from .progress import Progress, duration  # noqa: F401  (re-exported: pipeline, sweep, cli)
 
+# The budget's own columns; the contact laws of a run add theirs (``energy_columns``).
 ENERGY_COLUMNS = ("kinetic", "strain", "external_work", "damping_loss", "impact_loss", "contact_loss", "energy_error")
+
+
+def energy_columns(cons: Constraints) -> list[str]:
+    """The energy columns of a run's history: the budget's, then the loss columns its contact laws
+    declare (nonsmooth/laws.py, ``ContactLaw.column``), after every other column."""
+    return list(ENERGY_COLUMNS) + cons.laws.extra_columns()
 
 
 class NodalFields:
@@ -233,6 +240,8 @@ class HistoryWriter:
         self.numerical_loss = numerical_loss   # a scheme that books its own dissipation (Moreau-Jean, theta > 1/2)
         if numerical_loss:
             self.columns.append("numerical_loss")
+        self.law_losses = cons.laws.extra_columns()   # (columns added later keep the earlier ones' places)
+        self.columns += self.law_losses
         self._keep = comm.rank == 0
         self.path = path
         self._file = open(path, "w", newline="") if comm.rank == 0 and path is not None else None
@@ -259,6 +268,7 @@ class HistoryWriter:
             row += state.reaction.tolist()
         if self.numerical_loss:
             row.append(e.numerical_loss)
+        row += [e.losses.get(name, 0.0) for name in self.law_losses]
         if self._keep:
             self.rows.append(row)
             self._pending += 1
@@ -283,6 +293,7 @@ class HistoryWriter:
             columns.append(e.scheme)
         if self.numerical_loss:
             columns.append(e.numerical_loss)
+        columns += [np.full(len(block), e.losses.get(name, 0.0)) for name in self.law_losses]
         if self._keep:
             self._keep_rows()
             self._chunks.append(np.column_stack(columns))

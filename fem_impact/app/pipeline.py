@@ -41,7 +41,7 @@ def full_model(case: Case, model, cons) -> System:
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
                     massless=model.massless, stop_compliance=cons.compliance,
                     friction=cons.friction if cons.pt else None, tangents=cons.tangent_local,
-                    tangent_of=cons.tangent_of)
+                    tangent_of=cons.tangent_of, laws=cons.laws)
     return System(ops, NodalFields(cons), model.U0, model.V0, {"modes": None})
 
 

@@ -424,7 +424,7 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
         friction = dict(friction=cons.friction, tangents=allsum(comm, cons.tangent_local.T @ Y1).T.copy(),
                         tangent_of=cons.tangent_of)
     ops = Operators(np.ones(n1), w2.copy(), C, modal_load, Pr.T.copy(), cons.d0, cons.restitution, static=static,
-                    stop_compliance=cons.compliance, **friction)
+                    stop_compliance=cons.compliance, laws=cons.laws, **friction)
     fields = ReducedFields(Y1, XR if static else None, XP if static else None, static, cons, dt)
     cutoff = float(np.sqrt(w2[-1]) / (2 * np.pi))
     log.info("reduced model: %d modes (cut-off %.4g Hz), static correction %s", n1, cutoff, static_correction)

@@ -283,11 +283,3 @@ def _lcp_as_nnls(A: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     w[active] = 0.0
     return x, np.maximum(w, 0.0), active
 
-
-def __getattr__(name: str):
-    """Carnot's correction lives in problem.py (the one-step problem's module): its old names here."""
-    if name in ("ImpactResult", "impact_correction"):
-        from . import problem
-
-        return getattr(problem, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
