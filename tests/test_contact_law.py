@@ -340,6 +340,17 @@ def test_a_registered_damped_stop_runs_in_every_method_that_takes_elastic_stops(
     assert loss[-1] > 1e-3 * e0 and history["wall.force"].max() > 0.0
     if method == "moreau_jean":   # (its contacts never give energy back: the loss grows step by step)
         assert np.all(np.diff(loss) >= -1e-12 * e0)
+    # Without its dashpot the law is the elastic stop: the same history, the stop's loss in its own column.
+    undamped = fem_impact.run(case.with_changes({"contacts.0.damping": 0.0})).history
+    stop = {**BAR["contacts"][0], "law": "elastic_stop"}
+    del stop["damping"]
+    elastic = fem_impact.run(fem_impact.Case.from_dict({**BAR, "contacts": [stop],
+                                                        "solver": {**BAR["solver"], **solver}})).history
+    for name in ("wall.gap", "wall.force", "kinetic", "strain"):
+        np.testing.assert_allclose(undamped[name], elastic[name], rtol=0, atol=1e-12 * max(np.abs(elastic[name]).max(), e0))
+    # (the reduced model's static part books its own share in contact_loss, as with any law)
+    np.testing.assert_allclose(undamped["stop_damping_loss"] + undamped["contact_loss"], elastic["contact_loss"],
+                               rtol=0, atol=1e-12 * e0)
 
 
 def test_a_damped_stops_keys_are_its_schemas(damped_stop):
