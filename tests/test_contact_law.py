@@ -358,3 +358,15 @@ def test_a_damped_stops_keys_are_its_schemas(damped_stop):
         fem_impact.Case.from_dict({**BAR, "contacts": [{**BAR["contacts"][0], "restitution": 0.5}]})
     with pytest.raises(fem_impact.CaseError, match="damping"):
         fem_impact.Case.from_dict({**BAR, "contacts": [{**BAR["contacts"][0], "damping": -1.0}]})
+
+
+def test_a_damped_stops_loss_column_is_part_of_a_checkpoint(damped_stop, tmp_path):
+    """A run continued from its checkpoint books the law's column on from where it stood."""
+    from test_restart import assert_same_from
+
+    case = fem_impact.Case.from_dict(BAR)
+    full = fem_impact.run(case, tmp_path / "full")
+    fem_impact.run(case.with_changes({"solver.t_end": 1.5}), tmp_path / "half")
+    continued = fem_impact.run(case, tmp_path / "continued", restart=tmp_path / "half")
+    assert full.history["stop_damping_loss"][-1] > 0.0
+    assert_same_from(full.history, continued.history)
