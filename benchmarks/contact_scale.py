@@ -43,12 +43,8 @@ def measure(cells: int, coupling: str, steps: int, method: str, friction: float 
     from mpi4py import MPI
 
     from fem_impact.config.case import load_case
-    from fem_impact.nonsmooth.relation import build_constraints
     from fem_impact.integrators import Operators
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
-    from fem_impact.config.build import model_spec
-    from fem_impact.app.pipeline import make_integrator
+    from fem_impact.build import make_integrator, model_and_constraints
 
     dt = 0.5 / cells
     overrides = [f"mesh.cells={cells}", f"solver.dt={dt}", f"contacts.0.gap={1.5 * dt}",
@@ -57,8 +53,7 @@ def measure(cells: int, coupling: str, steps: int, method: str, friction: float 
         overrides += [f"contacts.0.friction={friction}", "initial.velocity=[-1.0, 0.5, 0.3]"]
     t0 = time.perf_counter()
     case = load_case(CASE, overrides)
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
-    cons = build_constraints(case.contacts, model)
+    model, cons = model_and_constraints(case, MPI.COMM_WORLD)
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
                     friction=cons.friction if cons.pt else None, tangents=cons.tangent_local,
                     tangent_of=cons.tangent_of)

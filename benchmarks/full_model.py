@@ -21,12 +21,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the fem-impact command 
 
 from mpi4py import MPI
 
+from fem_impact.build import model_and_constraints
 from fem_impact.config.case import load_case
-from fem_impact.nonsmooth.relation import build_constraints
 from fem_impact.integrators import Newmark, Operators
-from fem_impact.fem.mesh import build_mesh
-from fem_impact.fem.model import build_model
-from fem_impact.config.build import model_spec
 
 CASE = Path(__file__).resolve().parents[1] / "cases" / "impacting_bar.yaml"
 
@@ -37,8 +34,7 @@ def measure(dim: int, cells: int, steps: int, solves: int = 100) -> dict:
                  f"contacts.0.gap={steps / 4 * dt}"]  # v0 = 1: contact from step steps/4 on
     t0 = time.perf_counter()
     case = load_case(CASE, overrides)
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
-    cons = build_constraints(case.contacts, model)
+    model, cons = model_and_constraints(case, MPI.COMM_WORLD)
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
     integrator = Newmark(ops, dt)
     integrator.start(model.U0, model.V0)

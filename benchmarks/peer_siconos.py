@@ -62,18 +62,13 @@ def main(argv):
     from mpi4py import MPI
 
     from fem_impact.config.case import load_case
-    from fem_impact.nonsmooth.relation import build_constraints
     from fem_impact.integrators import Operators, integrate
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
-    from fem_impact.config.build import model_spec
-    from fem_impact.app.pipeline import make_integrator
+    from fem_impact.build import make_integrator, model_and_constraints
 
     case = load_case(case_path, sets)
     if case.damping.alpha or case.damping.beta or any(c.stiffness for c in case.contacts):
         sys.exit("peer_siconos: the comparison covers undamped cases with rigid stops")
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_SELF))
-    cons = build_constraints(case.contacts, model)
+    model, cons = model_and_constraints(case, MPI.COMM_SELF)
     if model.load.varying:
         sys.exit("peer_siconos: the comparison covers constant loads")
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,

@@ -34,16 +34,12 @@ import numpy as np  # noqa: E402
 from mpi4py import MPI  # noqa: E402
 
 import fem_impact  # noqa: E402
-from fem_impact.app.pipeline import full_model  # noqa: E402
-from fem_impact.config.build import model_spec  # noqa: E402
+from fem_impact.build import full_system, model_and_constraints, reduced_operators  # noqa: E402
 from fem_impact.config.case import load_case  # noqa: E402
-from fem_impact.fem.mesh import build_mesh  # noqa: E402
-from fem_impact.fem.model import build_model  # noqa: E402
 from fem_impact.fem.modes import compute_modes  # noqa: E402
 from fem_impact.fem.reduced import build_reduced  # noqa: E402
 from fem_impact.integrators import Newmark, integrate  # noqa: E402
 from fem_impact.integrators.blocks import BlockStepper  # noqa: E402
-from fem_impact.nonsmooth.relation import build_constraints  # noqa: E402
 
 CASE = Path(__file__).resolve().parents[1] / "cases" / "beam_stop.yaml"
 
@@ -62,13 +58,12 @@ class Impulse:
 def b3(args) -> None:
     t0 = time.perf_counter()
     case = load_case(CASE, [f"mesh.cells={args.cells}"])
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
-    cons = build_constraints(case.contacts, model)
+    model, cons = model_and_constraints(case, MPI.COMM_WORLD)
     t_model = time.perf_counter() - t0
     dt, t_end = case.solver.dt, args.steps * case.solver.dt
 
     t0 = time.perf_counter()
-    full = Newmark(full_model(case, model, cons).operators, dt)   # the case's operators, its elastic stop included
+    full = Newmark(full_system(case, model, cons).operators, dt)   # the case's operators, its elastic stop included
     t_full_setup = time.perf_counter() - t0
     impulse_full = Impulse()
     t0 = time.perf_counter()
@@ -82,7 +77,7 @@ def b3(args) -> None:
     red = build_reduced(model, cons, modes, args.modes, True, 0.0, 0.0, dt)
     t_static = time.perf_counter() - t0
     t0 = time.perf_counter()
-    reduced = Newmark(red.operators, dt)
+    reduced = Newmark(reduced_operators(red, cons), dt)
     t_red_setup = time.perf_counter() - t0
     t0 = time.perf_counter()
     blocks = BlockStepper.of(reduced)   # (imports Numba, loads the compiled steps)

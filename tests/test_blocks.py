@@ -97,19 +97,13 @@ def test_the_beam_with_static_correction_and_elastic_stop_is_the_same_in_blocks(
 def test_observers_without_blocks_get_every_step():
     """An observer that only has ``write`` gets each step of a block as a StepState, in order, with the
     values single steps give."""
-    from fem_impact.app import pipeline
-    from fem_impact.config.build import model_spec
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
+    from fem_impact.build import build_system, make_integrator
     from fem_impact.integrators import integrate
     from fem_impact.integrators.blocks import BlockStepper
-    from fem_impact.nonsmooth.relation import build_constraints
     from mpi4py import MPI
 
     case = oscillator(periods=6)
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_SELF))
-    cons = build_constraints(case.contacts, model)
-    system = pipeline.reduced_model(case, model, cons)
+    system = build_system(case, MPI.COMM_SELF)
 
     class Record:
         def __init__(self):
@@ -121,7 +115,7 @@ def test_observers_without_blocks_get_every_step():
 
     runs = {}
     for name in ("single", "blocks"):
-        integrator = pipeline.make_integrator(case, system.operators)
+        integrator = make_integrator(case, system.operators)
         stepper = BlockStepper.of(integrator) if name == "blocks" else None
         record = Record()
         integrate(integrator, system.U0, system.V0, case.solver.t_end, [record], blocks=stepper)
@@ -136,20 +130,14 @@ def test_observers_without_blocks_get_every_step():
 def test_blocks_end_where_an_observer_reads_the_integrator():
     """An observer that reads the integrator's own state at given steps (a checkpoint) says which
     (``next_stop``): no block runs past them, and there the integrator holds that step's state."""
-    from fem_impact.app import pipeline
-    from fem_impact.config.build import model_spec
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
+    from fem_impact.build import build_system, make_integrator
     from fem_impact.integrators import integrate
     from fem_impact.integrators.blocks import BlockStepper
-    from fem_impact.nonsmooth.relation import build_constraints
     from mpi4py import MPI
 
     case = oscillator(periods=6)
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_SELF))
-    cons = build_constraints(case.contacts, model)
-    system = pipeline.reduced_model(case, model, cons)
-    integrator = pipeline.make_integrator(case, system.operators)
+    system = build_system(case, MPI.COMM_SELF)
+    integrator = make_integrator(case, system.operators)
     stepper = BlockStepper.of(integrator)
 
     class Checkpoint:

@@ -131,17 +131,13 @@ def test_diagonal_delassus_equals_the_solves():
     from mpi4py import MPI
     from scipy import sparse
 
-    from fem_impact.config.build import model_spec
+    from fem_impact.build import model_and_constraints
     from fem_impact.config.case import load_case
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
     from fem_impact.integrators import Operators
-    from fem_impact.nonsmooth.relation import build_constraints
 
     for coupling, rows in (("each", 441), ("mean", 1)):
         case = load_case(PLATE, ["mesh.cells=4", "solver.mass=lumped", f"contacts.0.coupling={coupling}"])
-        model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
-        cons = build_constraints(case.contacts, model)
+        model, cons = model_and_constraints(case, MPI.COMM_WORLD)
         ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
         solve = ops.algebra.factorize(model.M)
         W, G = ops.delassus(solve, diagonal=True)
@@ -176,17 +172,12 @@ def test_w_from_inverse_entries_in_place_equals_the_solves(monkeypatch, entries)
     if entries is not None:
         monkeypatch.setattr(petsc_api, "INVERSE_ENTRIES", entries)
 
-    from fem_impact.app.pipeline import make_integrator
-    from fem_impact.config.build import model_spec
+    from fem_impact.build import make_integrator, model_and_constraints
     from fem_impact.config.case import load_case
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
     from fem_impact.integrators import Operators
-    from fem_impact.nonsmooth.relation import build_constraints
 
     case = load_case(PLATE, ["contacts.0.friction=0.3", "mesh.cells=4"])
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
-    cons = build_constraints(case.contacts, model)
+    model, cons = model_and_constraints(case, MPI.COMM_WORLD)
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
                     friction=cons.friction, tangents=cons.tangent_local, tangent_of=cons.tangent_of)
     rows = ops.with_tangents()
@@ -208,16 +199,12 @@ def test_a_condensed_step_matrix_gives_w_and_the_contact_steps_of_a_plain_factor
     Courant numbers 0.5 and 8."""
     from mpi4py import MPI
 
-    from fem_impact.app.pipeline import make_integrator
-    from fem_impact.config.build import model_spec
+    from fem_impact.build import make_integrator, model_and_constraints
     from fem_impact.config.case import load_case
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
     from fem_impact.integrators import Operators
     from fem_impact.linalg import factor
     from fem_impact.linalg.condensed import CondensedFactor
     from fem_impact.mechanics import system
-    from fem_impact.nonsmooth.relation import build_constraints
 
     monkeypatch.setattr(system, "KEEP_COLUMNS", 0)   # (6615 x 441 columns would be kept: W from them)
     routes = []
@@ -225,8 +212,7 @@ def test_a_condensed_step_matrix_gives_w_and_the_contact_steps_of_a_plain_factor
     monkeypatch.setattr(factor, "mumps_inverse_block", lambda *a: routes.append(a[1].size) or original(*a))
     dt = courant * 0.25   # (c = 1, h = 1/4)
     case = load_case(PLATE, ["mesh.cells=4", f"solver.dt={dt}", f"contacts.0.gap={1.5 * dt}", f"solver.method={method}"])
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
-    cons = build_constraints(case.contacts, model)
+    model, cons = model_and_constraints(case, MPI.COMM_WORLD)
 
     def integrator(condensed: bool):
         ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)

@@ -11,12 +11,9 @@ from petsc4py import PETSc
 from test_contact_law import ConstantLoad, one_by_one
 
 from conftest import CASES, run_case_file
+from fem_impact.build import model_and_constraints
 from fem_impact.config.case import load_case
-from fem_impact.nonsmooth.relation import build_constraints
 from fem_impact.integrators import CentralDifference, Newmark, Operators, integrate
-from fem_impact.fem.mesh import build_mesh
-from fem_impact.fem.model import build_model
-from fem_impact.config.build import model_spec
 from fem_impact.config.references import column
 from test_bar_benchmarks import assert_b2, assert_energy
 
@@ -92,8 +89,7 @@ def test_bar_wave_front_on_an_elastic_stop(tmp_path):
 
 def test_mean_coupling_is_one_row_of_equal_weights(tmp_path):
     case = load_case(CASES / "impacting_bar.yaml", ["mesh.dim=2", "mesh.cells=20", "contacts.0.coupling=mean"])
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
-    cons = build_constraints(case.contacts, model)
+    model, cons = model_and_constraints(case, MPI.COMM_WORLD)
     P = cons.P_local.toarray()
     assert cons.p == 1 and cons.d0.tolist() == [0.1]
     nodes = model.node_set("left", ("contacts", 0, "nodes"))

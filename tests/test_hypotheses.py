@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import fem_impact as fi
+from fem_impact.build import finite_element_model
 from fem_impact.config.case import CaseError
 
 L, V0 = 1.0, 1.0
@@ -90,13 +91,10 @@ def _first_longitudinal(case: fi.Case, n: int) -> tuple[float, float, int]:
     """(frequency of the clamped-free rod's first longitudinal mode, seconds to assemble and solve, dofs)."""
     from mpi4py import MPI
 
-    from fem_impact.config.build import model_spec
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
     from fem_impact.fem.modes import compute_modes, participation
 
     clock = time.perf_counter()
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+    model = finite_element_model(case, MPI.COMM_WORLD)
     modes = compute_modes(model, n)
     along = participation(modes, model)[:, 0]
     seconds = time.perf_counter() - clock
@@ -197,13 +195,10 @@ def test_a_uniform_axisymmetric_rod_is_lower_than_the_1d_rod_by_its_lateral_iner
                                          "hypothesis": "axisymmetric", "axis": "x"}})
     from mpi4py import MPI
 
-    from fem_impact.config.build import model_spec
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
     from fem_impact.fem.modes import compute_modes
 
     def first(case):
-        modes = compute_modes(build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD)), 3)
+        modes = compute_modes(finite_element_model(case, MPI.COMM_WORLD), 3)
         return modes.frequency_hz[~modes.rigid][0]
 
     k = np.pi / length

@@ -9,12 +9,9 @@ import pytest
 from mpi4py import MPI
 
 from conftest import CASES, run_case_file
+from fem_impact.build import model_and_constraints
 from fem_impact.config.case import load_case
-from fem_impact.nonsmooth.relation import build_constraints
 from fem_impact.integrators import Newmark, Operators, integrate
-from fem_impact.fem.mesh import build_mesh
-from fem_impact.fem.model import build_model
-from fem_impact.config.build import model_spec
 
 BAR = CASES / "impacting_bar.yaml"
 NO_CONTACT = ["contacts=[]", "output.vtk=false"]
@@ -40,8 +37,7 @@ class Momentum:
 
 def run_with_momentum(*overrides):
     case = load_case(BAR, list(overrides))
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
-    cons = build_constraints(case.contacts, model)
+    model, cons = model_and_constraints(case, MPI.COMM_WORLD)
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution)
     obs = Momentum(model)
     final = integrate(Newmark(ops, case.solver.dt), model.U0, model.V0, case.solver.t_end, [obs])

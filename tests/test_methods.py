@@ -10,14 +10,11 @@ import pytest
 from mpi4py import MPI
 
 from conftest import CASES, run_case_file, run_cli
+from fem_impact.build import finite_element_model, model_and_constraints
 from fem_impact.config.case import load_case
-from fem_impact.nonsmooth.relation import build_constraints
 from fem_impact.errors import SimulationError
 from fem_impact.integrators import Operators
 from fem_impact.integrators.central_difference import critical_time_step
-from fem_impact.fem.mesh import build_mesh
-from fem_impact.fem.model import build_model
-from fem_impact.config.build import model_spec
 from test_bar_benchmarks import assert_b2
 
 BAR = CASES / "impacting_bar.yaml"
@@ -25,8 +22,7 @@ BAR = CASES / "impacting_bar.yaml"
 
 def model_of(case_file, *overrides):
     case = load_case(case_file, list(overrides))
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
-    return case, model, build_constraints(case.contacts, model)
+    return (case, *model_and_constraints(case, MPI.COMM_WORLD))
 
 
 def test_central_difference_meets_b2a_and_conserves_its_energy(tmp_path):
@@ -274,19 +270,16 @@ def test_a_diagonal_system_is_divided_not_factorized():
     the 3D bar of 72 963 unknowns: 36.9 ms a step before, 1.9 ms after, 2.8 to 3.0 ms serial)."""
     from mpi4py import MPI
 
-    from fem_impact.config.build import model_spec
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
     from fem_impact.linalg.backends import PETScAlgebra
     from fem_impact.linalg.factor import DiagonalFactor, Factor, is_diagonal
 
     case = load_case(CASES / "impacting_bar.yaml", ["mesh.dim=2", "mesh.cells=40"])   # (newmark: consistent mass)
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+    model = finite_element_model(case, MPI.COMM_WORLD)
     alg = PETScAlgebra(model.M)
     assert not is_diagonal(model.M) and not is_diagonal(model.K)
     lumped = load_case(CASES / "impacting_bar.yaml", ["mesh.dim=2", "mesh.cells=40", "solver.method=central_difference",
                                                       "solver.mass=lumped"])
-    M = build_model(model_spec(lumped), build_mesh(lumped.mesh, MPI.COMM_WORLD)).M
+    M = finite_element_model(lumped, MPI.COMM_WORLD).M
     solve = alg.factorize(M, spd=True)
     assert is_diagonal(M) and isinstance(solve, DiagonalFactor)
     assert isinstance(alg.factorize(model.M, spd=True), Factor)

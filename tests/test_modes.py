@@ -36,14 +36,12 @@ C_EB = 1.87510407**2 / (2.0 * np.pi)
 
 def analyse(name: str, n: int, *overrides: str, **kwargs):
     """(modes, model) of a case file in this process."""
+    from fem_impact.build import finite_element_model
     from fem_impact.config.case import load_case
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
-    from fem_impact.config.build import model_spec
     from fem_impact.fem.modes import compute_modes
 
     case = load_case(CASES / f"{name}.yaml", ["contacts=[]", *overrides])
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_SELF))
+    model = finite_element_model(case, MPI.COMM_SELF)
     return compute_modes(model, n, **kwargs), model
 
 
@@ -327,16 +325,14 @@ def test_modal_mass_at_the_tip_of_the_clamped_free_rod(tmp_path):
 
 def test_the_modes_of_a_2d_cantilever_are_described():
     """A 2D strip clamped at one end: its first modes bend (transverse, y), the first along x is longitudinal."""
-    from fem_impact.config.build import model_spec
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
+    from fem_impact.build import finite_element_model
     from fem_impact.fem.modes import compute_modes, describe
     import fem_impact as fi
 
     case = fi.Case.from_dict({"name": "strip", "material": {"E": 1.0, "rho": 1.0}, "solver": {"dt": 0.1, "t_end": 1},
                               "mesh": {"shape": "bar", "dim": 2, "length": 1.0, "height": 0.05, "cells": 100},
                               "supports": [{"nodes": "left", "fix": "all"}]})
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD))
+    model = finite_element_model(case, MPI.COMM_WORLD)
     words = describe(compute_modes(model, 6), model)
     assert words[0].startswith("transverse (y): bar 100 %; y ")
     assert any(w.startswith("longitudinal: bar 100 %; x ") for w in words)

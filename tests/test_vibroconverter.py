@@ -105,14 +105,12 @@ def steady_state(h: np.ndarray, frequency: float = DRIVE_FREQUENCY, periods: int
 def _modes(overrides, n=3):
     from mpi4py import MPI
 
+    from fem_impact.build import finite_element_model
     from fem_impact.config.case import load_case
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
-    from fem_impact.config.build import model_spec
     from fem_impact.fem.modes import compute_modes
 
     case = load_case(FREE, ["contacts=[]", *overrides])
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_SELF))
+    model = finite_element_model(case, MPI.COMM_SELF)
     return compute_modes(model, n), model
 
 

@@ -140,14 +140,12 @@ def test_committed_mesh_is_what_the_script_writes(tmp_path):
 def _first_longitudinal(overrides) -> float:
     from mpi4py import MPI
 
+    from fem_impact.build import finite_element_model
     from fem_impact.config.case import load_case
-    from fem_impact.fem.mesh import build_mesh
-    from fem_impact.fem.model import build_model
-    from fem_impact.config.build import model_spec
     from fem_impact.fem.modes import compute_modes, participation
 
     case = load_case(CASE, ["contacts=[]", *overrides])
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_SELF))
+    model = finite_element_model(case, MPI.COMM_SELF)
     modes = compute_modes(model, 5)
     # the longitudinal mode is the one with the most effective mass along y (the axis: 53 %)
     mass_y = participation(modes, model)[:, 1]

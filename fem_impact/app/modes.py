@@ -39,16 +39,14 @@ def run_modes(path, outdir=None, overrides=(), n: int | None = None, comm: MPI.C
 
 
 def _run_modes(case, out, n, comm, t_start, at=None, direction="x") -> dict:
-    from ..config.build import model_spec
+    from ..build import finite_element_model
     from ..fem.dolfinx_api import VTKSeries
-    from ..fem.mesh import build_mesh
-    from ..fem.model import build_model
     from ..fem.modes import AXES, ModeCountError, at_point, compute_modes, describe, free_dof_count, participation
 
     outdir = out.path
-    meshdata = build_mesh(case.mesh, comm)
-    install_signal_handlers()   # (after PETSc's own)
-    model = build_model(model_spec(case), meshdata)
+    install_signal_handlers()   # (after PETSc's own: dolfinx_api loaded it)
+    model = finite_element_model(case, comm)
+    meshdata = model.meshdata
     available = free_dof_count(model)
     if n is None:
         if isinstance(getattr(case.solver, "modes", None), int):   # (only the reduced model's solver has modes)

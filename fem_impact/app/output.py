@@ -7,6 +7,7 @@ import csv
 import os
 import re
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,15 +16,24 @@ from mpi4py import MPI
 
 from ..fem import dolfinx_api as dx
 from ..nonsmooth.relation import Constraints
-from ..errors import ModelInputError
 from ..integrators import StepState
-from ..fem.model import AXES, Model, pad_vector
+from ..fem.model import AXES, Model
+from ..fem.probes import Probes  # noqa: F401  (HistoryWriter reads them)
 from .outdir import writing
-from ..parallel import allsum
 from .progress import Progress, duration  # noqa: F401  (re-exported: pipeline, sweep, cli)
 
-# The budget's own columns; the contact laws of a run add theirs (``energy_columns``).
-ENERGY_COLUMNS = ("kinetic", "strain", "external_work", "damping_loss", "impact_loss", "contact_loss", "energy_error")
+# history.csv's energy columns: (column, EnergyBudget's attribute, meaning). Kinetic and strain energy at
+# the step; the work and loss terms cumulative from t = 0 (docs/theory.md s. 9).
+ENERGIES = (
+    ("kinetic", "kinetic", "kinetic energy"),
+    ("strain", "strain", "strain energy"),
+    ("external_work", "external_work", "work of the loads (and of moving supports)"),
+    ("damping_loss", "damping_loss", "energy the damping dissipated"),
+    ("impact_loss", "impact_loss", "energy the impacts' velocity jumps took (Carnot's loss)"),
+    ("contact_loss", "contact_loss", "work absorbed by the contact forces"),
+    ("energy_error", "error", "the residual of the energy balance"),
+)
+ENERGY_COLUMNS = tuple(column for column, _, _ in ENERGIES)
 
 
 def energy_columns(cons: Constraints) -> list[str]:
@@ -32,74 +42,16 @@ def energy_columns(cons: Constraints) -> list[str]:
     return list(ENERGY_COLUMNS) + cons.laws.extra_columns()
 
 
-class NodalFields:
-    """Physical fields of the full model: the state vectors are the nodal values.
-
-    The reduced model has its own reader (``reduce.ReducedFields``) with the same two methods,
-    so observers never need to know which model produced a step.
-    """
-
-    __checkpoint__ = ()   # (no state of its own: a checkpoint's part all the same, as the reduced model's reader)
-
-    def __init__(self, cons: Constraints):
-        self.cons = cons
-
-    def at(self, state: StepState, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Displacement and velocity at a few owned dofs."""
-        return state.U[dofs], state.V[dofs]
-
-    def inertial_at(self, state: StepState, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Velocity and acceleration at a few owned dofs (of the dofs' mass: all of it here)."""
-        return state.V[dofs], state.A[dofs]
-
-    def frame(self, state: StepState) -> dict[str, np.ndarray]:
-        """Owned values of u, v, a and the contact force on the structure (-P^T F_N, and -P_T^T F_T
-        with friction: normal and tangential parts in one vector, as ParaView's arrows show it)."""
-        force = -(self.cons.P_local @ state.force)
-        if state.tangential is not None:
-            force -= self.cons.tangent_local @ state.tangential
-        return {"u": state.U, "v": state.V, "a": state.A, "contact_force": force}
-
-    def velocity_functionals(self, rows: np.ndarray, comm: MPI.Comm):
-        """A reader of ``rows^T v`` at each step, for a few fixed rows (owned entries, n_local x k):
-        k dot products and one reduction per step."""
-        rows = np.ascontiguousarray(rows.T)
-
-        def read(state: StepState) -> np.ndarray:
-            return allsum(comm, rows @ state.V)
-        return read
-
-
 @dataclass
-class Probes:
-    """Named points, each read at the mesh node nearest to it (one owner rank per probe)."""
+class ColumnGroup:
+    """Columns of history.csv filled by one reader: their names, what they hold, and their values at a
+    step (``step(state)``: a list) and over a block of steps (``block(block)``: a list of arrays, L or
+    L x k; None where a block of steps cannot carry them)."""
 
     names: list[str]
-    owned_dofs: np.ndarray     # (n_probes x dim) local dof of each component, -1 off-owner
-    distance: np.ndarray       # distance from the asked point to the node used
-    dim: int
-
-    def values(self, state: StepState, comm: MPI.Comm, fields) -> np.ndarray:
-        """(u, v) at every probe as one flat array [p0.ux, p0.uy, ..., p0.vx, ...]."""
-        if hasattr(fields, "point_reader") and comm.size > 1:   # the reduced model: on every rank, no sum
-            u, v = fields.point_reader(self.owned_dofs, comm)(state)
-            return np.stack([u, v], axis=1).reshape(-1)
-        out = np.zeros((len(self.names), 2, self.dim))
-        mine = self.owned_dofs[:, 0] >= 0
-        if mine.any():
-            out[mine, 0], out[mine, 1] = fields.at(state, self.owned_dofs[mine])
-        return allsum(comm, out).reshape(-1)
-
-    def values_block(self, block, comm: MPI.Comm, fields) -> np.ndarray:
-        """``values`` at every step of a block of steps (L x columns), one reduction."""
-        out = np.zeros((len(block), len(self.names), 2, self.dim))
-        mine = self.owned_dofs[:, 0] >= 0
-        if mine.any():
-            out[:, mine, 0], out[:, mine, 1] = fields.at_block(block, self.owned_dofs[mine])
-        return allsum(comm, out).reshape(len(block), -1)
-
-    def columns(self) -> list[str]:
-        return [f"{name}.{q}{AXES[c]}" for name in self.names for q in "uv" for c in range(self.dim)]
+    meaning: str
+    step: Callable[[StepState], list]
+    block: Callable[[object], list] | None
 
 
 class BodyMomenta:
@@ -123,46 +75,6 @@ class BodyMomenta:
 
     def columns(self) -> list[str]:
         return [f"{name}.p{AXES[c]}" for name in self.names for c in range(self.dim)]
-
-
-def find_probes(case, model: Model) -> Probes:
-    dim, bs, comm = model.meshdata.dim, model.bs, model.comm
-    coords = model.node_coords[: model.n_owned_nodes, :dim]
-    names, dofs, distances = [], [], []
-    for name, point in case.output.probes.items():
-        key = ("output", "probes", name)
-        point = np.asarray(pad_vector(point, dim, key, "probe"), dtype=float)
-        if coords.size:
-            d = np.linalg.norm(coords - point, axis=1)
-            k = int(np.argmin(d))
-            mine = (float(d[k]), model.first_node + k)
-        else:
-            mine = (np.inf, -1)
-        best = min(comm.allgather(mine))  # nearest node; ties go to the lowest global index
-        _check_inside(case, model, key, point)
-        local = best[1] - model.first_node
-        owned = 0 <= local < model.n_owned_nodes and best[1] >= 0
-        names.append(name)
-        dofs.append([local * bs + c if owned else -1 for c in range(dim)])
-        distances.append(best[0])
-    return Probes(names, np.array(dofs, dtype=np.int64).reshape(-1, dim), np.array(distances), dim)
-
-
-def _check_inside(case, model: Model, key, point) -> None:
-    """A probe farther from the mesh than 1e-6 of its size is a mistake (a unit, a sign), not the nearest node."""
-    coords = model.node_coords[:, : model.meshdata.dim]
-    dim = model.meshdata.dim
-    lo = np.min(model.comm.allgather(coords.min(axis=0) if coords.size else np.full(dim, np.inf)), axis=0)
-    hi = np.max(model.comm.allgather(coords.max(axis=0) if coords.size else np.full(dim, -np.inf)), axis=0)
-    tol = 1e-6 * float(np.max(hi - lo))
-    lo, hi = (np.where(np.abs(b) < tol, 0.0, b) for b in (lo, hi))   # (round-off of the mesh generator)
-    full = np.zeros(3)
-    full[: len(point)] = point
-    distance = model.comm.allreduce(dx.distance_to_mesh(model.meshdata.mesh, full, tol), op=MPI.MIN)
-    if distance > tol:
-        box = ", ".join(f"[{a:g}, {b:g}]" for a, b in zip(lo, hi, strict=True))
-        raise ModelInputError(key, f"the point {[float(v) for v in point]} is outside the mesh (which spans "
-                                   f"{box}); a probe must lie on the structure")
 
 
 class FrictionColumns:
@@ -223,25 +135,13 @@ class HistoryWriter:
         self._chunks: list[np.ndarray] = []  # kept rows before those, as arrays (blocks of steps)
         self._pending = 0                    # rows kept since the last flush
         self.flush_every = flush_every
-        self.columns = ["t"]
-        for c in cons.contacts:
-            self.columns += [f"{c.name}.gap", f"{c.name}.force", f"{c.name}.impulse"]
-        # Body momenta come last, after the energies: columns added later keep the
-        # positions of the earlier ones.
-        self.columns += probes.columns() + list(ENERGY_COLUMNS) + (momenta.columns() if momenta else [])
         self.scheme_energy = scheme_energy   # a scheme that conserves more than kinetic + strain (central difference)
-        if scheme_energy:
-            self.columns.append("scheme_energy")
         self.friction = FrictionColumns(cons) if cons.pt else None
-        if self.friction is not None:
-            self.columns += self.friction.columns()
         self.reactions = list(reactions)   # moving supports (fem/prescribed.py): N, the support's force on the body
-        self.columns += self.reactions
         self.numerical_loss = numerical_loss   # a scheme that books its own dissipation (Moreau-Jean, theta > 1/2)
-        if numerical_loss:
-            self.columns.append("numerical_loss")
-        self.law_losses = cons.laws.extra_columns()   # (columns added later keep the earlier ones' places)
-        self.columns += self.law_losses
+        # (groups without columns read nothing: no probes, no bodies)
+        self.groups = [group for group in self._declare() if group.names]
+        self.columns = [name for group in self.groups for name in group.names]
         self._keep = comm.rank == 0
         self.path = path
         self._file = open(path, "w", newline="") if comm.rank == 0 and path is not None else None
@@ -250,25 +150,58 @@ class HistoryWriter:
             with writing(path):
                 self._csv.writerow(self.columns)
 
-    def write(self, state: StepState) -> None:
-        row = [state.t]
+    def _declare(self) -> list[ColumnGroup]:
+        """history.csv's columns, in their order (INTERFACE: columns added later come after the
+        earlier ones, which keep their positions)."""
+        probes, comm, fields, momenta = self.probes, self.comm, self.fields, self.momenta
+
+        groups = [ColumnGroup(["t"], "time", lambda state: [state.t], lambda block: [block.t])]
         for c in self.cons.contacts:
-            r = c.rows
-            row += [state.gap[r].min(), state.force[r].sum(), state.impulse[r].sum()]
-        row += self.probes.values(state, self.comm, self.fields).tolist() if self.probes.names else []
-        e = state.energy
-        row += [e.kinetic, e.strain, e.external_work, e.damping_loss, e.impact_loss, e.contact_loss, e.error]
-        if self.momenta is not None:
-            row += self.momenta.values(state).tolist()
+            groups.append(ColumnGroup(
+                [f"{c.name}.gap", f"{c.name}.force", f"{c.name}.impulse"],
+                "per contact: the smallest gap over its rows, the sum of the normal forces F_N at the step, "
+                "the sum of the impulses S_N over the step",
+                lambda state, r=c.rows: [state.gap[r].min(), state.force[r].sum(), state.impulse[r].sum()],
+                lambda block, r=c.rows: [block.gap[:, r].min(axis=1), block.force[:, r].sum(axis=1),
+                                         block.impulse[:, r].sum(axis=1)]))
+        groups.append(ColumnGroup(
+            probes.columns(), "per probe P: displacement P.ux (P.uy, P.uz), then velocity P.vx (...)",
+            lambda state: probes.values(state, comm, fields).tolist(),
+            lambda block: [probes.values_block(block, comm, fields)]))
+        groups.append(ColumnGroup(
+            list(ENERGY_COLUMNS), "; ".join(f"{column}: {meaning}" for column, _, meaning in ENERGIES),
+            lambda state: [getattr(state.energy, a) for _, a, _ in ENERGIES],
+            lambda block: [getattr(block.energy, a) for _, a, _ in ENERGIES]))
+        if momenta is not None:   # (after the energies: columns added later keep the earlier ones' positions)
+            groups.append(ColumnGroup(momenta.columns(), "per body: its momentum BODY.px (BODY.py, BODY.pz)",
+                                      lambda state: momenta.values(state).tolist(),
+                                      lambda block: [momenta.values_block(block)]))
         if self.scheme_energy:
-            row.append(e.scheme)
+            groups.append(ColumnGroup(["scheme_energy"], "the energy a scheme conserves beyond kinetic + strain "
+                                                         "(central difference's)",
+                                      lambda state: [state.energy.scheme], lambda block: [block.energy.scheme]))
         if self.friction is not None:
-            row += self.friction.values(state)
+            groups.append(ColumnGroup(self.friction.columns(), "per contact with friction (FrictionColumns), then "
+                                                               "friction_loss", self.friction.values, None))
         if self.reactions:
-            row += state.reaction.tolist()
+            groups.append(ColumnGroup(self.reactions, "per moving support: its force on the body (N)",
+                                      lambda state: state.reaction.tolist(), None))
         if self.numerical_loss:
-            row.append(e.numerical_loss)
-        row += [e.losses.get(name, 0.0) for name in self.law_losses]
+            groups.append(ColumnGroup(["numerical_loss"], "the scheme's own dissipation (Moreau-Jean, theta > 1/2)",
+                                      lambda state: [state.energy.numerical_loss],
+                                      lambda block: [block.energy.numerical_loss]))
+        laws = self.cons.laws.extra_columns()   # (constant over a block of steps: no contact acts in it)
+        groups.append(ColumnGroup(laws, "per contact law with a column of its own: the work absorbed on its "
+                                        "rows, less what they store (docs/theory.md s. 2.5)",
+                                  lambda state: [state.energy.losses.get(name, 0.0) for name in laws],
+                                  lambda block: [np.full(len(block), block.energy.losses.get(name, 0.0))
+                                                 for name in laws]))
+        return groups
+
+    def write(self, state: StepState) -> None:
+        row = []
+        for group in self.groups:
+            row += group.step(state)
         if self._keep:
             self.rows.append(row)
             self._pending += 1
@@ -277,23 +210,11 @@ class HistoryWriter:
 
     def write_block(self, block) -> None:
         """The rows of a block of steps (fem_impact/integrators/blocks.py), column by column."""
-        if self.friction is not None or self.reactions:
+        if any(group.block is None for group in self.groups):
             raise ValueError("a block of steps carries no friction or support reactions")
-        columns = [block.t]
-        for c in self.cons.contacts:
-            r = c.rows
-            columns += [block.gap[:, r].min(axis=1), block.force[:, r].sum(axis=1), block.impulse[:, r].sum(axis=1)]
-        if self.probes.names:
-            columns.append(self.probes.values_block(block, self.comm, self.fields))
-        e = block.energy
-        columns += [e.kinetic, e.strain, e.external_work, e.damping_loss, e.impact_loss, e.contact_loss, e.error]
-        if self.momenta is not None:
-            columns.append(self.momenta.values_block(block))
-        if self.scheme_energy:
-            columns.append(e.scheme)
-        if self.numerical_loss:
-            columns.append(e.numerical_loss)
-        columns += [np.full(len(block), e.losses.get(name, 0.0)) for name in self.law_losses]
+        columns = []
+        for group in self.groups:
+            columns += group.block(block)
         if self._keep:
             self._keep_rows()
             self._chunks.append(np.column_stack(columns))

@@ -15,58 +15,12 @@ from mpi4py import MPI
 
 from .._version import __version__
 from ..config.case import Case, load_case
+from ..build import System, make_integrator  # noqa: F401  (re-exported: tests, benchmarks)
 from ..errors import CaseError, SimulationError, wrong_type
 from .limits import check_limits
 from .outdir import case_inputs, claim, writing
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class System:
-    """What the time loop integrates, and how to read physical fields from its state."""
-
-    operators: object
-    fields: object
-    U0: object
-    V0: object
-    summary: dict
-
-
-def full_model(case: Case, model, cons) -> System:
-    """The finite-element system itself (the full methods: moreau_jean, newmark, central_difference)."""
-    from ..integrators import Operators
-    from .output import NodalFields
-
-    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
-                    massless=model.massless, stop_compliance=cons.compliance,
-                    friction=cons.friction if cons.pt else None, tangents=cons.tangent_local,
-                    tangent_of=cons.tangent_of, laws=cons.laws)
-    return System(ops, NodalFields(cons), model.U0, model.V0, {"modes": None})
-
-
-def reduced_model(case: Case, model, cons) -> System:
-    """Kept modes plus the static correction of the truncated ones (method ``modal``)."""
-    from ..fem.reduced import prepare_reduced
-
-    from ..config.build import reduction_spec
-
-    red, summary = prepare_reduced(reduction_spec(case), model, cons)
-    return System(red.operators, red.fields, red.Z0, red.Zdot0, summary)
-
-
-def model_of(case: Case):
-    """What a method integrates: the reduced model for ``modal``, else the full model."""
-    from ..integrators import is_reduced
-
-    return reduced_model if is_reduced(case.solver) else full_model
-
-
-def make_integrator(case: Case, operators):
-    """The time integrator of ``solver.method`` (the reduced model: of its ``solver.scheme``)."""
-    from ..integrators import integrator_class, scheme_of
-
-    return integrator_class(scheme_of(case.solver)).from_solver(operators, case.solver)
 
 
 def block_stepper(case: Case, integrator, n_steps: int):
@@ -274,24 +228,18 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     if restart is not None:   # (its state.json checked against the case before anything is built)
         saved, changed = _open_restart(restart, case, comm)
     # dolfinx and PETSc load in about a second: only once the case file is known to be sound.
-    from ..config.build import model_spec
-    from ..fem.mesh import build_mesh
-    from ..fem.model import build_model
+    from ..build import build_system
     from ..integrators import EnergyWatch, integrate, is_reduced, steps_for
-    from ..nonsmooth.relation import build_constraints, check_initial_state
     from . import checkpoint
     from .outdir import install_signal_handlers
-    from .output import BodyMomenta, HistoryWriter, ImpactLog, Progress, RunStatistics, VTKWriter, find_probes
+    from .output import BodyMomenta, HistoryWriter, ImpactLog, Progress, RunStatistics, VTKWriter
 
     install_signal_handlers()   # again: PETSc, imported just now, installs its own (SIGHUP, SIGQUIT)
 
     solver = case.solver
-    meshdata = build_mesh(case.mesh, comm)
-    model = build_model(model_spec(case), meshdata)
-    cons = build_constraints(case.contacts, model)
-    check_initial_state(cons, model)
-    probes = find_probes(case, model)
-    system = model_of(case)(case, model, cons)
+    system = build_system(case, comm, check_initial=True, probes=True)
+    model, cons, probes = system.model, system.constraints, system.probes
+    meshdata = model.meshdata
     if changed:   # a restart under other loads: from the checkpoint's load at its time to the case's after it
         system.operators.load = checkpoint.ChangedLoad(system.operators.load)
     integrator = make_integrator(case, system.operators)

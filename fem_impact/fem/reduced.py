@@ -15,20 +15,18 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-from mpi4py import MPI
 from petsc4py import PETSc
 
 from .. import cache
 from ..errors import ModelInputError
 from ..linalg.factor import direct_solver_settings, factorize
-from ..mechanics.system import Operators
+from .fields import StateFields
 from .specs import ReductionSpec
 from .model import Model, load_factor
 from .modes import ModeCountError, Modes, compute_modes, free_dof_count, solver_settings, warn_if_split
 from ..parallel import allsum
 
-if TYPE_CHECKING:   # (type hints only: the contact rows and the steps this model is read from)
-    from ..integrators.state import StepState
+if TYPE_CHECKING:   # (type hints only: the contact rows this model is built for)
     from ..nonsmooth.relation import Constraints
 
 log = logging.getLogger(__name__)
@@ -186,173 +184,19 @@ class StaticCorrection:
         return np.einsum("ji,ik,jk->j", c_mean, self.load_gram, c1 - c0)
 
 
-class ReducedFields:
-    """Physical fields from the modal state: ``u = Y1 Z + X_R c(t) - X_P F`` (+ velocities).
-
-    The static part is massless: its velocity is its change over the last step divided by dt.
-    Probes read the same few rows every step, so their rows of Y1, X_R and X_P are cut out once
-    and the static part of the previous step is kept, not recomputed.
-    """
-
-    __checkpoint__ = ("_previous", "_before")   # the steps the static part's velocity differences from
-
-    def __init__(self, Y1: np.ndarray, XR: np.ndarray | None, XP: np.ndarray | None, static, cons: Constraints, dt):
-        self.Y1, self.XR, self.XP, self.static, self.cons, self.dt = Y1, XR, XP, static, cons, dt
-        self._previous = None   # (t, force) of the previous step, for the static part's velocity
-        self._before = None     # ... and of the one before it (a step read again: a restarted run's first)
-        self._blocks: dict[bytes, tuple] = {}     # rows -> (Y1, X_R, X_P rows, [t, static part])
-        self._readers: dict[bytes, object] = {}   # point_reader's, by their dofs
-
-    def _block(self, rows):
-        if isinstance(rows, slice):
-            return self.Y1, self.XR, self.XP, None
-        key = rows.tobytes()
-        if key not in self._blocks:
-            static = self.static is not None
-            self._blocks[key] = (self.Y1[rows], self.XR[rows] if static else None, self.XP[rows] if static else None,
-                                 [None, None])
-        return self._blocks[key]
-
-    def _static_and_rate(self, XR, XP, state: StepState, last: list | None = None):
-        """The static part ``X_R c(t) - X_P F`` seen through (XR, XP), and its change over the last
-        step divided by dt (0 on the first). ``last``: [t, value] of the previous call, reused."""
-        now = XR @ self.static.coefficients(state.t) - XP @ state.force
-        rate = 0.0
-        reference = self._previous
-        if reference is not None and reference[0] >= state.t:
-            reference = self._before
-        if reference is not None and reference[0] < state.t:
-            t0, f0 = reference
-            before = last[1] if last is not None and last[0] == t0 else XR @ self.static.coefficients(t0) - XP @ f0
-            rate = (now - before) / (state.t - t0)
-        if last is not None:
-            last[:] = [state.t, now]
-        return now, rate
-
-    def _parts(self, state: StepState, rows):
-        Y, XR, XP, last = self._block(rows)
-        u = Y @ state.U
-        v = Y @ state.V
-        if self.static is None:
-            return u, v
-        now, rate = self._static_and_rate(XR, XP, state, last)
-        return u + now, v + rate
-
-    def at(self, state: StepState, dofs: np.ndarray):
-        return self._parts(state, dofs)
-
-    def _static_block(self, XR, XP, block, last: list | None = None, shape=None):
-        """``_static_and_rate`` for each step of a block (no contact force in it): (L x k) each, for
-        the rows XR, XP (k x nl, k x p); ``last`` keeps the last step's value in ``shape``."""
-        now = block.coefficients @ XR.T
-        rate = np.empty_like(now)
-        t = block.t
-        rate[0] = 0.0
-        if self._previous is not None and self._previous[0] < t[0]:
-            t0, f0 = self._previous
-            first = last[1] if last is not None and last[0] == t0 else XR @ self.static.coefficients(t0) - XP @ f0
-            rate[0] = (now[0] - np.ravel(first)) / (t[0] - t0)
-        rate[1:] = (now[1:] - now[:-1]) / (t[1:] - t[:-1])[:, None]
-        if last is not None:
-            last[:] = [float(t[-1]), now[-1].reshape(shape) if shape is not None else now[-1]]
-        return now, rate
-
-    def at_block(self, block, dofs: np.ndarray):
-        """``at`` for every step of a block (fem_impact/integrators/blocks.py): arrays (L, *dofs.shape)."""
-        Y, XR, XP, last = self._block(dofs)
-        shape = Y.shape[:-1]
-        flat = lambda X: X.reshape(int(np.prod(shape)), X.shape[-1])   # noqa: E731
-        u, v = block.U @ flat(Y).T, block.V @ flat(Y).T
-        if self.static is not None:
-            now, rate = self._static_block(flat(XR), flat(XP), block, last, shape)
-            u, v = u + now, v + rate
-        return u.reshape(len(block), *shape), v.reshape(len(block), *shape)
-
-    def frame_in(self, block, j: int) -> dict[str, np.ndarray]:
-        """``frame`` of step j of a block (its static part's rate from the block's step before)."""
-        state = block.state(j)
-        saved = self._previous
-        if j:
-            self._previous = (float(block.t[j - 1]), block.force[j - 1])
-        try:
-            return self.frame(state)
-        finally:
-            self._previous = saved
-
-    def inertial_at(self, state: StepState, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The kept modes' velocity and acceleration: what carries mass and damping (the static
-        part has neither)."""
-        Y = self._block(dofs)[0]
-        return Y @ state.V, Y @ state.A
-
-    def frame(self, state: StepState) -> dict[str, np.ndarray]:
-        u, v = self._parts(state, slice(None))
-        force = -(self.cons.P_local @ state.force)
-        if state.tangential is not None:   # friction (the model without static correction)
-            force -= self.cons.tangent_local @ state.tangential
-        return {"u": u, "v": v, "a": self.Y1 @ state.A, "contact_force": force}
-
-    def velocity_functionals(self, rows: np.ndarray, comm: MPI.Comm):
-        """A reader of ``rows^T v`` at each step for a few fixed rows (owned entries, n_local x k),
-        e.g. body momenta: the rows are projected on the modes and the static columns once, so a
-        step costs k x n1 operations on replicated data and no reduction."""
-        rows_Y = allsum(comm, rows.T @ self.Y1)
-        rows_R = allsum(comm, rows.T @ self.XR) if self.static is not None else None
-        rows_P = allsum(comm, rows.T @ self.XP) if self.static is not None else None
-        last = [None, None]
-
-        def read(state: StepState) -> np.ndarray:
-            values = rows_Y @ state.V
-            if self.static is not None:
-                values = values + self._static_and_rate(rows_R, rows_P, state, last)[1]
-            return values
-
-        def read_block(block) -> np.ndarray:
-            values = block.V @ rows_Y.T
-            if self.static is not None:
-                values = values + self._static_block(rows_R, rows_P, block, last)[1]
-            return values
-        read.block = read_block   # (L x k) for a block of steps
-        return read
-
-    def point_reader(self, dofs: np.ndarray, comm: MPI.Comm):
-        """A reader of (u, v) at a few points' dofs (n x dim, the owner's local dof, -1 elsewhere), as
-        ``at`` on every rank: their rows of the modes and static columns gathered once, so a step
-        costs no reduction (the reduced model's step is replicated; a probe's sum would be the one
-        collective of its step). Built on the first call (collective), kept for the same dofs."""
-        key = dofs.tobytes() + str(dofs.shape).encode()
-        if key in self._readers:
-            return self._readers[key]
-        mine = dofs >= 0
-        picked = lambda X: allsum(comm, np.where(mine[..., None], X[np.where(mine, dofs, 0)], 0.0))  # noqa: E731
-        Y = picked(self.Y1)
-        XR, XP = (picked(self.XR), picked(self.XP)) if self.static is not None else (None, None)
-        last = [None, None]
-
-        def read(state: StepState) -> tuple[np.ndarray, np.ndarray]:
-            u, v = Y @ state.U, Y @ state.V
-            if self.static is None:
-                return u, v
-            now, rate = self._static_and_rate(XR, XP, state, last)
-            return u + now, v + rate
-        self._readers[key] = read
-        return read
-
-    def write(self, state: StepState) -> None:
-        """Observer hook, registered last: remembers the step for the next velocity difference."""
-        if self._previous is None or self._previous[0] < state.t:
-            self._before = self._previous
-        self._previous = (state.t, state.force.copy())
-
-    def write_block(self, block) -> None:
-        self._before = (float(block.t[-2]), block.force[-2].copy()) if len(block) > 1 else self._previous
-        self._previous = (float(block.t[-1]), block.force[-1].copy())
-
-
 @dataclass
 class ReducedModel:
-    operators: Operators
-    fields: ReducedFields
+    """The modal equations ``Z'' + C Z' + diag(w1^2) Z + (P Y1)^T lam = Y1^T R(t)`` (M = I) and how to
+    read physical fields from Z; the builder makes them the integrators' ``Operators``
+    (fem_impact/build.py)."""
+
+    stiffness: np.ndarray               # w1^2 (n1)
+    damping: np.ndarray | None          # alpha + beta w1^2 (n1), None without damping
+    load: ModalLoad                     # Y1^T R(t)
+    rows: np.ndarray                    # (P Y1)^T (n1 x p)
+    tangents: np.ndarray | None         # (P_T Y1)^T (n1 x pt) with friction, else None
+    static: StaticCorrection | None     # the truncated modes' static part seen from the rows
+    fields: StateFields
     Z0: np.ndarray
     Zdot0: np.ndarray
     modes: int
@@ -419,16 +263,13 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
         )
     # The modal equations are diagonal: M = I, K = diag(w1^2), C = diag(alpha + beta w1^2).
     C = (alpha + beta * w2) if (alpha or beta) else None
-    friction = {}
-    if cons.pt:   # tangent rows on the modes (friction: the case allows it without the static correction)
-        friction = dict(friction=cons.friction, tangents=allsum(comm, cons.tangent_local.T @ Y1).T.copy(),
-                        tangent_of=cons.tangent_of)
-    ops = Operators(np.ones(n1), w2.copy(), C, modal_load, Pr.T.copy(), cons.d0, cons.restitution, static=static,
-                    stop_compliance=cons.compliance, laws=cons.laws, **friction)
-    fields = ReducedFields(Y1, XR if static else None, XP if static else None, static, cons, dt)
+    # tangent rows on the modes (friction: the case allows it without the static correction)
+    tangents = allsum(comm, cons.tangent_local.T @ Y1).T.copy() if cons.pt else None
+    fields = StateFields(cons, Y1, XR if static else None, XP if static else None, static, dt)
     cutoff = float(np.sqrt(w2[-1]) / (2 * np.pi))
     log.info("reduced model: %d modes (cut-off %.4g Hz), static correction %s", n1, cutoff, static_correction)
-    return ReducedModel(ops, fields, Z0, Zdot0, n1, cutoff, neglected, full)
+    return ReducedModel(w2.copy(), C, modal_load, Pr.T.copy(), tangents, static, fields, Z0, Zdot0, n1, cutoff,
+                        neglected, full)
 
 
 def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tuple[ReducedModel, dict]:

@@ -366,25 +366,19 @@ def reduced_scene(case) -> ReducedScene:
     when it is not one shooting takes (the method is not modal, a static correction, elastic stops)."""
     from mpi4py import MPI
 
-    from ..app.output import find_probes
-    from ..app.pipeline import reduced_model
-    from ..config.build import model_spec
-    from ..fem.mesh import build_mesh
-    from ..fem.model import build_model
+    from ..build import build_system
     from ..integrators import is_reduced
-    from ..nonsmooth.relation import build_constraints
 
     if not is_reduced(case.solver):
         raise ShootingError("shooting takes the reduced model (solver.method: modal, static_correction: false)")
-    model = build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_SELF))
-    cons = build_constraints(case.contacts, model)
-    red = reduced_model(case, model, cons)
-    system = ReducedSystem.from_operators(red.operators)
-    probes = find_probes(case, model)
-    Y1 = red.fields.Y1
+    built = build_system(case, MPI.COMM_SELF, probes=True)
+    probes = built.probes
+    system = ReducedSystem.from_operators(built.operators)
+    Y1 = built.fields.Y1
     rows = np.array([[Y1[d] for d in dofs] for dofs in probes.owned_dofs]).reshape(-1, Y1.shape[1])
-    start = np.concatenate([np.asarray(red.U0, float), np.asarray(red.V0, float)])
-    return ReducedScene(system, start, probes.names, rows, probes.dim, [(c.name, c.rows) for c in cons.contacts])
+    start = np.concatenate([np.asarray(built.U0, float), np.asarray(built.V0, float)])
+    return ReducedScene(system, start, probes.names, rows, probes.dim,
+                        [(c.name, c.rows) for c in built.constraints.contacts])
 
 
 def impulses(system: ReducedSystem, impacts: list, held: np.ndarray | None = None) -> np.ndarray:

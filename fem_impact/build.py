@@ -1,0 +1,128 @@
+"""The one place a case becomes objects: mesh -> finite-element model -> contact constraints -> the
+system the time loop integrates (the full model, or the reduced one of ``method: modal``) and its
+integrator. The pipeline, the studies, periodic/, the tests and the benchmarks all build through it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from mpi4py import MPI
+
+from .fem.specs import ModelSpec, ReductionSpec
+
+if TYPE_CHECKING:   # (type hints only: the modules below load dolfinx and PETSc)
+    from .config.case import Case
+    from .fem.fields import StateFields
+    from .fem.model import Model
+    from .fem.probes import Probes
+    from .fem.reduced import ReducedModel
+    from .mechanics.system import Operators
+    from .nonsmooth.relation import Constraints
+
+
+def model_spec(case: Case) -> ModelSpec:
+    """What builds the finite-element model (fem_impact.fem.model.build_model)."""
+    groups = [(("contacts", i, "nodes"), group) for i, contact in enumerate(case.contacts) for group in contact.nodes]
+    return ModelSpec(case.material, dict(case.materials or {}), case.damping, case.initial, list(case.supports),
+                     list(case.loads), case.solver.mass, case.mesh.hypothesis, case.mesh.axis or "y", groups)
+
+
+def reduction_spec(case: Case) -> ReductionSpec:
+    """The reduced model's choices of a ``method: modal`` case (fem_impact.fem.reduced)."""
+    solver = case.solver
+    return ReductionSpec(solver.modes, solver.tolerance, solver.static_correction, solver.dt, solver.t_end,
+                         case.output.every,
+                         case.damping.alpha, case.damping.beta)
+
+
+def finite_element_model(case: Case, comm: MPI.Comm | None = None) -> Model:
+    """The case's mesh and finite-element model (M, K, C, loads, supports; ``model.meshdata``)."""
+    from .fem.mesh import build_mesh
+    from .fem.model import build_model
+
+    return build_model(model_spec(case), build_mesh(case.mesh, MPI.COMM_WORLD if comm is None else comm))
+
+
+def model_and_constraints(case: Case, comm: MPI.Comm | None = None) -> tuple[Model, Constraints]:
+    """The finite-element model and the case's contact constraints on it."""
+    from .nonsmooth.relation import build_constraints
+
+    model = finite_element_model(case, comm)
+    return model, build_constraints(case.contacts, model)
+
+
+@dataclass
+class System:
+    """What a case builds: the model and its constraints, the operators the time loop integrates, how
+    to read physical fields from their state, the initial state and what the construction found."""
+
+    model: Model
+    constraints: Constraints
+    probes: Probes | None        # the case's output.probes (None: not asked for)
+    operators: Operators
+    fields: StateFields
+    U0: object                   # the initial state: PETSc vectors (full model) or modal coordinates
+    V0: object
+    summary: dict                # keys of the run's summary: the reduced model's modes, ...
+    reduced: ReducedModel | None = None   # the reduced model (method: modal), else None
+
+
+def build_system(case: Case, comm: MPI.Comm | None = None, *, check_initial: bool = False,
+                 probes: bool = False) -> System:
+    """Build ``case`` on ``comm`` (default ``MPI.COMM_WORLD``): the reduced model for ``method: modal``,
+    else the finite-element system itself. ``check_initial``: refuse an initial state that violates
+    a contact (ModelInputError) before the operators are built; ``probes``: locate output.probes."""
+    from .fem.probes import find_probes
+    from .integrators import is_reduced
+    from .nonsmooth.relation import check_initial_state
+
+    model, cons = model_and_constraints(case, comm)
+    if check_initial:
+        check_initial_state(cons, model)
+    found = find_probes(case.output.probes, model) if probes else None
+    system = (reduced_system if is_reduced(case.solver) else full_system)(case, model, cons)
+    system.probes = found
+    return system
+
+
+def full_system(case: Case, model: Model, cons: Constraints) -> System:
+    """The finite-element system itself (the full methods: moreau_jean, newmark, central_difference)."""
+    from .fem.fields import StateFields
+    from .mechanics.system import Operators
+
+    ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
+                    massless=model.massless, stop_compliance=cons.compliance,
+                    friction=cons.friction if cons.pt else None, tangents=cons.tangent_local,
+                    tangent_of=cons.tangent_of, laws=cons.laws)
+    return System(model, cons, None, ops, StateFields(cons), model.U0, model.V0, {"modes": None})
+
+
+def reduced_system(case: Case, model: Model, cons: Constraints) -> System:
+    """Kept modes plus the static correction of the truncated ones (method ``modal``)."""
+    from .fem.reduced import prepare_reduced
+
+    red, summary = prepare_reduced(reduction_spec(case), model, cons)
+    return System(model, cons, None, reduced_operators(red, cons), red.fields, red.Z0, red.Zdot0, summary, red)
+
+
+def reduced_operators(red: ReducedModel, cons: Constraints) -> Operators:
+    """The reduced model's modal equations as the integrators' operators, small and replicated: M = I,
+    diagonal K and C, the contact rows on the modes (the rows' gaps, restitution, stops and friction)."""
+    import numpy as np
+
+    from .mechanics.system import Operators
+
+    friction = {}
+    if cons.pt:
+        friction = dict(friction=cons.friction, tangents=red.tangents, tangent_of=cons.tangent_of)
+    return Operators(np.ones(red.modes), red.stiffness, red.damping, red.load, red.rows, cons.d0, cons.restitution,
+                     static=red.static, stop_compliance=cons.compliance, laws=cons.laws, **friction)
+
+
+def make_integrator(case: Case, operators: Operators):
+    """The time integrator of ``solver.method`` (the reduced model: of its ``solver.scheme``)."""
+    from .integrators import integrator_class, scheme_of
+
+    return integrator_class(scheme_of(case.solver)).from_solver(operators, case.solver)
