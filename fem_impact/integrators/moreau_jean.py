@@ -103,7 +103,6 @@ class MoreauJean(ContactScheme):
         # compliance and a static part's on the diagonal, the laws' memory in q (nonsmooth/problem.py).
         self.lcp = OneStepProblem(self.W, ops.laws, dt, compliance_scale=theta * dt * dt, row_scale=theta * dt,
                                   static=static.compliance if static is not None else None)
-        compliance = self.lcp.compliance
         # Elastic rows: a law's compliance (an elastic stop's), or a row the reduced model's static part
         # makes compliant.
         self.elastic = self.lcp.elastic.copy()
@@ -116,7 +115,7 @@ class MoreauJean(ContactScheme):
         self.friction = self.r_prev = None
         self.friction_residual, self.friction_sweeps, self.friction_retries = 0.0, 0, 0
         if ops.pt:
-            self._build_friction(compliance)
+            self._build_friction()
         new = self.alg.vector
         self.KU, self.KV, self.KV_prev = new(), new(), new()
 
@@ -130,7 +129,7 @@ class MoreauJean(ContactScheme):
             pv, jump = pv_free - Wp, float(np.abs(Wp).max())
         return impulse, pv, jump
 
-    def _build_friction(self, compliance: np.ndarray) -> None:
+    def _build_friction(self) -> None:
         """The frictional one-step problem on ``[P; P_T]`` (docs/theory.md s. 11).
 
         A rigid row with friction takes Newton's law and Coulomb's at the velocity level (De
@@ -147,11 +146,10 @@ class MoreauJean(ContactScheme):
         clock = time.perf_counter()
         shifted, self.G_all, roundoff = self.rows.delassus(self.solve_S, norm=self.alg.norm(self.S))
         self.timings["W with tangents"] = time.perf_counter() - clock
-        # The elastic rows' compliance on the normal block (in place: W is (p + pt)^2, the largest
+        # The one-step problem's compliance on the normal block (in place: W is (p + pt)^2, the largest
         # array of a frictional run); the step's products W r come from the solution's y = W r + q.
-        shifted[:ops.p, :ops.p] += compliance / (theta * dt * dt)
         # (kept only where some row is compliant: a p x p product per step otherwise for nothing)
-        self.compliance = compliance / (theta * dt * dt) if np.any(compliance) else None
+        self.compliance = self.lcp.shift_normal_block(shifted, ops.p)
         self._degenerate = self.alg.sizes[1] < ops.p + ops.pt
         if self._degenerate:
             # More contact unknowns than the motion has (a reduced model with fewer modes): W is

@@ -34,7 +34,7 @@ class OneStepProblem:
     def __init__(self, W, laws: RowLaws, h: float, weight: float = 1.0, compliance_scale: float = 1.0,
                  row_scale: float = 1.0, static: np.ndarray | None = None):
         c, self._memory = laws.terms(h)
-        self.laws, self.h, self.row_scale = laws, h, row_scale
+        self.laws, self.h, self.row_scale, self._scale = laws, h, row_scale, compliance_scale
         self.stop_compliance = c
         A = W if weight == 1.0 else weight * W
         self.elastic = c > 0.0
@@ -52,6 +52,13 @@ class OneStepProblem:
     @property
     def shape(self) -> tuple[int, int]:
         return self.solver.shape
+
+    def shift_normal_block(self, W_all: np.ndarray, p: int) -> np.ndarray | None:
+        """Add the laws' (and a static part's) compliance to the normal block of a frictional problem's
+        ``W_all`` (normal rows first), in place; returns the scaled compliance, or None without one."""
+        shift = self.compliance if self._scale == 1.0 else self.compliance / self._scale
+        W_all[:p, :p] += shift
+        return shift if np.any(self.compliance) else None
 
     @property
     def has_memory(self) -> bool:
