@@ -1,4 +1,7 @@
-"""Unit tests of the contact law on tiny systems: the exact LCP solver and B0, the bouncing mass."""
+"""The contact laws (fem_impact/nonsmooth/laws.py) and their one-step problem (problem.py): the laws'
+terms and energy hooks, the exact LCP solver, B0 (the bouncing mass) under Newton's law, and a
+damped stop defined and registered here, in this file alone, run by every method that takes
+elastic stops against the closed-form damped oscillator (docs/theory.md s. 2.5)."""
 
 from __future__ import annotations
 
@@ -8,9 +11,14 @@ import numpy as np
 import pytest
 from petsc4py import PETSc
 
+from pydantic import Field
+
+import fem_impact
 from conftest import ConstantLoad
-from fem_impact.nonsmooth.lcp import solve_lcp
-from fem_impact.integrators import MoreauJean, Newmark, Operators, integrate
+from fem_impact.integrators import CentralDifference, MoreauJean, Newmark, Operators, integrate
+from fem_impact.nonsmooth import laws
+from fem_impact.nonsmooth.lcp import Delassus, solve_lcp
+from fem_impact.nonsmooth.problem import OneStepProblem
 
 # The schemes B0 holds for: the paper's, and Moreau-Jean at the position level (the default) and
 # at the velocity level (Newton's law on velocities; its position drifts by up to dt x speed).
@@ -76,9 +84,10 @@ class Recorder:
 
 
 def drop_mass(e, t_end, dt=1e-4, m=2.0, g=9.81, h0=1.0, scheme="newmark"):
-    """Mass m at height h0 above the floor: u is the displacement (up), P u = -u <= h0."""
+    """Mass m at height h0 above the floor: u is the displacement (up), P u = -u <= h0; Newton's law."""
+    newton = laws.RowLaws([(laws.law_of("newton", {"restitution": e}), [0])], 1)
     ops = Operators(one_by_one(m), one_by_one(0.0), None, ConstantLoad(-m * g),
-                    np.array([[-1.0]]), np.array([h0]), np.array([e]))
+                    np.array([[-1.0]]), np.array([h0]), newton.restitution, laws=newton)
     U0 = PETSc.Vec().createSeq(1)
     V0 = U0.duplicate()
     U0.set(0.0)
@@ -105,6 +114,7 @@ V1 = np.sqrt(2 * G * H0)
 def test_b0_impact_times_and_rebound_speeds(e, scheme):
     h = drop_mass(e, 3.0, DT, scheme=scheme)
     times, v_after = impacts(h, DT)
+    assert len(times) >= 3   # (three flights in 3 s at e = 0.8 and e = 1)
     k = np.arange(min(len(times), 6))
     exact_t = T1 + 2 * T1 * np.array([sum(e**j for j in range(1, i + 1)) for i in k])
     exact_v = e ** (k + 1) * V1
@@ -139,3 +149,224 @@ def test_b0_plastic_impact_sticks_at_once(scheme):
     np.testing.assert_allclose(h[after, 2], 0.0, atol=1e-9)
     np.testing.assert_allclose(h[after, 1], -H0, atol=1e-12 if scheme in EXACT_REST else DT * V1)
     assert h[-1, 6] == pytest.approx(0.5 * 2.0 * V1**2, rel=2 * G * DT / V1 * 2)
+
+
+# --- the laws' hooks and the one-step problem ------------------------------------------------
+
+def test_built_in_laws_give_their_terms_and_stored_energy():
+    newton, stop = laws.law_of("newton", {"restitution": 0.7}), laws.law_of("elastic_stop", {"stiffness": 4.0})
+    assert newton.one_step(1e-3) == laws.LawTerms(restitution=0.7)
+    assert stop.one_step(1e-3) == laws.LawTerms(compliance=0.25)
+    np.testing.assert_allclose(stop.stored(np.array([2.0, 0.0]), np.array([-0.5, 0.1])), [0.5, 0.0])
+    assert not newton.stored(np.array([3.0]), np.array([0.0])).any()
+    assert {"newton", "elastic_stop"} <= set(laws.LAWS)
+    assert laws.LAWS["elastic_stop"].keys.model_fields["stiffness"].metadata   # (gt=0: the case's range)
+
+
+def test_row_laws_place_each_law_on_its_rows_and_book_per_column(damped_stop):
+    rows = laws.RowLaws([(laws.law_of("newton", {"restitution": 0.5}), [0, 2]),
+                         (laws.law_of("damped_stop", {"stiffness": 100.0, "damping": 10.0}), [1])],
+                        3, cones=[(laws.Coulomb(0.3), np.array([2]))])
+    h = 0.01
+    c, m = rows.terms(h)
+    np.testing.assert_allclose(c, [0.0, 1.0 / (100.0 + 10.0 / h), 0.0])
+    np.testing.assert_allclose(m, [0.0, (10.0 / h) / (100.0 + 10.0 / h), 0.0])
+    np.testing.assert_array_equal(rows.restitution, [0.5, 0.0, 0.5])
+    np.testing.assert_array_equal(rows.friction, [0.0, 0.0, 0.3])
+    assert rows.extra_columns() == ["stop_damping_loss"]
+    work = rows.work(np.array([1.0, 2.0, 3.0]), np.array([1.0, 1.0, 1.0]))
+    assert work == {"contact_loss": 4.0, "stop_damping_loss": 2.0}
+    stored = rows.stored(np.array([1.0, 5.0, 0.0]), np.array([0.0, -0.1, 0.2]))
+    assert stored == pytest.approx({"contact_loss": 0.0, "stop_damping_loss": 0.5 * 100.0 * 0.01})
+    np.testing.assert_allclose(rows.memory(h, np.array([-1.0, -0.2, 0.5])), [0.0, 0.2 * m[1], 0.0])
+
+
+def test_one_step_problem_is_the_integrators_lcp_with_the_laws_terms(damped_stop):
+    """The assembled LCP is ``a W + diag(c)/(tau sigma)`` and ``q_free + m max(-g0, 0)/sigma``; its
+    solution is the damped stop's force ``max(0, k delta + c_d (delta - delta0+)/h)``."""
+    k, c_d, h, W = 100.0, 10.0, 0.01, np.array([[2.0]])
+    rows = laws.RowLaws([(laws.law_of("damped_stop", {"stiffness": k, "damping": c_d}), [0])], 1)
+    problem = OneStepProblem(W, rows, h, weight=0.25 * h * h, compliance_scale=1.0)
+    kh = k + c_d / h
+    np.testing.assert_allclose(problem.matrix, 0.25 * h * h * W + 1.0 / kh)
+    for delta_free, delta0 in [(0.02, 0.0), (0.02, 0.015), (0.005, 0.02), (-0.01, -0.02), (0.03, -0.01)]:
+        q = problem.q(np.array([-delta_free]), np.array([-delta0]))
+        force = problem.solve(q)[0][0]
+        delta = delta_free - 0.25 * h * h * W[0, 0] * force      # the penetration the force leaves
+        expected = max(0.0, k * delta + c_d / h * (delta - max(delta0, 0.0)))
+        assert force == pytest.approx(expected, rel=1e-12, abs=1e-12)
+    # Moreau-Jean's scaling: impulses, rows divided by theta h.
+    theta = 0.5
+    mj = OneStepProblem(W, rows, h, compliance_scale=theta * h * h, row_scale=theta * h)
+    np.testing.assert_allclose(mj.matrix, W + 1.0 / kh / (theta * h * h))
+    np.testing.assert_allclose(mj.q(np.zeros(1), np.array([-0.02])), rows.memory(h, np.array([-0.02])) / (theta * h))
+    # Rigid and elastic laws alone: no memory, q unchanged (the very array).
+    rigid = OneStepProblem(W, laws.RowLaws.from_arrays(np.array([0.5])), h)
+    q = np.array([-1.0])
+    assert rigid.q(q, np.array([0.3])) is q and isinstance(rigid.solver, Delassus)
+
+
+# --- a damped stop, defined and registered here alone ------------------------------------------
+
+class DampedStopKeys(laws.LawKeys):
+    stiffness: float = Field(gt=0.0, description="spring stiffness (N/m)")
+    damping: float = Field(ge=0.0, description="dashpot coefficient in parallel with the spring (N s/m)")
+
+
+class DampedStop(laws.ContactLaw):
+    """A Kelvin-Voigt stop that cannot pull: ``F = max(0, k delta + c delta')`` while pressed
+    (docs/theory.md s. 2.5: the spring at the step's end, the dashpot on the step's mean rate)."""
+
+    name = "damped_stop"
+    keys = DampedStopKeys
+    summary = "a spring and a dashpot in parallel on each row, pushing only"
+    column = "stop_damping_loss"
+
+    def compliance(self) -> float:
+        return 1.0 / self.params.stiffness
+
+    def one_step(self, h: float) -> laws.LawTerms:
+        k, c = self.params.stiffness, self.params.damping
+        return laws.LawTerms(compliance=1.0 / (k + c / h), memory=(c / h) / (k + c / h))
+
+    def stored(self, force: np.ndarray, gap: np.ndarray) -> np.ndarray:
+        return 0.5 * self.params.stiffness * np.maximum(-gap, 0.0) ** 2
+
+
+@pytest.fixture
+def damped_stop():
+    laws.register(DampedStop)
+    yield DampedStop
+    laws.unregister(DampedStop.name)
+
+
+M_, K_, V0_, GAP_ = 2.0, 8.0e4, 1.5, 0.01   # kg, N/m, m/s, m
+OMEGA = np.sqrt(K_ / M_)
+STOP_SCHEMES = {"newmark": Newmark, "moreau_jean": MoreauJean, "central_difference": CentralDifference,
+                "moreau_jean_theta": lambda ops, dt: MoreauJean(ops, dt, theta=0.6)}
+
+
+def rebound_ratio(zeta):
+    """A stop that cannot pull lets go where its force vanishes: omega_d t = pi - 2 asin(zeta)."""
+    return np.exp(-zeta * (np.pi - 2.0 * np.arcsin(zeta)) / np.sqrt(1.0 - zeta * zeta))
+
+
+class StopRecorder:
+    def __init__(self):
+        self.rows = []
+
+    def write(self, s):
+        e = s.energy
+        self.rows.append((s.t, s.U[0], s.V[0], s.force[0], e.kinetic, e.strain, e.error,
+                          e.losses.get("stop_damping_loss", 0.0), e.contact_loss, e.impact_loss + e.numerical_loss))
+
+    def array(self):
+        return np.array(self.rows)
+
+
+def damped_bounce(scheme, zeta, dt):
+    """A mass at v0 toward a damped stop a gap away (no gravity): P u = u <= gap."""
+    stop = laws.law_of("damped_stop", {"stiffness": K_, "damping": 2.0 * M_ * OMEGA * zeta})
+    rows = laws.RowLaws([(stop, [0])], 1)
+    ops = Operators(one_by_one(M_), one_by_one(0.0), None, ConstantLoad(0.0), np.array([[1.0]]),
+                    np.array([GAP_]), rows.restitution, laws=rows)
+    U0, V0 = PETSc.Vec().createSeq(1), PETSc.Vec().createSeq(1)
+    U0.set(0.0)
+    V0.set(V0_)
+    rec = StopRecorder()
+    integrate(STOP_SCHEMES[scheme](ops, dt), U0, V0, GAP_ / V0_ + 3.0 / OMEGA * np.pi, [rec])
+    return rec.array()
+
+
+@pytest.mark.parametrize("scheme", STOP_SCHEMES)
+@pytest.mark.parametrize("zeta", [0.05, 0.3])
+def test_a_damped_stop_defined_here_rebounds_as_the_damped_oscillator(damped_stop, scheme, zeta):
+    """Rebound ratio exp(-zeta (pi - 2 asin zeta) / sqrt(1 - zeta^2)); the stop's column holds the
+    kinetic energy lost; the balance closes to 1e-10 of the energy; the force never pulls."""
+    dt = 1e-3 / OMEGA
+    h = damped_bounce(scheme, zeta, dt)
+    t, u, v, f = h[:, 0], h[:, 1], h[:, 2], h[:, 3]
+    e0 = 0.5 * M_ * V0_**2
+    exact = rebound_ratio(zeta)
+    # (first order in omega dt: the dashpot acts on the step's mean rate, central difference one step late)
+    tol = 5.0 * OMEGA * dt
+    assert -v[-1] / V0_ == pytest.approx(exact, rel=tol)
+    assert np.abs(h[:, 6]).max() < 1e-10 * e0                       # the balance closes
+    assert f.min() >= 0.0 and f.max() > 0.0                         # pushes, never pulls
+    assert h[-1, 7] == pytest.approx(e0 * (1.0 - exact**2), rel=2 * tol)   # the stop's loss: what the mass lost
+    assert h[-1, 7] + h[-1, 8] + h[-1, 9] == pytest.approx(e0 - h[-1, 4], rel=1e-10)
+    assert abs(h[-1, 8]) <= 1e-12 * e0   # (nothing of it booked as the rigid rows' contact loss)
+    assert h[-1, 5] == 0.0 and u[-1] < GAP_                         # left the stop: it stores nothing
+    touching = np.flatnonzero(f > 0.0)
+    omega_d = OMEGA * np.sqrt(1.0 - zeta**2)
+    assert (touching[-1] - touching[0] + 1) * dt == pytest.approx((np.pi - 2 * np.arcsin(zeta)) / omega_d,
+                                                                  rel=tol, abs=3 * dt)
+
+
+def test_a_damped_stop_converges_at_first_order(damped_stop):
+    """Moreau-Jean's error in the rebound ratio halves with the step."""
+    zeta = 0.2
+    errors = [abs(-damped_bounce("moreau_jean", zeta, dt)[-1, 2] / V0_ - rebound_ratio(zeta))
+              for dt in (4e-3 / OMEGA, 2e-3 / OMEGA)]
+    assert errors[1] < 0.6 * errors[0]
+
+
+BAR = {   # B2a: a free bar of length 1 (c = 1) at -1 toward a wall 0.1 away, here a damped stop
+    "mesh": {"shape": "bar", "cells": 50},
+    "material": {"E": 1.0, "rho": 1.0},
+    "initial": {"velocity": [-1.0]},
+    "contacts": [{"name": "wall", "type": "obstacle", "nodes": "left", "normal": [-1.0], "gap": 0.1,
+                  "law": "damped_stop", "stiffness": 50.0, "damping": 2.0}],
+    "solver": {"dt": 0.01, "t_end": 3.0},
+    "output": {"vtk": False},
+}
+
+
+@pytest.mark.parametrize("method", ["moreau_jean", "newmark", "central_difference", "modal"])
+def test_a_registered_damped_stop_runs_in_every_method_that_takes_elastic_stops(damped_stop, method):
+    """From the case file: the law's keys validated by its schema, its loss in its own history
+    column, the balance closed to 1e-10 of the energy scale (the paper's Newmark and central
+    difference book position-level forces, which may give some of it back within an impact)."""
+    solver = {"method": method}
+    if method == "central_difference":
+        solver.update(dt=0.005, mass="lumped")
+    if method == "modal":
+        solver.update(modes=12)
+    case = fem_impact.Case.from_dict({**BAR, "solver": {**BAR["solver"], **solver}})
+    history = fem_impact.run(case).history
+    loss = history["stop_damping_loss"]
+    e0 = 0.5
+    assert np.abs(history["energy_error"]).max() < 1e-10 * e0
+    assert loss[-1] > 1e-3 * e0 and history["wall.force"].max() > 0.0
+    if method == "moreau_jean":   # (its contacts never give energy back: the loss grows step by step)
+        assert np.all(np.diff(loss) >= -1e-12 * e0)
+    # Without its dashpot the law is the elastic stop: the same history, the stop's loss in its own column.
+    undamped = fem_impact.run(case.with_changes({"contacts.0.damping": 0.0})).history
+    stop = {**BAR["contacts"][0], "law": "elastic_stop"}
+    del stop["damping"]
+    elastic = fem_impact.run(fem_impact.Case.from_dict({**BAR, "contacts": [stop],
+                                                        "solver": {**BAR["solver"], **solver}})).history
+    for name in ("wall.gap", "wall.force", "kinetic", "strain"):
+        np.testing.assert_allclose(undamped[name], elastic[name], rtol=0, atol=1e-12 * max(np.abs(elastic[name]).max(), e0))
+    # (the reduced model's static part books its own share in contact_loss, as with any law)
+    np.testing.assert_allclose(undamped["stop_damping_loss"] + undamped["contact_loss"], elastic["contact_loss"],
+                               rtol=0, atol=1e-12 * e0)
+
+
+def test_a_damped_stops_keys_are_its_schemas(damped_stop):
+    with pytest.raises(fem_impact.CaseError, match="does not use 'restitution'"):
+        fem_impact.Case.from_dict({**BAR, "contacts": [{**BAR["contacts"][0], "restitution": 0.5}]})
+    with pytest.raises(fem_impact.CaseError, match="damping"):
+        fem_impact.Case.from_dict({**BAR, "contacts": [{**BAR["contacts"][0], "damping": -1.0}]})
+
+
+def test_a_damped_stops_loss_column_is_part_of_a_checkpoint(damped_stop, tmp_path):
+    """A run continued from its checkpoint books the law's column on from where it stood."""
+    from test_restart import assert_same_from
+
+    case = fem_impact.Case.from_dict(BAR)
+    full = fem_impact.run(case, tmp_path / "full")
+    fem_impact.run(case.with_changes({"solver.t_end": 1.5}), tmp_path / "half")
+    continued = fem_impact.run(case, tmp_path / "continued", restart=tmp_path / "half")
+    assert full.history["stop_damping_loss"][-1] > 0.0
+    assert_same_from(full.history, continued.history)

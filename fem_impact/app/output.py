@@ -36,6 +36,12 @@ ENERGIES = (
 ENERGY_COLUMNS = tuple(column for column, _, _ in ENERGIES)
 
 
+def energy_columns(cons: Constraints) -> list[str]:
+    """The energy columns of a run's history: the budget's, then the loss columns its contact laws
+    declare (nonsmooth/laws.py, ``ContactLaw.column``), after every other column."""
+    return list(ENERGY_COLUMNS) + cons.laws.extra_columns()
+
+
 @dataclass
 class ColumnGroup:
     """Columns of history.csv filled by one reader: their names, what they hold, and their values at a
@@ -184,6 +190,12 @@ class HistoryWriter:
             groups.append(ColumnGroup(["numerical_loss"], "the scheme's own dissipation (Moreau-Jean, theta > 1/2)",
                                       lambda state: [state.energy.numerical_loss],
                                       lambda block: [block.energy.numerical_loss]))
+        laws = self.cons.laws.extra_columns()   # (constant over a block of steps: no contact acts in it)
+        groups.append(ColumnGroup(laws, "per contact law with a column of its own: the work absorbed on its "
+                                        "rows, less what they store (docs/theory.md s. 2.5)",
+                                  lambda state: [state.energy.losses.get(name, 0.0) for name in laws],
+                                  lambda block: [np.full(len(block), block.energy.losses.get(name, 0.0))
+                                                 for name in laws]))
         return groups
 
     def write(self, state: StepState) -> None:

@@ -375,6 +375,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                            max_friction_residual=integrator.friction_residual,
                            max_friction_sweeps=integrator.friction_sweeps,
                            friction_retries=integrator.friction_retries)
+        # the loss columns the run's contact laws declare beyond contact_loss (added only where they are)
+        summary.update({name: final.energy.losses.get(name, 0.0) for name in cons.laws.extra_columns()})
         if comm.rank == 0 and stage is not None:
             with writing(stage / "summary.json"):
                 (stage / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -42,6 +42,9 @@ def _values(case: Case):
     yield from ((("damping", name), getattr(case.damping, name)) for name in ("alpha", "beta"))
     for index, contact in enumerate(case.contacts):
         yield from ((("contacts", index, name), getattr(contact, name)) for name in ("gap", "stiffness", "friction"))
+        # A registered law's own numbers (those the contact does not hold under the same name already)
+        yield from ((("contacts", index, name), value) for name, value in contact.law_keys.items()
+                    if isinstance(value, float) and getattr(contact, name, None) is None)
         yield from ((("contacts", index, "point", k), x) for k, x in enumerate(contact.point or []))
     yield from ((("solver", name), getattr(case.solver, name)) for name in ("dt", "t_end"))
     # A method's own coefficients (Newmark's beta and gamma, Moreau-Jean's theta): a subnormal beta

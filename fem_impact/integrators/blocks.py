@@ -34,11 +34,11 @@ from .state import StepState
 
 SAFETY = 1e-9          # a gap counts as open above this fraction of the magnitudes it is made of
 # solver.blocks: auto takes blocks from this many steps on: loading Numba and the compiled steps costs
-# about 0.2 s a run (1.5 s the first time, compiling), a step in a block saves about 70 us.
+# a fixed time a run (more the first time, compiling), which the steps in blocks then save.
 AUTO_FROM = 4000
 MIN_BLOCK = 32         # steps: the first block's length, and the shortest one tried
 MAX_BLOCK = 4096       # steps: the longest block (memory: a few arrays of MAX_BLOCK x n)
-_ENERGY = [f.name for f in fields(EnergyBudget)]
+_ENERGY = [f.name for f in fields(EnergyBudget) if f.name != "losses"]   # (the laws' columns: constant in a block)
 
 
 @dataclass
@@ -159,14 +159,15 @@ class StepBlock:
         """The block's first k steps."""
         cut = {name: getattr(self, name)[:k] for name in ("step", "t", "U", "V", "A", "gap", "force", "impulse",
                                                           "normal_displacement", "normal_velocity")}
-        return StepBlock(**cut, energy=BlockEnergy(*(getattr(self.energy, name)[:k] for name in _ENERGY)),
+        return StepBlock(**cut, energy=BlockEnergy(*(getattr(self.energy, name)[:k] for name in _ENERGY), losses=self.energy.losses),
                          previous=self.previous,
                          coefficients=self.coefficients[:k] if self.coefficients is not None else None,
                          carry={name: value[:k] for name, value in self.carry.items()})
 
     def state(self, j: int) -> StepState:
         """Step j of the block as a ``StepState`` (its arrays: views of the block's)."""
-        energy = EnergyBudget(**{name: float(getattr(self.energy, name)[j]) for name in _ENERGY})
+        energy = EnergyBudget(**{name: float(getattr(self.energy, name)[j]) for name in _ENERGY},
+                              losses=dict(self.energy.losses))
         return StepState(step=int(self.step[j]), t=float(self.t[j]), U=self.U[j], V=self.V[j], A=self.A[j],
                          gap=self.gap[j], force=self.force[j], impulse=self.impulse[j], energy=energy,
                          normal_displacement=self.normal_displacement[j],
@@ -324,7 +325,8 @@ class BlockStepper:
             friction_loss=constant(e0.friction_loss),
             numerical_loss=_accumulate(e0.numerical_loss, numerical) if numerical is not None else
             constant(e0.numerical_loss),
-            roundoff=np.finfo(float).eps * ((U * U) @ np.abs(self.open_step.stiffness)) + it._start_roundoff)
+            roundoff=np.finfo(float).eps * ((U * U) @ np.abs(self.open_step.stiffness)) + it._start_roundoff,
+            losses=dict(e0.losses))
         return StepBlock(np.arange(st.step + 1, st.step + size + 1), t, U, V, steps.A, ops.d0 - pu, zeros,
                          zeros.copy(), energy, pu, steps.PV, st,
                          coefficients[1:] if coefficients is not None else None, dict(steps.carry, R=loads[1:]))

@@ -8,7 +8,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..nonsmooth.lcp import delassus_solver
+from ..nonsmooth.problem import OneStepProblem
 from ..linalg.dense import axpy
 from ..mechanics.energy import EnergyBudget
 from ..mechanics.system import Operators
@@ -61,8 +61,8 @@ class CentralDifference(ContactScheme):
             raise ValueError("central difference needs mass on every dof (no mass redistribution)")
         S = ops.algebra.combine((1.0, ops.M), (0.5 * dt, ops.C))
         super().__init__(ops, dt, S, impact_correction=False)
-        # elastic stops: g = d0 - P U + c lam >= 0
-        self.lcp = delassus_solver(dt * dt * self.W, ops.stop_compliance)
+        # the laws' rows: g = d0 - P U + c lam (+ their memory) >= 0 at the step after next
+        self.lcp = OneStepProblem(self.W, ops.laws, dt, weight=dt * dt)
         self.start_matrix = None   # (built at the start if a contact needs it: it takes D)
         self.critical_dt = critical_time_step(ops)
         if dt > self.critical_dt * (1.0 + 1e-9):
@@ -85,8 +85,8 @@ class CentralDifference(ContactScheme):
         if ops.p:
             q = ops.d0 - (pu + dt * pv + 0.5 * dt * dt * pa)
             if np.any(q < 0.0):   # a contact closes in the first step
-                self.start_matrix = delassus_solver(0.5 * dt * dt * self.D, ops.stop_compliance)
-                force, _, _ = self.start_matrix.solve(q)
+                self.start_matrix = OneStepProblem(self.D, ops.laws, dt, weight=0.5 * dt * dt)
+                force, _, _ = self.start_matrix.solve(self.start_matrix.q(q, ops.d0 - pu))
             if force.any():
                 self.H.subtract_from(self.A, force)
         energy = EnergyBudget()
@@ -121,7 +121,7 @@ class CentralDifference(ContactScheme):
             pu, pv_pred, pa = ops.project_many(U, V, A)
             # Forward increment: the force at t1 keeps the gaps at t1 + dt non-negative.
             q = ops.d0 - (pu + dt * pv_pred + dt * dt * pa)
-            force, _, _ = self.lcp.solve(q, guess=st.force > 0.0)
+            force, _, _ = self.lcp.solve(self.lcp.q(q, ops.d0 - pu), guess=st.force > 0.0)
             if force.any():
                 self.G.subtract_from(A, force)
                 pa = pa - self.W @ force
@@ -134,7 +134,7 @@ class CentralDifference(ContactScheme):
         f_mean = 0.5 * (st.force + force)
         impulse = dt * f_mean
         if p:
-            energy.contact_loss += float((pu - st.normal_displacement) @ f_mean)
+            self._book_work(energy, pu - st.normal_displacement, f_mean)
         # K U1 = R1 - C V1 - M A1 - P^T lam1 (the step's equation): two products, M V and M A
         # (diagonal with the lumped mass), and every CHECK_EVERY-th step one with K instead.
         self.alg.mult(ops.M, V, self.MV)
@@ -143,7 +143,7 @@ class CentralDifference(ContactScheme):
         self._step_energies(energy, t1, 0.5, 0.5, self.MV, KU_rest, float(pu.dot(force)) if p else 0.0,
                             scheme_weight=SCHEME_ENERGY * dt * dt)
         # The force of step n keeps the gaps at t_n+1: an elastic stop holds c F_n^2 / 2 at t1.
-        self._book_stops(energy, self._stop_force, st.force)
+        self._book_stops(energy, (self._stop_force, st.gap), (st.force, ops.d0 - pu))
         self._stop_force = st.force
         self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=ops.d0 - pu, force=force,
                                impulse=impulse, energy=energy, normal_displacement=pu, normal_velocity=pv)

@@ -41,7 +41,8 @@ import numpy as np
 
 from ..errors import ContactSolverError
 from ..nonsmooth.friction import FrictionProblem
-from ..nonsmooth.lcp import TINY, Delassus, solve_lcp
+from ..nonsmooth.lcp import TINY, solve_lcp
+from ..nonsmooth.problem import OneStepProblem, carnot_projection
 from .blocks import OpenStep, OpenSteps, diagonal
 from ..linalg.backends import DenseAlgebra
 from ..linalg.dense import axpy
@@ -98,22 +99,23 @@ class MoreauJean(ContactScheme):
         S = ops.algebra.combine((1.0, ops.M), (theta * dt, ops.C), (theta * theta * dt * dt, ops.K))
         super().__init__(ops, dt, S, impact_correction=False)
         static = ops.static
-        # Elastic rows: an elastic stop, or a row the reduced model's static part makes compliant.
-        compliance = np.diag(ops.stop_compliance)
-        if static is not None:
-            compliance = compliance + static.compliance
-        self.elastic = np.diag(compliance) > 0.0
+        # The one-step problem in the impulses, rows divided by theta dt (W stays symmetric): the laws'
+        # compliance and a static part's on the diagonal, the laws' memory in q (nonsmooth/problem.py).
+        self.lcp = OneStepProblem(self.W, ops.laws, dt, compliance_scale=theta * dt * dt, row_scale=theta * dt,
+                                  static=static.compliance if static is not None else None)
+        # Elastic rows: a law's compliance (an elastic stop's), or a row the reduced model's static part
+        # makes compliant.
+        self.elastic = self.lcp.elastic.copy()
         if static is not None:
             self.elastic |= ~static.rigid_rows
         # Position level: every row takes its gap at the end of the step (a rigid row as an elastic
         # one without compliance); the rigid rows with mass then get Carnot's correction.
         self.position_rows = np.ones(ops.p, dtype=bool) if level == "position" else self.elastic
         self.carnot_rows = ~self.elastic & ~ops.massless_rows if level == "position" else np.zeros(ops.p, bool)
-        self.lcp = Delassus.regularized(self.W + compliance / (theta * dt * dt))   # factors kept over the steps
         self.friction = self.r_prev = None
         self.friction_residual, self.friction_sweeps, self.friction_retries = 0.0, 0, 0
         if ops.pt:
-            self._build_friction(compliance)
+            self._build_friction()
         new = self.alg.vector
         self.KU, self.KV, self.KV_prev = new(), new(), new()
 
@@ -127,7 +129,7 @@ class MoreauJean(ContactScheme):
             pv, jump = pv_free - Wp, float(np.abs(Wp).max())
         return impulse, pv, jump
 
-    def _build_friction(self, compliance: np.ndarray) -> None:
+    def _build_friction(self) -> None:
         """The frictional one-step problem on ``[P; P_T]`` (docs/theory.md s. 11).
 
         A rigid row with friction takes Newton's law and Coulomb's at the velocity level (De
@@ -144,11 +146,10 @@ class MoreauJean(ContactScheme):
         clock = time.perf_counter()
         shifted, self.G_all, roundoff = self.rows.delassus(self.solve_S, norm=self.alg.norm(self.S))
         self.timings["W with tangents"] = time.perf_counter() - clock
-        # The elastic rows' compliance on the normal block (in place: W is (p + pt)^2, the largest
+        # The one-step problem's compliance on the normal block (in place: W is (p + pt)^2, the largest
         # array of a frictional run); the step's products W r come from the solution's y = W r + q.
-        shifted[:ops.p, :ops.p] += compliance / (theta * dt * dt)
         # (kept only where some row is compliant: a p x p product per step otherwise for nothing)
-        self.compliance = compliance / (theta * dt * dt) if np.any(compliance) else None
+        self.compliance = self.lcp.shift_normal_block(shifted, ops.p)
         self._degenerate = self.alg.sizes[1] < ops.p + ops.pt
         if self._degenerate:
             # More contact unknowns than the motion has (a reduced model with fewer modes): W is
@@ -225,7 +226,7 @@ class MoreauJean(ContactScheme):
         alg.mult(ops.K, self.V, self.KV)
         if ops.C is not None:
             alg.mult(ops.C, self.V, self.CV)
-        self._book_stops(energy, force, force)
+        self._book_stops(energy, (force, ops.d0 - pu), (force, ops.d0 - pu))
         if ops.static:
             energy.strain += ops.static.energy(t0, force)
         energy.initial = energy.total
@@ -317,7 +318,7 @@ class MoreauJean(ContactScheme):
             pu = self._pu_dyn = ops.project_many(U)[0]
             if ops.static:
                 pu = pu + ops.static.offset(t1) - ops.static.compliance.dot(force)
-            energy.contact_loss += step_contact_loss
+            self._book_work(energy, impulse, 0.5 * (st.normal_velocity + pv_star), total=step_contact_loss)
             energy.impact_loss += restitution_loss
             if tangential is not None:   # the friction impulses' work (_friction_velocity)
                 energy.friction_loss += float(self._r_t.dot(self._friction_velocity(st.tangential_velocity, pt_star)))
@@ -328,7 +329,7 @@ class MoreauJean(ContactScheme):
         self._step_energies(energy, t1, 1.0 - theta, theta, self.MV, KU=self.KU)
         if corrected and ops.C is not None:   # the next step starts from the corrected velocity
             alg.mult(ops.C, V, self.CV)
-        self._book_stored(energy, st, force, t1, theta)
+        self._book_stored(energy, st, force, ops.d0 - pu, t1, theta)
         self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=ops.d0 - pu, force=force,
                                impulse=percussion, energy=energy, normal_displacement=pu, normal_velocity=pv)
         if tangential is not None:
@@ -451,7 +452,7 @@ class MoreauJean(ContactScheme):
         stuck &= np.abs(pt) > ROUND_OFF * max(jump, float(np.abs(pt).max()))
         if not np.count_nonzero(stuck):
             return pv, pt, r_t, 0.0
-        if self._stick_D is None:   # (on the tangent rows only: at 6561 rows 1.4 GB, not 3.1)
+        if self._stick_D is None:   # (on the tangent rows only: less than half the memory of all rows')
             self._stick_D, self._stick_H = self.ops.tangent_rows().delassus(self.solve_M)
         D = self._stick_D
         for _ in range(2):   # (once more without the rows whose total would leave the cone)
@@ -521,7 +522,7 @@ class MoreauJean(ContactScheme):
             el = self.position_rows
             offset = ops.static.offset(t1) if ops.static else 0.0
             g_free = (ops.d0 - offset - self._pu_dyn - dt * (1.0 - theta) * pv0) / (theta * dt) - pv_free
-            q = np.where(el, g_free, q)
+            q = self.lcp.q(np.where(el, g_free, q), gap0)
         return q, active
 
     def _restitution(self, impulse: np.ndarray, pv0: np.ndarray, pv: np.ndarray, pu: np.ndarray,
@@ -548,20 +549,13 @@ class MoreauJean(ContactScheme):
         if not rows.size:
             return pv, 0.0, None
         e = self.ops.restitution[rows]
-        carnot, x = self.carnot, pv[rows]   # (the solver of D keeps the factor while the rows stay)
-
-        def loss_for(target):
-            lam_a = carnot.solve_block(rows, x - target)
-            return lam_a, float(lam_a.dot(x) - 0.5 * lam_a.dot(carnot.matrix[np.ix_(rows, rows)].dot(lam_a)))
-
-        target = -e * np.maximum(pv0[rows], 0.0)
-        # In a persisting contact the held rows end the step at rest to round-off (P V* = -P V0
-        # = 0): no correction, and no solve with M (a face of 1681 rows: a third of the step).
-        if np.abs(x - target).max() <= ROUND_OFF * jump:
+        # (In a persisting contact the held rows end the step at rest to round-off, P V* = -P V0 = 0:
+        # no correction, and no solve with M.)
+        found = carnot_projection(self.carnot, rows, pv[rows], -e * np.maximum(pv0[rows], 0.0), e, contact_loss, jump)
+        if found is None:
             return pv, 0.0, None
-        lam_a, loss = loss_for(target)
-        if contact_loss + loss < 0.0 and np.count_nonzero(e):
-            lam_a, loss = loss_for(e.min() * x)
+        lam_a, loss = found
+        carnot = self.carnot
         lam = np.zeros(self.ops.p)
         lam[rows] = lam_a
         self.H.subtract_from(self.V, lam)

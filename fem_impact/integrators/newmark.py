@@ -6,7 +6,7 @@ import logging
 
 import numpy as np
 
-from ..nonsmooth.lcp import Delassus, impact_correction
+from ..nonsmooth.problem import OneStepProblem, impact_correction
 from .blocks import OpenStep, OpenSteps, diagonal
 from ..linalg.dense import axpy
 from ..mechanics.system import Operators
@@ -50,11 +50,11 @@ class Newmark(ContactScheme):
         S = ops.algebra.combine((1.0, ops.M), (beta * dt * dt, ops.K), (gamma * dt, ops.C))
         super().__init__(ops, dt, S, impact_correction)
         # A quasi-static part (reduced model) makes the contact rows compliant: lam0 then
-        # solves an LCP in beta dt^2 W + P S_k P^T.
-        # An elastic stop adds its compliance c on the diagonal: g = d0 - P U + c lam0 >= 0.
+        # solves an LCP in beta dt^2 W + P S_k P^T; the laws add their compliance on the diagonal
+        # (g = d0 - P U + c lam0 >= 0) and their memory to q (nonsmooth/problem.py).
         static = ops.static
-        self.lcp = Delassus.regularized(beta * dt * dt * self.W + (static.compliance if static else 0.0)
-                                        + np.diag(ops.stop_compliance))
+        self.lcp = OneStepProblem(self.W, ops.laws, dt, weight=beta * dt * dt,
+                                  static=static.compliance if static else None)
         self._check_stop_stiffness()
 
     def _check_stop_stiffness(self) -> None:
@@ -63,15 +63,16 @@ class Newmark(ContactScheme):
         ``r = c / (beta dt^2 W_jj)`` compares the stop's compliance with the row's own over a
         step: below 1 the spring-on-node oscillation (omega dt > 2) is not resolved, the row
         opens and closes within steps and, with no Carnot correction on an elastic row, pumps
-        energy in as position-level multipliers alone do (B2a's bar: +22 % at r = 0.15, 16 x at
-        0.015). Rows with a static compliance in series or without mass do not do this.
+        energy in as position-level multipliers alone do (the further below 1, the more).
+        Rows with a static compliance in series or without mass do not do this.
         """
         ops, dt = self.ops, self.dt
         rigid = ops.static.rigid_rows if ops.static else np.ones(ops.p, dtype=bool)
-        rows = (ops.stop_compliance > 0.0) & rigid & ~ops.massless_rows
+        compliance = self.lcp.stop_compliance
+        rows = (compliance > 0.0) & rigid & ~ops.massless_rows
         if not rows.any():
             return
-        ratio = ops.stop_compliance[rows] / (self.beta * dt * dt * np.diag(self.W)[rows])
+        ratio = compliance[rows] / (self.beta * dt * dt * np.diag(self.W)[rows])
         worst = float(ratio.min())
         if worst < 1.0:
             log.warning("an elastic stop is stiffer than the time step resolves: c / (beta dt^2 W) = %.3g < 1 "
@@ -154,11 +155,12 @@ class Newmark(ContactScheme):
             if self._condensed is not None:   # one solve, the multipliers between its halves
                 pu_pred, pv_pred = ops.project_many(U, V)
                 q_pred = ops.d0 - offset - pu_pred
-                pa, lam0 = self._condensed_solve(rhs, A, lambda pa: self.lcp.solve(q_pred - bdt2 * pa, guess=guess)[0])
+                pa, lam0 = self._condensed_solve(
+                    rhs, A, lambda pa: self.lcp.solve(self.lcp.q(q_pred - bdt2 * pa, st.gap), guess=guess)[0])
             else:
                 self.solve_S(rhs, A)
                 pu_pred, pv_pred, pa = ops.project_many(U, V, A)
-                lam0 = self.lcp.solve(ops.d0 - offset - (pu_pred + bdt2 * pa), guess=guess)[0]
+                lam0 = self.lcp.solve(self.lcp.q(ops.d0 - offset - (pu_pred + bdt2 * pa), st.gap), guess=guess)[0]
                 if np.count_nonzero(lam0):
                     self.G.subtract_from(A, lam0)
             if np.count_nonzero(lam0):
@@ -197,7 +199,7 @@ class Newmark(ContactScheme):
             else:
                 impulse, pv = s0, pv_star
             # Work absorbed by the position-level forces over the step (docs/theory.md s. 9).
-            energy.contact_loss += float((pu - st.normal_displacement).dot(f_mean))
+            self._book_work(energy, pu - st.normal_displacement, f_mean)
 
         # Energy budget: kinetic and strain energy of the state; work terms with the scheme's own
         # weights (1 - gamma, gamma), so that the balance closes to round-off. One product per
@@ -211,7 +213,7 @@ class Newmark(ContactScheme):
         axpy(self.MV, dt * gamma, self.MA)
         KU_rest = self.MA if (st.step + 1) % CHECK_EVERY else None
         self._step_energies(energy, t1, 1.0 - gamma, gamma, self.MV, KU_rest, float(pu_dyn.dot(force)) if p else 0.0)
-        self._book_stored(energy, st, force, t1, gamma)
+        self._book_stored(energy, st, force, ops.d0 - pu, t1, gamma)
 
         self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=ops.d0 - pu, force=force,
                                impulse=impulse, energy=energy, normal_displacement=pu, normal_velocity=pv)

@@ -9,7 +9,9 @@ import time
 import numpy as np
 from scipy import sparse
 
-from ..nonsmooth.lcp import TINY, Delassus, ImpactResult, delassus_solver, impact_correction, solve_lcp
+from ..nonsmooth.laws import RowLaws
+from ..nonsmooth.lcp import TINY, Delassus, delassus_solver, solve_lcp
+from ..nonsmooth.problem import ImpactResult, impact_correction
 from ..linalg.backends import owned_values
 from ..linalg.condensed import CondensedFactor
 from ..mechanics.energy import EnergyBudget
@@ -48,6 +50,8 @@ class ContactScheme:
 
     def __init__(self, ops: Operators, dt: float, S, impact_correction: bool = True):
         alg = ops.algebra
+        if ops.laws is None:   # (rows given by arrays: Newton's law and elastic stops)
+            ops.laws = RowLaws.from_arrays(ops.restitution, ops.stop_compliance, ops.friction)
         self.ops, self.alg, self.dt = ops, alg, dt
         self.S = S
         self.timings: dict[str, float] = {}   # seconds of the setup's stages (benchmarks read them)
@@ -66,9 +70,9 @@ class ContactScheme:
         self._D = self._H = self._carnot = None
         static = ops.static
         rigid = static.rigid_rows if static else np.ones(ops.p, dtype=bool)
-        self.impact_rows = rigid & (ops.stop_compliance == 0.0) & ~ops.massless_rows & bool(impact_correction)
+        self.impact_rows = rigid & ~ops.laws.elastic(dt) & ~ops.massless_rows & bool(impact_correction)
         self._abs_d0 = np.abs(ops.d0)
-        self._elastic_stops = bool(np.count_nonzero(ops.stop_compliance))
+        self._elastic_stops = ops.laws.stores(dt)   # (rows that store energy: their booking is not skipped)
         new = alg.vector
         # State, products and work vectors, allocated once; pairs are swapped by reference. U and V
         # are updated in place; U_prev keeps the step's starting U where the work terms need it.
@@ -195,23 +199,28 @@ class ContactScheme:
             self.H.subtract_from(self.A, res.lam2)
         return pv, float(res.lam1.dot(pv + 0.5 * Dlam1))
 
-    def _stop_energy(self, force: np.ndarray) -> float:
-        """Strain energy of the elastic stops, ``1/2 c lam^2`` per row."""
-        return 0.5 * float(self.ops.stop_compliance @ (force * force))
+    def _book_work(self, energy: EnergyBudget, force: np.ndarray, motion: np.ndarray, total: float | None = None) -> None:
+        """The contact forces' work over the step, ``force . motion``, in each law's loss column."""
+        for column, work in self.ops.laws.work(force, motion, total).items():
+            energy.add_loss(column, work)
 
-    def _book_stops(self, energy: EnergyBudget, force_prev: np.ndarray, force: np.ndarray) -> None:
-        """An elastic stop stores what its force absorbs while it stays closed: that part of the
-        contact work moves from the contact loss to the strain energy."""
+    def _book_stops(self, energy: EnergyBudget, before: tuple, after: tuple) -> None:
+        """What the rows' laws store (an elastic stop's spring, ...; their ``stored`` hook, from the rows'
+        (force, gap) ``before`` and ``after`` the step): that part of the contact work moves from the
+        laws' loss columns to the strain energy."""
         if not self._elastic_stops:   # (then nothing to book: skip the small-array arithmetic)
             return
-        stored = self._stop_energy(force)
-        energy.contact_loss -= stored - self._stop_energy(force_prev)
-        energy.strain += stored
+        laws = self.ops.laws
+        stored, previous = laws.stored(*after), laws.stored(*before)
+        for column, value in stored.items():
+            energy.add_loss(column, -(value - previous[column]))
+            energy.strain += value
 
-    def _book_stored(self, energy: EnergyBudget, st: StepState, force: np.ndarray, t1: float, weight: float) -> None:
-        """What the step stores off the structure's own dofs: the elastic stops' springs and a static
-        part's energy, with the loads' work on the static part (``weight``: the scheme's for t1)."""
-        self._book_stops(energy, st.force, force)
+    def _book_stored(self, energy: EnergyBudget, st: StepState, force: np.ndarray, gap: np.ndarray, t1: float,
+                     weight: float) -> None:
+        """What the step stores off the structure's own dofs: the laws' (elastic stops' springs) and a
+        static part's energy, with the loads' work on the static part (``weight``: the scheme's for t1)."""
+        self._book_stops(energy, (st.force, st.gap), (force, gap))
         static = self.ops.static
         if static:
             energy.strain += static.energy(t1, force)
@@ -397,7 +406,7 @@ class ContactScheme:
         energy.kinetic, energy.strain = self._quadratic_energies()
         energy.load_scale = self._start_load_scale
         energy.roundoff = self._start_roundoff
-        self._book_stops(energy, force, force)
+        self._book_stops(energy, (force, ops.d0 - pu), (force, ops.d0 - pu))
         if ops.static:
             energy.strain += ops.static.energy(t0, force)
         energy.initial = energy.total + energy.impact_loss

@@ -4,7 +4,7 @@ work put in and each loss, and the watch stops a run that blows up or (when aske
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -47,6 +47,8 @@ class EnergyBudget:
     # translation exactly: a stiff body displaced far from where K U = 0 (sliding, flying) has a small
     # strain energy known only to that. The watch does not call that created.
     roundoff: float = 0.0
+    # The loss columns contact laws declare beyond contact_loss (nonsmooth/laws.py: ``column``), by name.
+    losses: dict[str, float] = field(default_factory=dict)
 
     @property
     def total(self) -> float:
@@ -58,10 +60,23 @@ class EnergyBudget:
         return (
             self.total - self.initial - self.external_work
             + self.damping_loss + self.impact_loss + self.contact_loss + self.friction_loss + self.numerical_loss
+            + self.law_losses
         )
 
+    @property
+    def law_losses(self) -> float:
+        """The laws' own loss columns together (0 without)."""
+        return sum(self.losses.values()) if self.losses else 0.0
+
+    def add_loss(self, column: str, value: float) -> None:
+        """Book ``value`` in a loss column: ``contact_loss`` or a law's own."""
+        if column == "contact_loss":
+            self.contact_loss += value
+        else:
+            self.losses[column] = self.losses.get(column, 0.0) + value
+
     def copy(self) -> EnergyBudget:
-        return replace(self)
+        return replace(self, losses=dict(self.losses))
 
 
 # The schemes' names in a sentence (EnergyWatch's messages).
@@ -118,7 +133,7 @@ class EnergyWatch:
             return
         # The contacts' losses together: Carnot's impulses and the position-level forces are one
         # contact model (on an impact the forces may give back a little of what the impulse took).
-        excess = max(e.total - e.initial - e.external_work - e.roundoff, -(e.contact_loss + e.impact_loss),
+        excess = max(e.total - e.initial - e.external_work - e.roundoff, -(e.contact_loss + e.impact_loss + e.law_losses),
                      -e.damping_loss, -e.friction_loss)
         self.max_ratio = max(self.max_ratio, e.total / self.scale)
         self.roundoff = max(self.roundoff, e.roundoff)
@@ -204,7 +219,7 @@ class EnergyWatch:
             return size
         live = slice(a, size)
         excess = total[live] - initial[a:] - work[a:] - e.roundoff[live]
-        np.maximum(excess, -(e.contact_loss[live] + e.impact_loss[live]), out=excess)
+        np.maximum(excess, -(e.contact_loss[live] + e.impact_loss[live] + e.law_losses), out=excess)
         np.maximum(excess, -e.damping_loss[live], out=excess)
         np.maximum(excess, -e.friction_loss[live], out=excess)
         at = scale[a:]

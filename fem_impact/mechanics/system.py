@@ -8,7 +8,7 @@ matrix ``A`` with the corrections ``y -= A^-1 P^T c`` (``Columns`` and its kin).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from mpi4py import MPI
@@ -19,6 +19,9 @@ from scipy.linalg.blas import daxpy, dgemv
 from ..linalg.backends import DenseAlgebra, PETScAlgebra
 from ..linalg.dense import axpy, permuted_in_place
 from ..linalg.factor import DiagonalFactor
+
+if TYPE_CHECKING:   # (the contact layer sits above: an integrator builds the laws when none are given)
+    from ..nonsmooth.laws import RowLaws
 
 DENSE_BLOCK = 4096  # entries: up to this size the block of P on the dofs it touches is kept dense
 KEEP_COLUMNS = 1 << 22   # entries (N x p, 32 MB): up to this size S^-1 P^T is stored; above, applied by a solve
@@ -63,7 +66,9 @@ class Operators:
     p-vectors ``d0`` and ``restitution`` are known on every rank. ``massless`` lists the owned
     dofs without mass (mass redistribution): their rows of M are zero. ``stop_compliance``
     (p-vector, m/N, or None: all rigid) makes a row an elastic stop: the gap condition becomes
-    ``d0 - P U + c lam >= 0``, a massless spring in series. Nothing here knows
+    ``d0 - P U + c lam >= 0``, a massless spring in series. ``laws`` (a ``RowLaws``, or None: Newton's
+    law with ``restitution`` and elastic stops with ``stop_compliance``) are the rows' contact laws,
+    from which those arrays and ``friction`` then follow. Nothing here knows
     about meshes, so the integrators run as well on a 1-dof system as on a finite-element model.
     """
 
@@ -82,6 +87,7 @@ class Operators:
     friction: np.ndarray | None = None
     tangents: sparse.spmatrix | np.ndarray | None = None
     tangent_of: np.ndarray | None = None
+    laws: RowLaws | None = None   # (an integrator makes it from the arrays when None: ContactScheme)
 
     def __post_init__(self):
         self.algebra = PETScAlgebra(self.K) if isinstance(self.K, PETSc.Mat) else DenseAlgebra(self.K)
@@ -100,6 +106,10 @@ class Operators:
         self._Pt_block = self._P_block.T
         if self.massless is None:
             self.massless = np.zeros(0, dtype=np.int64)
+        if self.laws is not None:
+            self.restitution, self.stop_compliance = self.laws.restitution, self.laws.compliance
+            if self.friction is None and self.tangent_of is not None:
+                self.friction = self.laws.friction
         if self.stop_compliance is None:
             self.stop_compliance = np.zeros(self.p)
         # Rows of P that touch a dof without mass: no velocity jump there, so no Carnot correction.

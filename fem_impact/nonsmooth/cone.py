@@ -4,8 +4,8 @@ products with the symmetric W (in float64, or float32 with its lower part) that 
 
 A row's unknowns are its normal impulse first, then its 0, 1 (2D) or 2 (3D) tangential ones.
 Compiled with Numba (Debian's python3-numba, cached beside this file after the first run): the
-sweep is a loop over the rows with a small nonlinear solve in each, which in Python cost 90 times
-the frictionless step at 1681 rows.
+sweep is a loop over the rows with a small nonlinear solve in each, which in Python would cost
+many times the frictionless step.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from numba import njit
 
 ROW = 3   # at most a normal and two tangents
 BLOCK = 64   # rows of a block of the sweeps (192 unknowns in 3D: their part of W stays in cache)
-INNER = 2    # sweeps within a block per sweep (on the landing plate: 14 sweeps to 1e-10 instead of 23)
+INNER = 2    # sweeps within a block per sweep (fewer sweeps in all on coupled rows)
 
 
 @njit(cache=True)
@@ -320,7 +320,7 @@ def gauss_seidel(W, q, r, y, rows, start, sizes, mu, rho, tolerance, sweeps, lay
     change at once. A sweep so reads W once whatever ``inner`` (the unknowns are in row order, row
     i's at ``start[i]`` on, and W is symmetric: a row's change is along a contiguous slab of W's
     rows, in memory order), and the inner sweeps settle the strongly coupled neighbours that plain
-    Gauss-Seidel leaves to later sweeps (on the landing plate, half the sweeps). W in float64, or a
+    Gauss-Seidel leaves to later sweeps. W in float64, or a
     float32 copy: half the memory traffic, y then drifts from W r + q by its round-off (the blocks'
     parts are float64 either way). Returns (sweeps done, residual, worst row) after the first sweep
     whose residual is within the tolerance, or whose residual fell by less than a third (``stall``:

@@ -129,11 +129,11 @@ class FrictionProblem:
     TOLERANCE = 1e-10
     MAX_SWEEPS = 2000
     NEWTON_AFTER = 100   # sweeps of Gauss-Seidel before Newton's method takes over (coupled rows)
-    NEWTON_SIZE = 6000   # unknowns up to which it may (its steps are dense LU solves: 2.3 s at 5043)
+    NEWTON_SIZE = 6000   # unknowns up to which it may (its steps are dense LU solves)
     LEAST_SQUARES_SIZE = 600   # ... and least-squares ones where J is singular
     SINGLE_FROM = 2000   # unknowns from which W is kept as two float32 parts (the sweeps are memory-bound)
     __checkpoint__ = ("_last",)   # the warm start: part of a run's state (fem_impact/app/checkpoint.py)
-    SINGLE_TARGET = 1e-7  # the first float32 round's (its round-off floor: about 3e-8 on the landing plate)
+    SINGLE_TARGET = 1e-7  # the first float32 round's (above its round-off floor)
 
     def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray, overwrite: bool = False,
                  roundoff: np.ndarray | None = None):

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..errors import ContactSolverError
@@ -285,73 +283,3 @@ def _lcp_as_nnls(A: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     w[active] = 0.0
     return x, np.maximum(w, 0.0), active
 
-
-@dataclass
-class ImpactResult:
-    """Outcome of the velocity and acceleration projections on the closed contacts."""
-
-    lam1: np.ndarray     # velocity-correction impulses, dV = -M^-1 P^T lam1 (may be negative:
-                         # they remove the spurious rebound of the trapezoidal rule)
-    lam2: np.ndarray     # acceleration-correction forces, dA = -M^-1 P^T lam2
-    force: np.ndarray    # F_N = lam0 + lam2 at the end of the step
-
-
-def impact_correction(
-    D: np.ndarray,
-    closed: np.ndarray,
-    s0: np.ndarray,
-    v_star: np.ndarray,
-    v_minus: np.ndarray,
-    a_normal: np.ndarray,
-    lam0: np.ndarray,
-    restitution: np.ndarray,
-) -> ImpactResult:
-    """Carnot's velocity correction and the acceleration projection on the closed rows.
-
-    The sign condition is put on the whole impulse of the step ``S = s0 + lam1 >= 0``
-    (``s0`` = the impulse of the position-level forces), complementary to the separating
-    velocity ``w = -(P V+) - e max(P V-, 0) >= 0``: an LCP in ``D = P M^-1 P^T``. Contacts
-    that stay closed (w = 0) then get the force ``F >= 0`` that keeps their normal
-    acceleration non-positive; separating contacts carry no force.
-
-    All arguments are per-row p-vectors (``D`` is p x p, or a ``Delassus`` that keeps the factors
-    of its active blocks between calls); only rows in ``closed`` change.
-    """
-    # (Small arrays: .dot and count_nonzero cost half of @ and .any().)
-    solver = D if isinstance(D, Delassus) else Delassus(D)
-    D = solver.matrix
-    p = s0.size
-    lam1, lam2, force = np.zeros(p), np.zeros(p), lam0.copy()
-    a = _rows(closed)
-    s0a, lam0a = s0[a], lam0[a]
-    q1 = -(_block(D, a, a).dot(s0a) + v_star[a])
-    if np.count_nonzero(restitution):
-        q1 -= restitution[a] * np.maximum(v_minus[a], 0.0)
-    S, w, active = solver.solve(q1, guess=lam0a > 0.0, rows=a)
-    lam1[a] = S - s0a
-    # Normal accelerations after the velocity change are unchanged by it: project them.
-    stays = active | (w <= 0.0)
-    n_stay = np.count_nonzero(stays)
-    if n_stay == stays.size:
-        b, lam0b = a, lam0a
-        q2 = -(_block(D, b, b).dot(lam0b) + a_normal[b])
-    else:
-        rows = np.arange(p)[a]
-        b, leaving = rows[stays], rows[~stays]
-        force[leaving] = 0.0
-        lam0b = lam0[b]
-        q2 = -(D[b][:, b].dot(lam0b) + a_normal[b] + D[b][:, leaving].dot(lam0[leaving]))
-    if n_stay:
-        force[b] = solver.solve(q2, guess=lam0b > 0.0, rows=b)[0]
-    lam2[a] = force[a] - lam0a
-    return ImpactResult(lam1, lam2, force)
-
-
-def _block(D: np.ndarray, rows, cols) -> np.ndarray:
-    """``D[rows][:, cols]``: a view when both are ``ALL``."""
-    return D if rows is ALL and cols is ALL else D[rows][:, cols]
-
-
-def _rows(mask: np.ndarray):
-    """The rows set in ``mask``: ``ALL`` when all are (the common case in a contact)."""
-    return ALL if np.count_nonzero(mask) == mask.size else np.flatnonzero(mask)

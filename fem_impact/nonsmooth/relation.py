@@ -1,4 +1,5 @@
-"""The constraint matrix P and gaps d0 from the contact definitions (node pairs known in advance)."""
+"""The constraint matrix P, the gaps d0 and the rows' laws from the contacts of a case (node pairs
+known in advance): each contact becomes a relation object (relations.py) and a law (laws.py)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,9 @@ from scipy.spatial import cKDTree
 from ..errors import ModelInputError
 from ..fem.model import Model, NodeSet, pad_vector
 from ..parallel import allsum
-from .laws import LAWS
+from .laws import Coulomb, RowLaws, law_of
+from .relations import (FixedPlane, MeanCoupling, MeanPair, NodePair, PlaneThroughPoint, Relation, Relations,
+                        node_rows)
 from .specs import Contact
 
 
@@ -30,20 +33,35 @@ class Constraints:
     """``P U <= d0``: ``P_local`` holds this rank's owned rows of ``P^T`` (sparse, n_local x p).
 
     Every rank holds all p rows, so the small p x p contact problems can be solved redundantly.
+    ``laws`` are the rows' contact laws (restitution, compliance, friction per row follow from
+    them), ``relations`` the contacts' relation objects (their gaps in time).
     """
 
     P_local: sparse.csr_matrix
     d0: np.ndarray
-    restitution: np.ndarray
     contacts: list[ContactRows]
-    compliance: np.ndarray      # 1/stiffness of an elastic stop per row (m/N); 0 on rigid rows
-    # Coulomb friction (docs/theory.md s. 11): mu per row; the tangent rows of the rows with mu > 0
+    laws: RowLaws
+    relations: Relations
+    # Coulomb friction (docs/theory.md s. 11): the tangent rows of the rows with mu > 0
     # (owned rows of P_T^T, n_local x pt; 1 per row in 2D, 2 in 3D), the normal row of each, and
     # its unit direction in global axes (pt x dim).
-    friction: np.ndarray | None = None
     tangent_local: sparse.csr_matrix | None = None
     tangent_of: np.ndarray | None = None
     tangent_dirs: np.ndarray | None = None
+
+    @property
+    def restitution(self) -> np.ndarray:
+        return self.laws.restitution
+
+    @property
+    def compliance(self) -> np.ndarray:
+        """1/stiffness of an elastic stop per row (m/N); 0 on rigid rows."""
+        return self.laws.compliance
+
+    @property
+    def friction(self) -> np.ndarray:
+        """Coulomb's mu per row (0: frictionless)."""
+        return self.laws.friction
 
     @property
     def pt(self) -> int:
@@ -58,73 +76,56 @@ class Constraints:
         return allsum(comm, self.P_local.T @ local_values)
 
 
+def relation_of(contact: Contact, model: Model, key: tuple) -> Relation:
+    """The relation object of a contact of the case file (its rows, gaps and their time dependence)."""
+    dim = model.meshdata.dim
+    normal = np.asarray(pad_vector(contact.normal, dim, key + ("normal",), "normal"), dtype=float)
+    normal /= np.linalg.norm(normal)
+    tangents = tangent_basis(normal) if contact.friction > 0.0 else []
+    if contact.friction > 0.0 and not tangents:
+        raise ModelInputError(key + ("friction",), "friction needs a tangent direction: a 1D model has none")
+    if contact.type == "obstacle":
+        nodes = model.node_set(contact.nodes[0], key + ("nodes",))
+        if contact.point is not None:
+            point = np.asarray(pad_vector(contact.point, dim, key + ("point",), "point"), dtype=float)
+            relation = PlaneThroughPoint(nodes, normal, tangents, point)
+        else:
+            relation = FixedPlane(nodes, normal, tangents, contact.gap if contact.gap is not None else 0.0)
+        return MeanCoupling(relation) if contact.coupling == "mean" else relation
+    a = model.node_set(contact.nodes[0], key + ("nodes",))
+    b = model.node_set(contact.nodes[1], key + ("nodes",))
+    if contact.coupling == "mean":
+        return MeanPair(a, b, normal, tangents, contact.gap)
+    order = match_pairs(key, a, b, normal)
+    b = NodeSet(b.name, b.coords[order], b.global_node[order], b.local_node[order])
+    return NodePair(a, b, normal, tangents, contact.gap)
+
+
 def build_constraints(specs: list[Contact], model: Model) -> Constraints:
-    """``P``, ``d0`` and the rows' law data of the contacts ``specs`` on ``model``."""
-    dim, bs = model.meshdata.dim, model.bs
+    """``P``, ``d0`` and the rows' laws of the contacts ``specs`` on ``model``."""
     n_local = model.U0.getLocalSize()
-    columns, gaps, restitution, compliance, contacts = [], [], [], [], []
-    friction, tangent_columns, tangent_of, tangent_dirs = [], [], [], []
+    columns, gaps, contacts, relations, groups = [], [], [], [], []
+    cones, tangent_columns, tangent_of, tangent_dirs = [], [], [], []
     for i, contact in enumerate(specs):
         key = ("contacts", i)
-        normal = np.asarray(pad_vector(contact.normal, dim, key + ("normal",), "normal"), dtype=float)
-        normal /= np.linalg.norm(normal)
-        tangents = tangent_basis(normal) if contact.friction > 0.0 else []
-        if contact.friction > 0.0 and not tangents:
-            raise ModelInputError(key + ("friction",), "friction needs a tangent direction: a 1D model has none")
-        if contact.type == "obstacle":
-            nodes = model.node_set(contact.nodes[0], key + ("nodes",))
-            col = _rows(n_local, bs, normal, nodes)
-            t_cols = [_rows(n_local, bs, t, nodes) for t in tangents]
-            if contact.point is not None:   # a plane through the point: each node's own distance to it
-                point = np.asarray(pad_vector(contact.point, dim, key + ("point",), "point"), dtype=float)
-                gap = (point - nodes.coords[:, :dim]) @ normal
-            else:
-                gap = np.full(len(nodes), contact.gap if contact.gap is not None else 0.0)
-        else:
-            a = model.node_set(contact.nodes[0], key + ("nodes",))
-            b = model.node_set(contact.nodes[1], key + ("nodes",))
-            if contact.coupling == "mean":
-                # Two faces, each on its mean motion: one row between the means, whatever the nodes
-                # (a pad on a flat face: the contact follows the face as it slides along it).
-                col = _rows(n_local, bs, normal, a).mean(axis=1) - _rows(n_local, bs, normal, b).mean(axis=1)
-                t_cols = [_rows(n_local, bs, t, a).mean(axis=1) - _rows(n_local, bs, t, b).mean(axis=1)
-                          for t in tangents]
-                mesh_gap = (b.coords[:, :dim].mean(axis=0) - a.coords[:, :dim].mean(axis=0)) @ normal
-                if abs(mesh_gap) <= 1e-12 * model.meshdata.extent:
-                    mesh_gap = 0.0
-                gap = np.array([contact.gap if contact.gap is not None else mesh_gap])
-            else:
-                order = match_pairs(key, a, b, normal)
-                b = NodeSet(b.name, b.coords[order], b.global_node[order], b.local_node[order])
-                col = _rows(n_local, bs, normal, a) - _rows(n_local, bs, normal, b)
-                t_cols = [_rows(n_local, bs, t, a) - _rows(n_local, bs, t, b) for t in tangents]
-                mesh_gap = (b.coords - a.coords)[:, :dim] @ normal
-                # Coincident nodes (bodies meshed apart that touch) differ by their coordinates' round-off.
-                mesh_gap[np.abs(mesh_gap) <= 1e-12 * model.meshdata.extent] = 0.0
-                gap = np.full(len(a), contact.gap) if contact.gap is not None else mesh_gap
-        if contact.coupling == "mean" and contact.type == "obstacle":
-            # One row on the group's mean normal displacement (a distributing coupling): its
-            # force P^T lam is shared equally by the nodes, as a load on a node group is.
-            col = col.mean(axis=1)
-            t_cols = [t.mean(axis=1) for t in t_cols]
-            gap = np.array([gap.mean()])
-        col = sparse.csr_matrix(col)
-        t_cols = [sparse.csr_matrix(t) for t in t_cols]
+        relation = relation_of(contact, model, key)
+        rows = relation.rows(model)
+        gap = rows.gap
+        col = sparse.csr_matrix(rows.normal)
+        t_cols = [sparse.csr_matrix(t) for t in rows.tangents]
         start = sum(len(g) for g in gaps)
-        friction.append(np.full(len(gap), contact.friction))
-        for k, (t, t_col) in enumerate(zip(tangents, t_cols)):
+        for t, t_col in zip(relation.tangents, t_cols):
             tangent_columns.append(t_col)
             tangent_of.append(np.arange(start, start + len(gap)))
             tangent_dirs.append(np.tile(t, (len(gap), 1)))
         contacts.append(ContactRows(contact.name, i, slice(start, start + len(gap))))
+        relations.append(relation)
         columns.append(col)
         gaps.append(gap)
-        law = LAWS[contact.law](LAWS[contact.law].keys(**contact.law_keys))
-        e, c = law.rows(len(gap))
-        restitution.append(e)
-        compliance.append(c)
+        groups.append((law_of(contact.law, contact.law_keys), np.arange(start, start + len(gap))))
+        cones.append((Coulomb(contact.friction), np.arange(start, start + len(gap))))
     if not columns:
-        return Constraints(sparse.csr_matrix((n_local, 0)), np.zeros(0), np.zeros(0), [], np.zeros(0))
+        return Constraints(sparse.csr_matrix((n_local, 0)), np.zeros(0), [], RowLaws([], 0), Relations([], [], np.zeros(0)))
     if model.motion is not None:   # a gap that a support's motion changes: not in the relation (refused)
         moving = np.zeros(n_local)
         moving[model.motion.moving_dofs()] = 1.0
@@ -139,8 +140,9 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
     free[model.fixed] = 0.0
     P_local = (sparse.diags(free) @ sparse.hstack(columns)).tocsr()
     P_local.eliminate_zeros()
-    cons = Constraints(P_local, np.concatenate(gaps), np.concatenate(restitution), contacts,
-                       np.concatenate(compliance), np.concatenate(friction))
+    d0 = np.concatenate(gaps)
+    cons = Constraints(P_local, d0, contacts, RowLaws(groups, d0.size, cones=cones),
+                       Relations(relations, [c.rows for c in contacts], d0))
     if tangent_columns:
         # A support's held dofs take no part in a tangent row either (its force there goes to the support).
         cons.tangent_local, cons.tangent_of, cons.tangent_dirs = free_tangents(
@@ -232,13 +234,7 @@ def tangent_basis(normal: np.ndarray) -> list[np.ndarray]:
     return [t1, np.cross(normal, t1)]
 
 
-def _rows(n_local: int, bs: int, normal: np.ndarray, nodes: NodeSet) -> sparse.csr_matrix:
-    """Columns of P^T (owned part) for rows ``n . u_node``, one per node of the set."""
-    owned = np.flatnonzero(nodes.local_node >= 0)
-    dofs = (nodes.local_node[owned][:, None] * bs + np.arange(normal.size)).ravel()
-    rows_of = np.repeat(owned, normal.size)
-    values = np.tile(normal, owned.size)
-    return sparse.csr_matrix((values, (dofs, rows_of)), shape=(n_local, len(nodes)))
+_rows = node_rows   # (the name before relations.py)
 
 
 def _nodes(n: int) -> str:

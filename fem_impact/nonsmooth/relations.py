@@ -1,0 +1,169 @@
+"""Contact relations as objects: each gives its rows of ``P`` (and of ``P_T``), its gaps and their
+time dependence (docs/theory.md s. 2.1, 2.5).
+
+A relation maps the model's displacement to its rows' normal displacements ``P U`` and says where
+the obstacle is: the row's gap ``g(t) = d(t) - P U``. The fixed relations here have a constant
+``d``; a relation whose obstacle moves overrides ``gap(t)`` and ``gap_velocity(t)`` (the rate of
+``d``) and says so with ``time_dependent``: the one-step problem reads the gaps through them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+
+from ..fem.model import Model, NodeSet
+
+
+@dataclass
+class RelationRows:
+    """What a relation contributes: columns of ``P^T`` (owned rows, n_local x r), those of its
+    tangent rows (one block per tangent direction), and its gaps at t = 0 (r)."""
+
+    normal: sparse.spmatrix
+    tangents: list
+    gap: np.ndarray
+
+
+class Relation:
+    """Rows of a contact on a model: ``rows(model)`` once, then its gaps ``d(t)`` per step."""
+
+    time_dependent = False
+
+    def __init__(self, normal: np.ndarray, tangents: list[np.ndarray]):
+        self.normal, self.tangents = normal, tangents
+        self.d0: np.ndarray | None = None
+
+    def rows(self, model: Model) -> RelationRows:
+        raise NotImplementedError
+
+    def gap(self, t: float) -> np.ndarray:
+        """``d(t)``: the rows' gaps at zero displacement, at time t (constant here)."""
+        return self.d0
+
+    def gap_velocity(self, t: float) -> np.ndarray:
+        """``d'(t)``: how fast the obstacle recedes along each row's normal (0 here)."""
+        return np.zeros_like(self.d0)
+
+    def _done(self, rows: RelationRows) -> RelationRows:
+        self.d0 = rows.gap
+        return rows
+
+
+class FixedPlane(Relation):
+    """A rigid plane ``n . u_node <= gap``, a row per node of a group (the same gap for every node)."""
+
+    def __init__(self, nodes: NodeSet, normal, tangents, gap: float):
+        super().__init__(normal, tangents)
+        self.nodes, self.gap0 = nodes, gap
+
+    def rows(self, model: Model) -> RelationRows:
+        n_local, bs = model.U0.getLocalSize(), model.bs
+        col = node_rows(n_local, bs, self.normal, self.nodes)
+        t_cols = [node_rows(n_local, bs, t, self.nodes) for t in self.tangents]
+        return self._done(RelationRows(col, t_cols, np.full(len(self.nodes), self.gap0)))
+
+
+class PlaneThroughPoint(FixedPlane):
+    """A rigid plane through a point: each node's gap is its own distance to the plane."""
+
+    def __init__(self, nodes: NodeSet, normal, tangents, point: np.ndarray):
+        super().__init__(nodes, normal, tangents, 0.0)
+        self.point = point
+
+    def rows(self, model: Model) -> RelationRows:
+        rows = super().rows(model)
+        dim = model.meshdata.dim
+        rows.gap = (self.point - self.nodes.coords[:, :dim]) @ self.normal
+        return self._done(rows)
+
+
+class NodePair(Relation):
+    """Node pairs of two groups matched across the normal: ``n . (u_a - u_b) <= gap`` (each pair's
+    distance along n in the mesh without a given gap)."""
+
+    def __init__(self, a: NodeSet, b: NodeSet, normal, tangents, gap: float | None):
+        super().__init__(normal, tangents)
+        self.a, self.b, self.gap0 = a, b, gap
+
+    def rows(self, model: Model) -> RelationRows:
+        n_local, bs, dim = model.U0.getLocalSize(), model.bs, model.meshdata.dim
+        a, b = self.a, self.b
+        col = node_rows(n_local, bs, self.normal, a) - node_rows(n_local, bs, self.normal, b)
+        t_cols = [node_rows(n_local, bs, t, a) - node_rows(n_local, bs, t, b) for t in self.tangents]
+        mesh_gap = (b.coords - a.coords)[:, :dim] @ self.normal
+        # Coincident nodes (bodies meshed apart that touch) differ by their coordinates' round-off.
+        mesh_gap[np.abs(mesh_gap) <= 1e-12 * model.meshdata.extent] = 0.0
+        gap = np.full(len(a), self.gap0) if self.gap0 is not None else mesh_gap
+        return self._done(RelationRows(col, t_cols, gap))
+
+
+class MeanPair(Relation):
+    """Two faces, each on its mean motion: one row between the means, whatever the nodes (a pad on
+    a flat face: the contact follows the face as it slides along it)."""
+
+    def __init__(self, a: NodeSet, b: NodeSet, normal, tangents, gap: float | None):
+        super().__init__(normal, tangents)
+        self.a, self.b, self.gap0 = a, b, gap
+
+    def rows(self, model: Model) -> RelationRows:
+        n_local, bs, dim = model.U0.getLocalSize(), model.bs, model.meshdata.dim
+        a, b = self.a, self.b
+        col = node_rows(n_local, bs, self.normal, a).mean(axis=1) - node_rows(n_local, bs, self.normal, b).mean(axis=1)
+        t_cols = [node_rows(n_local, bs, t, a).mean(axis=1) - node_rows(n_local, bs, t, b).mean(axis=1)
+                  for t in self.tangents]
+        mesh_gap = (b.coords[:, :dim].mean(axis=0) - a.coords[:, :dim].mean(axis=0)) @ self.normal
+        if abs(mesh_gap) <= 1e-12 * model.meshdata.extent:
+            mesh_gap = 0.0
+        gap = np.array([self.gap0 if self.gap0 is not None else mesh_gap])
+        return self._done(RelationRows(col, t_cols, gap))
+
+
+class MeanCoupling(Relation):
+    """One row on a relation's mean normal displacement (a distributing coupling): its force
+    ``P^T lam`` is shared equally by the nodes, as a load on a node group is."""
+
+    def __init__(self, inner: Relation):
+        super().__init__(inner.normal, inner.tangents)
+        self.inner = inner
+
+    def rows(self, model: Model) -> RelationRows:
+        rows = self.inner.rows(model)
+        return self._done(RelationRows(rows.normal.mean(axis=1), [t.mean(axis=1) for t in rows.tangents],
+                                       np.array([rows.gap.mean()])))
+
+
+def node_rows(n_local: int, bs: int, normal: np.ndarray, nodes: NodeSet) -> sparse.csr_matrix:
+    """Columns of P^T (owned part) for rows ``n . u_node``, one per node of the set."""
+    owned = np.flatnonzero(nodes.local_node >= 0)
+    dofs = (nodes.local_node[owned][:, None] * bs + np.arange(normal.size)).ravel()
+    rows_of = np.repeat(owned, normal.size)
+    values = np.tile(normal, owned.size)
+    return sparse.csr_matrix((values, (dofs, rows_of)), shape=(n_local, len(nodes)))
+
+
+class Relations:
+    """The relations of a system in row order: the gaps ``d(t)`` of every row and their rates."""
+
+    def __init__(self, relations: list[Relation], slices: list[slice], d0: np.ndarray):
+        self.relations, self.slices, self.d0 = relations, slices, d0
+        self.time_dependent = any(r.time_dependent for r in relations)
+
+    def gap(self, t: float) -> np.ndarray:
+        """``d(t)`` of every row (the constant ``d0`` itself when no obstacle moves)."""
+        if not self.time_dependent:
+            return self.d0
+        out = self.d0.copy()
+        for r, rows in zip(self.relations, self.slices):
+            if r.time_dependent:
+                out[rows] = r.gap(t)
+        return out
+
+    def gap_velocity(self, t: float) -> np.ndarray:
+        out = np.zeros(self.d0.size)
+        for r, rows in zip(self.relations, self.slices):
+            if r.time_dependent:
+                out[rows] = r.gap_velocity(t)
+        return out
