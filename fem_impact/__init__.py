@@ -23,7 +23,7 @@ from ._version import __version__
 from .errors import CaseError, FemImpactError, SimulationError
 
 # PETSc's own handler answers SIGTERM, SIGHUP and SIGQUIT with MPI_Abort: no cleanup, a staging folder and
-# a lock left, and a process that may wait for ever. A run's handlers (app/outdir.py) answer them instead,
+# a lock left, and a process that may wait for ever. A run's handlers (app/outdir/interruption.py) answer them instead,
 # also in the second while PETSc has started and they are not installed again yet.
 if "-no_signal_handler" not in _os.environ.get("PETSC_OPTIONS", "").split():
     _os.environ["PETSC_OPTIONS"] = (_os.environ.get("PETSC_OPTIONS", "") + " -no_signal_handler").strip()

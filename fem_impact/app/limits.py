@@ -2,8 +2,8 @@
 is validated), and the size guard: a run's steps, memory and output estimated from the case before anything
 is built, and refused as bad input beyond sane limits (unless ``--force``).
 
-The figures per unknown were measured on the built-in bar (README, "Running cases"); they are
-meant to catch a mistyped exponent (``solver.dt=1e-12``, ``mesh.cells=1e9``), not to predict a
+The figures per unknown come from runs of the built-in bar (docs/performance.md, the size guard); they
+are meant to catch a mistyped exponent (``solver.dt=1e-12``, ``mesh.cells=1e9``), not to predict a
 run's memory to the megabyte.
 """
 
@@ -23,14 +23,13 @@ from ..integrators.parameters import steps_for
 MAX_STEPS = 10**8
 MAX_FRAMES = 10**5           # VTK frames: one .vtu per rank each, plus a .pvtu under MPI
 # Peak memory of a run beyond the interpreter and libraries (BASE_MEMORY), per unknown: matrices,
-# the factorization and the work vectors (measured: see the README's table of the size guard).
-BASE_MEMORY = 200e6          # measured 150-180 MB: Python, dolfinx, PETSc and a small model
-BYTES_PER_DOF = {1: 1.5e3, 2: 5.0e3, 3: 1.5e4}   # measured 1.2, 4.5 and 10 kB (3D: the LU fill grows)
+# the factorization and the work vectors, each a little above docs/performance.md's size-guard table.
+BASE_MEMORY = 200e6          # Python, dolfinx, PETSc and a small model
+BYTES_PER_DOF = {1: 1.5e3, 2: 5.0e3, 3: 1.5e4}   # (3D: the LU fill grows)
 HISTORY_BYTES_PER_VALUE = 20   # "%.17g" and a comma
-VTK_BYTES_PER_NODE = {1: 140, 2: 250, 3: 400}   # per frame (measured 133, 239, 382): fields, geometry, cells
-# A checkpoint (every run saves one at its end): its state vectors per unknown (measured 98 to 120 bytes on the
-# full model, 19 on the reduced one), plus HDF5's and state.json's bytes per rank file; two at once while the
-# next one is written.
+VTK_BYTES_PER_NODE = {1: 140, 2: 250, 3: 400}   # per frame: fields, geometry, cells
+# A checkpoint (every run saves one at its end): its state vectors per unknown (the full model's; the reduced
+# one needs less), plus HDF5's and state.json's bytes per rank file; two at once while the next one is written.
 CHECKPOINT_BYTES_PER_DOF = 130
 CHECKPOINT_BYTES_PER_RANK = 60e3
 

@@ -1,8 +1,7 @@
 """A reproducible distribution of the cells over the MPI ranks.
 
 dolfinx 0.5 hands the cells' dual graph to PT-Scotch, whose partition changes from run to run on the
-same input (measured: four runs of one box on 2 ranks, four partitions; sequential Scotch with a fixed
-seed too). Two runs of a case on as many ranks then sum their matrices and reductions in different
+same input (sequential Scotch with a fixed seed too). Two runs of a case on as many ranks then sum their matrices and reductions in different
 orders and agree only to ~1e-11, and a restart cannot redo the saved run's arithmetic. This
 partitioner is a function of the mesh alone:
 

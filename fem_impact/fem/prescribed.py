@@ -250,7 +250,7 @@ class MotionView:
     kinetic and strain energy with the supports' motion, their work as external work and the
     reactions (``StepState.reaction``); everything else is the integrator's own."""
 
-    # (a checkpoint's: fem_impact/app/checkpoint.py; the reaction of the last state, which a restart under
+    # (a checkpoint's: fem_impact/app/checkpoint/; the reaction of the last state, which a restart under
     # other loads reports again as the saved run did)
     __checkpoint__ = ("_x0", "_damping", "_phi", "_t", "_reaction")
 

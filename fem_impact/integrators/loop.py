@@ -33,7 +33,7 @@ def integrate(integrator, U0, V0, t_end: float, observers=(), t0: float = 0.0, p
     """
     n_steps = steps_for(t_end - t0, integrator.dt)
     watch = EnergyWatch() if watch is None else watch
-    # resume: the integrator's state was restored from a checkpoint at t0 (fem_impact/app/checkpoint.py)
+    # resume: the integrator's state was restored from a checkpoint at t0 (fem_impact/app/checkpoint/)
     state = integrator.restored() if resume else integrator.start(U0, V0, t0)
     watch.check(state)
     for obs in observers:

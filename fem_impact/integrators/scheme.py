@@ -36,7 +36,7 @@ class ContactScheme:
     """
 
     name = ""
-    # The state a checkpoint saves (fem_impact/app/checkpoint.py): what a step reads of the one before
+    # The state a checkpoint saves (fem_impact/app/checkpoint/): what a step reads of the one before
     # (the state vectors, the products M V, M A, C V and the load R at its time, the StepState with its
     # energy budget) and the start time; the rest the restarted run builds from its case.
     __checkpoint__ = ("t0", "U", "V", "A", "MV", "MA", "R", "CV", "state")
@@ -353,7 +353,7 @@ class ContactScheme:
         self.track_du = self.loaded or ops.C is not None
 
     def restored(self) -> StepState:
-        """The state restored from a checkpoint, to go on from (fem_impact/app/checkpoint.py), under the
+        """The state restored from a checkpoint, to go on from (fem_impact/app/checkpoint/), under the
         case's load (collective)."""
         self._track_work()
         return self.state

@@ -132,7 +132,7 @@ class FrictionProblem:
     NEWTON_SIZE = 6000   # unknowns up to which it may (its steps are dense LU solves)
     LEAST_SQUARES_SIZE = 600   # ... and least-squares ones where J is singular
     SINGLE_FROM = 2000   # unknowns from which W is kept as two float32 parts (the sweeps are memory-bound)
-    __checkpoint__ = ("_last",)   # the warm start: part of a run's state (fem_impact/app/checkpoint.py)
+    __checkpoint__ = ("_last",)   # the warm start: part of a run's state (fem_impact/app/checkpoint/)
     SINGLE_TARGET = 1e-7  # the first float32 round's (above its round-off floor)
 
     def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray, overwrite: bool = False,

@@ -4,8 +4,7 @@ the stroboscopic Poincare map, Newton on ``P^k(x) = x``, Floquet multipliers.
 The reduced model without static correction (``method: modal``, ``static_correction: false``) is
 ``Z'' + c Z' + w^2 Z = Y1^T R(t)`` between impacts, with rigid rows ``g = d0 - (P Y1) Z >= 0``. A
 time-stepping scheme puts each impact at the end of a step: its impact instant, and so the orbit,
-carry an error of the order of the step (measured on the impact oscillator: 0.1 to 1.5 % in the
-impact speed at 500 to 1000 steps a period). Shooting needs the map's derivative, which depends
+carry an error of the order of the step (docs/impact_oscillator.md). Shooting needs the map's derivative, which depends
 on the impact instants (the saltation matrix): here the flight is integrated by an adaptive
 Runge-Kutta method (DOP853, relative tolerance 1e-12) with the gaps as events, so that an impact
 is located to the tolerance, and Newton's law is applied there, row by row:

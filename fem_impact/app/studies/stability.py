@@ -58,17 +58,15 @@ DEFAULT_RESTITUTIONS = (0.0, 0.5, 1.0)
 DEFAULT_LENGTHS = (1.0, 4.0)
 DEFAULT_TOLERANCE = 0.05
 # Every method here closes its energy balance to round-off and only loses energy in the contacts
-# (the trapezoidal rule's position-level forces give some back on an opening step: measured
-# 3e-3 of E0 at most, on the undamped vibroconverter at 100 steps per period): 10 % is growth no
-# discretization error explains.
+# (the trapezoidal rule's position-level forces give some back on an opening step, a small
+# fraction of E0: docs/verification.md): 10 % is growth no discretization error explains.
 ENERGY_GROWTH = 0.1
 # Position-level multipliers close the gap exactly at every step (penetration 0 to round-off):
 # 1 % of the displacement scale (B2: v0 L/c, B1: the initial end displacement) is a failure.
 PENETRATION = 0.01
-# The contact force's RMS deviation over the contact phases, relative to the exact force:
-# measured 0.10 (B2a, 250 cells) and 0.18 (B1, 200 cells) with Carnot's correction, the ringing
-# of the discrete bar at the start and end of a contact; position-level multipliers alone make
-# the force jump between 0 and about 3 times its value (2.7 in a dense emulation of B2a).
+# The contact force's RMS deviation over the contact phases, relative to the exact force: with
+# Carnot's correction a fraction of it, the ringing of the discrete bar at the start and end of a
+# contact; position-level multipliers alone make the force jump between 0 and a few times its value.
 FORCE_OSCILLATION = 0.5
 # Chattering: switches at most this many steps apart, at least this many in a row, to the end.
 CHATTER_STEPS = 4
