@@ -17,7 +17,7 @@ from fem_impact.integrators import CentralDifference, Newmark, Operators, integr
 from fem_impact.fem.mesh import build_mesh
 from fem_impact.fem.model import build_model
 from fem_impact.config.build import model_spec
-from fem_impact.config.references import column
+from fem_impact.references import column
 from test_bar_benchmarks import assert_b2, assert_energy
 
 
