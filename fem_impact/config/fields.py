@@ -235,9 +235,30 @@ def problem(error: dict, schema) -> _Invalid:
         return _Invalid(loc, f"expected true or false, got {_show(given)}")
     if kind in ("float_type", "float_parsing", "int_type", "int_parsing"):
         return _Invalid(loc, f"expected a number, got {_show(given)}")
+    if kind == "finite_number":
+        return _Invalid(loc, f"expected a finite number, got {_brief(given)}")
     info = field_at(schema, loc)
     if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal") and info is not None:
         return _Invalid(loc, f"must be {range_text(bounds_of(info))}, got {_brief(given)}")
     if kind == "value_error":
         return _Invalid(loc, str(ctx.get("error", error["msg"])))
     return _Invalid(loc, error["msg"])
+
+
+def key_rows(schema: type[BaseModel]) -> list[dict]:
+    """The keys of a section's model as the case reference shows them: key, unit, default, range, meaning.
+
+    ``default`` is ``"required"`` for a key that must be given, and None where the default is worked out
+    (the description says how); ``range`` is text such as ``"> 0"`` or ``"in [0, 0.5)"``, or "".
+    """
+    rows = []
+    for name, info in schema.model_fields.items():
+        extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+        choices = typing.get_args(_unwrap(info.annotation)) if typing.get_origin(_unwrap(info.annotation)) is Literal \
+            else ()
+        bounds = bounds_of(info)
+        rows.append({"key": info.alias or name, "unit": extra.get("unit", ""),
+                     "default": "required" if info.is_required() else info.get_default(call_default_factory=True),
+                     "range": range_text(bounds) if bounds else " | ".join(choices),
+                     "description": info.description or ""})
+    return rows

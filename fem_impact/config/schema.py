@@ -21,7 +21,7 @@ from ..fem.specs import BodyValue, Damping, Initial, Load, Material, MeshSpec, S
 from ..integrators.parameters import SolverParameters
 from ..nonsmooth.specs import Contact
 from .fields import (SPACE, TIME, CsvName, Integer, Name, Real, Section, _mapping, _number, bounds_of, choice,
-                     default_of, expression, key, list_of, mapping_of, validate, vector)
+                     default_of, expression, key, list_of, mapping_of, problem, validate, vector)
 from .loader import _brief, _Invalid, _show
 from .solver import solver_section
 
@@ -43,9 +43,10 @@ class MeshSection(Section):
 
     shape: choice(*SHAPES) = Field(None, description="a built-in shape: bar (a rod in 1D, a strip in 2D, a box in 3D)")
     file: Name = Field(None, description="a Gmsh mesh file (.msh), relative to the case file's folder")
-    dim: Integer = key("-", "the built-in bar's dimension (1 when not given)", None, ge=1, le=3)
+    dim: Integer = key("-", "the built-in bar's dimension: 1 rod, 2 strip, 3 box (default 1)", None, ge=1, le=3)
     length: Real = key("m", "the built-in bar's length", default_of(MeshSpec, "length"), gt=0)
-    cells: Integer = key("-", "the built-in bar's cells along its length (PETSc's 32-bit indices)",
+    cells: Integer = key("-", "the built-in bar's cells along its length; across in proportion (at "
+                         "least 1)",
                          default_of(MeshSpec, "cells"), ge=1, le=2**31 - 1)
     height: Real = key("m", "the built-in bar's height in 2D and 3D (default length/20)", None, gt=0)
     width: Real = key("m", "the built-in bar's width in 3D (default its height)", None, gt=0)
@@ -90,7 +91,7 @@ class MaterialSection(Section):
     E: Real = key("Pa", "Young's modulus", ..., gt=0)
     rho: Real = key("kg/m^3", "density", ..., gt=0)
     nu: Real = key("-", "Poisson's ratio (0 in 1D)", default_of(Material, "nu"), ge=0, lt=0.5)
-    area: Real = key("m^2", "cross-section of a 1D or 2D model (2D: the thickness); not axisymmetric",
+    area: Real = key("m^2", "1D: the section; 2D: the thickness (refused in an axisymmetric model)",
                      default_of(Material, "area"), gt=0)
 
     def spec(self) -> Material:
@@ -202,7 +203,7 @@ class SupportSection(Section):
 class LoadSection(Section):
     """An item of ``loads``: a force on a node group, or an acceleration of a body (gravity)."""
 
-    nodes: Name = Field(None, description="the node group the force acts on (shared among its nodes)")
+    nodes: Name = Field(None, description="the node group the force acts on (shared equally by its nodes)")
     body: Name = Field(None, description="the body accelerated: all, or a cell group of the mesh file")
     force: vector(expression(TIME)) = key("N", "total force on the node group (expressions in t)")
     acceleration: vector(expression(TIME)) = key("m/s^2", "body acceleration (expressions in t)")
@@ -241,15 +242,17 @@ _RELATION = {   # the relation's keys of a contact, whatever its law
     "type": (choice(*CONTACT_TYPES), Field(description="obstacle: a node group against a fixed plane; pair: two "
                                                         "node groups against each other")),
     "nodes": (Any, Field(description="obstacle: a node group; pair: a list of two node groups")),
-    "normal": (vector(Real), key("-", "the contact's normal (made unit): from the obstacle toward the body, or from "
-                                      "the second group toward the first", ...)),
-    "gap": (Real, key("m", "obstacle: the initial gap of every node (default 0)")),
+    "normal": (vector(Real), key("-", "obstacle: the direction in which the nodes approach the plane; pair: from "
+                                      "the first group to the second (made unit)", ...)),
+    "gap": (Real, key("m", "the gap of every row (obstacle: default 0; pair: default each pair's distance "
+                             "along the normal in the mesh)")),
     "coupling": (choice(*CONTACT_COUPLINGS), Field(default_of(Contact, "coupling"), description=(
         "pair: each (a row per node pair) or mean (one row between the groups' mean motions)"))),
     "law": (choice(*BUILT_IN_LAWS), Field(default_of(Contact, "law"), description=(
         "the contact law: newton (rigid, restitution) or elastic_stop (stiffness), or a registered one"))),
-    "friction": (Real, key("-", "Coulomb's coefficient mu (0: frictionless)", None, ge=0)),
-    "point": (vector(Real), key("m", "obstacle: a point of its plane; each node's gap is its distance to it")),
+    "friction": (Real, key("-", "Coulomb's coefficient mu on every row (default 0: frictionless)", None, ge=0)),
+    "point": (vector(Real), key("m", "obstacle: a point of its plane, instead of gap: each node's gap is its own "
+                                   "distance to the plane")),
 }
 
 
@@ -348,7 +351,7 @@ def _registered_law_contact(value, context):
             keys = ", ".join([*_RELATION, *law.keys.model_fields])
             raise _Invalid((where,), f"contact law {name} does not use '{where}'; keys of a contact with "
                                      f"law {name}: {keys}") from None
-        raise _Invalid((where,) if where else (), error["msg"]) from None
+        raise problem(error, law.keys) from None   # (in the case file's words, as the built-in laws' keys)
     if f["friction"] is None:
         del f["friction"]
     return Contact(**f, law=name, law_keys=law_keys)
@@ -379,8 +382,8 @@ class OutputSection(Section):
 
     every: Integer = key("-", "steps between rows of history.csv and fields' frames", 10, ge=1)
     probes: mapping_of(vector(Real), CsvName) = key("m", "named points whose displacement and velocity history.csv "
-                                                         "records (the nearest node)", {})
-    vtk: bool = Field(True, description="write the fields (displacement, velocity, stress) for ParaView")
+                                                         "records", {})
+    vtk: bool = Field(True, description="write the fields for ParaView (format)")
     format: choice("vtu", "xdmf") = Field("vtu", description="the fields' files: vtu (results.pvd, ASCII) or xdmf "
                                                              "(results.xdmf + .h5, binary)")
     checkpoint_every: Integer = key("-", "steps between checkpoints (0: at the end only)", 0, ge=0)
