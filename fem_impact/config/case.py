@@ -18,7 +18,6 @@ from ..fem.specs import BodyValue, Damping, Initial, Load, Material, MeshSpec, S
 from ..integrators.parameters import SolverParameters
 from ..nonsmooth.specs import Contact
 from .checks import check_case
-from .fields import default_of
 from .loader import (_apply_override, _brief, _display, _dotted, _error, _Invalid, _parse_yaml, _path_argument,
                      _plain, _set_key, _strings, yaml_value)
 from .schema import COMPONENTS, OutputSection, validate_case

@@ -14,7 +14,8 @@ import os
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import AfterValidator, Field, PlainValidator, PrivateAttr, ValidationInfo, WithJsonSchema, create_model, model_validator
+from pydantic import (AfterValidator, Field, PlainValidator, PrivateAttr, ValidationInfo, WithJsonSchema, create_model,
+                      model_validator)
 
 from ..expressions import RESERVED
 from ..fem.specs import BodyValue, Damping, Initial, Load, Material, MeshSpec, Support
@@ -299,7 +300,8 @@ class _ContactChecks(Section):
     def spec(self) -> Contact:
         law = "elastic_stop" if self.stiffness is not None else "newton"
         law_keys = {"stiffness": self.stiffness} if self.stiffness is not None else {"restitution": self.restitution}
-        return Contact(**{**self._relation, "friction": self.friction or 0.0}, restitution=self.restitution,
+        friction = 0.0 if self.friction is None else self.friction
+        return Contact(**{**self._relation, "friction": friction}, restitution=self.restitution,
                        stiffness=self.stiffness, law=law, law_keys=law_keys)
 
 
@@ -318,13 +320,14 @@ def _built_in_law(contact: Section, value: dict) -> None:
                                          "(or remove stiffness for a rigid contact)")
 
 
-_order = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness", "law", "friction", "point")
-_fields = {**_RELATION, "restitution": _law_key("newton", "restitution"),
+_CONTACT_ORDER = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness", "law", "friction",
+                  "point")
+_contact_keys = {**_RELATION, "restitution": _law_key("newton", "restitution"),
            "stiffness": _law_key("elastic_stop", "stiffness", None)}
 ContactSection = create_model("ContactSection", __base__=_ContactChecks, __module__=__name__,
                               __doc__="An item of ``contacts``: a unilateral contact, with the built-in laws' keys "
                                       "(restitution: newton; stiffness: elastic_stop) as its own.",
-                              **{name: _fields[name] for name in _order})
+                              **{name: _contact_keys[name] for name in _CONTACT_ORDER})
 _RelationSection = create_model("RelationSection", __base__=Section, __module__=__name__,
                                 **{**_RELATION, "law": (Name, Field(description="a registered contact law"))})
 
