@@ -535,3 +535,9 @@ def test_sections_declare_their_keys():
             if info.annotation in (float, int):
                 unit = (info.json_schema_extra or {}).get("unit")
                 assert unit, f"{section}.{name} has no unit"
+    from fem_impact.config.schema import key_rows
+
+    assert key_rows(SECTIONS["material"])[:2] == [
+        {"key": "E", "unit": "Pa", "default": "required", "range": "> 0", "description": "Young's modulus"},
+        {"key": "rho", "unit": "kg/m^3", "default": "required", "range": "> 0", "description": "density"}]
+    assert key_rows(SECTIONS["contacts"])[5]["range"] == "in [0, 1]"   # (restitution: declared by the law)

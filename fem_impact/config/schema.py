@@ -22,9 +22,11 @@ from ..fem.specs import BodyValue, Damping, Initial, Load, Material, MeshSpec, S
 from ..integrators.parameters import SolverParameters
 from ..nonsmooth.specs import Contact
 from .fields import (SPACE, TIME, CsvName, Integer, Name, Real, Section, _mapping, _number, bounds_of, choice,
-                     default_of, expression, key, list_of, mapping_of, problem, validate, vector)
+                     default_of, expression, key, key_rows, list_of, mapping_of, problem, validate, vector)
 from .loader import _brief, _Invalid, _show
 from .solver import solver_section
+
+__all__ = ["SECTIONS", "CaseFile", "key_rows", "validate_case"]
 
 SHAPES = ("bar",)
 BAR_ELEMENTS = ("simplex", "hex")   # triangles/tetrahedra, or quadrilaterals/hexahedra (2D/3D bar)
@@ -486,7 +488,8 @@ def validate_case(data: dict, folder: Path) -> dict:
         "reference": case.reference}
 
 
-# Each section's model (a list's: its items'): the case reference of the documentation reads them.
+# Each section's model (a list's: its items'): the case reference of the documentation reads them, a row per
+# key with key_rows(model) (the solver's keys: each method's schema, fem_impact.integrators.parameters.SCHEMAS).
 SECTIONS: dict[str, type[Section]] = {
     "mesh": MeshSection, "material": MaterialSection, "materials": MaterialSection, "damping": DampingSection,
     "initial": InitialSection, "supports": SupportSection, "loads": LoadSection, "contacts": ContactSection,
