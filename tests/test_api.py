@@ -221,10 +221,10 @@ def test_numpy_and_python_containers_are_taken_as_a_case_file_would_give_them():
 
 def test_a_reference_the_case_does_not_fit_is_refused_where_it_is_declared_and_left_behind_by_changes(tmp_path):
     """B1 (a clamped bar released against an obstacle) declared on B2's free bar is bad input, refused with the
-    message the studies give (one definition of what fits: fem_impact.config.references). A benchmark used as a
+    message the studies give (one definition of what fits: fem_impact.references). A benchmark used as a
     template (changes of other keys that take it out of its reference) runs without it, and the studies still
     refuse to measure against it."""
-    from fem_impact.config.references import from_case
+    from fem_impact.references import from_case
 
     with pytest.raises(CaseError) as declared:
         Case.from_dict({**SMALL, "reference": "b1"})

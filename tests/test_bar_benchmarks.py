@@ -7,8 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import CASES, run_case_file
-from fem_impact.config.references import b1_exact_u0, b2_checks, contact_window
+from conftest import CASES, b1_exact_u0, b2_checks, contact_window, run_case_file
 
 TOLERANCES = {"start": 0.02, "duration": 0.02, "mean_force": 0.02, "impulse": 0.01, "rebound": 0.02,
               "contact_end_u": 0.03}

@@ -507,3 +507,37 @@ def test_a_key_holding_a_newline_keeps_the_message_on_one_line(tmp_path, text):
     assert message.splitlines() == [message], message
     assert "\\n" in message or "\\u2028" in message, message
 
+
+
+def test_validating_loads_no_petsc():
+    """A case with friction is validated from its method's schema alone: neither PETSc nor dolfinx loads."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from fem_impact.config.case import load_case; case = load_case(sys.argv[1]); "
+            "assert case.contacts[0].friction > 0; "
+            "print(sorted(m for m in ('petsc4py', 'dolfinx', 'mpi4py') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code, str(CASES / "vibromotor.yaml")], capture_output=True,
+                         text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_sections_declare_their_keys():
+    """Every key of every section carries its meaning, and every number its unit (the case reference reads them)."""
+    from fem_impact.config.schema import SECTIONS
+    from fem_impact.integrators.parameters import SCHEMAS
+
+    for section, model in [*SECTIONS.items(), *((f"solver ({tag})", schema) for tag, schema in SCHEMAS.items())]:
+        for name, info in model.model_fields.items():
+            if name in ("method", "scheme"):   # (the method's name: its schema's docstring says what it is)
+                continue
+            assert info.description, f"{section}.{name} has no description"
+            if info.annotation in (float, int):
+                unit = (info.json_schema_extra or {}).get("unit")
+                assert unit, f"{section}.{name} has no unit"
+    from fem_impact.config.schema import key_rows
+
+    assert key_rows(SECTIONS["material"])[:2] == [
+        {"key": "E", "unit": "Pa", "default": "required", "range": "> 0", "description": "Young's modulus"},
+        {"key": "rho", "unit": "kg/m^3", "default": "required", "range": "> 0", "description": "density"}]
+    assert key_rows(SECTIONS["contacts"])[5]["range"] == "in [0, 1]"   # (restitution: declared by the law)

@@ -1,5 +1,5 @@
 """Observed orders of convergence (issue 5, "Done when" 1), measured with `fem-impact study convergence`
-(fem_impact.app.studies.convergence) against the exact solutions of fem_impact.config.references.
+(fem_impact.app.studies.convergence) against the exact solutions of fem_impact.references.
 
 - Free vibration without contact (cases/free_vibration.yaml, a free-free bar in its first mode):
   time-step refinement on a fine mesh; second order for the trapezoidal rule, first order with
@@ -9,7 +9,7 @@
 - The impact loss with e = 0 vanishes like h (order 1).
 - Truncation without static correction stays wrong as dt shrinks; the corrected model does not.
 
-Errors (fem_impact.config.references): displacement = RMS over time of the probes' error relative to the
+Errors (fem_impact.references): displacement = RMS over time of the probes' error relative to the
 displacement scale; impulse = total contact impulse; force = mean contact force over the exact
 contact phases; energy = largest deviation of kinetic + strain energy from the exact (constant)
 energy, i.e. the energy lost.

@@ -14,7 +14,7 @@ from conftest import CASES, run_case_file
 from fem_impact.build import model_and_constraints
 from fem_impact.config.case import load_case
 from fem_impact.integrators import CentralDifference, Newmark, Operators, integrate
-from fem_impact.config.references import column
+from fem_impact.references import column
 from test_bar_benchmarks import assert_b2, assert_energy
 
 

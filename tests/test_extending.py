@@ -8,6 +8,7 @@ from typing import Literal
 
 import numpy as np
 import pytest
+from pydantic import Field
 
 import fem_impact
 from fem_impact.integrators import parameters
@@ -131,6 +132,37 @@ def test_a_registered_contact_law_runs_with_its_own_keys(plastic_law):
     case = fem_impact.Case.from_dict(with_contact(law="plastic"))
     assert case.resolved()["contacts"][0]["law"] == "plastic"
     assert fem_impact.Case.from_dict(case.resolved()).contacts[0].law == "plastic"   # (its dump reads back)
+
+
+class SoftStopKeys(laws.LawKeys):
+    stiffness: float = Field(gt=0.0, description="spring stiffness", json_schema_extra={"unit": "N/m"})
+
+
+class SoftStop(laws.ContactLaw):
+    """An elastic stop under another name: its keys are its own schema's, checked as a case file checks any."""
+
+    name = "soft"
+    keys = SoftStopKeys
+
+    def compliance(self) -> float:
+        return 1.0 / self.params.stiffness
+
+
+def test_a_registered_laws_keys_are_reported_in_the_case_files_words():
+    laws.register(SoftStop)
+    try:
+        for value, message in ((-1.0, "contacts[0].stiffness: must be > 0, got -1.0"),
+                               ("x", "contacts[0].stiffness: expected a number, got 'x'"),
+                               (None, "contacts[0].stiffness: expected a number, got null")):
+            with pytest.raises(fem_impact.CaseError) as err:
+                fem_impact.Case.from_dict(with_contact(law="soft", stiffness=value))
+            assert str(err.value) == message
+        with pytest.raises(fem_impact.CaseError, match=r"^contacts\[0\]\.stiffness: missing required key$"):
+            fem_impact.Case.from_dict(with_contact(law="soft"))
+        assert fem_impact.Case.from_dict(with_contact(law="soft", stiffness=1e3)).contacts[0].law_keys == {
+            "stiffness": 1e3}
+    finally:
+        laws.unregister(SoftStop.name)
 
 
 def test_an_unregistered_law_is_refused_with_the_registered_ones():

@@ -158,3 +158,12 @@ def test_eta_is_a_duration_and_an_interruption_starts_its_own_line():
     assert "eta" in stream.getvalue() and not stream.getvalue().endswith("\n")
     Progress.end_line()
     assert stream.getvalue().endswith("\n")
+
+
+@pytest.mark.parametrize("key", ["output.every", "output.checkpoint_every"])
+def test_a_step_count_beyond_what_a_float_holds_is_refused_naming_the_key(key):
+    """The reduced model's scene frequency divides by every * dt: 10**30 overflowed in a float (a fuzz find)."""
+    from fem_impact.config.case import CaseError, load_case
+
+    with pytest.raises(CaseError, match=rf"{key}: must be in \[\d, 9007199254740992\]"):
+        load_case(CASES / "impacting_bar.yaml", [f"{key}={10**30}", "solver.method=modal"])

@@ -10,12 +10,11 @@ import pytest
 import scipy.linalg
 from mpi4py import MPI
 
-from conftest import CASES, run_case_file, run_cli
+from conftest import CASES, b2_checks, run_case_file, run_cli
 from fem_impact.build import model_and_constraints
 from fem_impact.config.case import load_case
 from fem_impact.fem.modes import compute_modes
 from fem_impact.fem.reduced import build_reduced
-from fem_impact.config.references import b2_checks
 from test_bar_benchmarks import B2A, assert_b2
 
 BAR = CASES / "impacting_bar.yaml"

@@ -19,9 +19,9 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from conftest import CASES, run_cli
+from conftest import CASES, b1_exact_u0, run_cli
 from fem_impact.config.case import CaseError, load_case
-from fem_impact.config.references import B1, B2, BarMode, b1_exact_u0, errors, from_case
+from fem_impact.references import B1, B2, BarMode, errors, from_case
 from fem_impact.app.studies import convergence
 from fem_impact.app.studies import methods as registry
 from fem_impact.app.studies.levels import Level, StudyStopped, run_levels
@@ -493,7 +493,7 @@ def test_central_difference_blows_up_above_the_cfl_limit(tmp_path):
 ])
 def test_position_level_multipliers_alone_make_the_contact_force_oscillate(tmp_path, case, method, oscillates):
     """The contact force's RMS deviation from the exact force over the contact phases, relative to
-    it (fem_impact.config.references.errors): with Carnot's correction 0.096 (B2a) and 0.18 (B1), with mass
+    it (fem_impact.references.errors): with Carnot's correction 0.096 (B2a) and 0.18 (B1), with mass
     redistribution 0.10 and 0.18, the ringing of the discrete bar at the ends of a contact;
     position-level multipliers alone make the force jump between 0 and about 3 times its value
     (measured 2.92 on B2a, 2.82 on B1). Threshold FORCE_OSCILLATION = 0.5."""

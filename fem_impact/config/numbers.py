@@ -31,15 +31,23 @@ def divisions(case: Case) -> tuple[int, ...]:
     return (spec.cells, *across[: spec.bar_dim - 1])
 
 
+def _dimensional(section: str) -> list[str]:
+    """The keys of a section that are numbers with a unit (as its schema declares them)."""
+    from .schema import SECTIONS
+
+    return [name for name, info in SECTIONS[section].model_fields.items() if info.annotation is float
+            and (info.json_schema_extra or {}).get("unit", "-") != "-"]
+
+
 def _values(case: Case):
     """(key path, value) of every dimensional number of the case that is not 0."""
     materials = ({("material",): case.material} if case.material is not None
                  else {("materials", body): material for body, material in case.materials.items()})
     for prefix, material in materials.items():
-        yield from ((prefix + (name,), getattr(material, name)) for name in ("E", "rho", "area"))
+        yield from ((prefix + (name,), getattr(material, name)) for name in _dimensional("material"))
     if case.mesh.file is None:
-        yield from ((("mesh", name), getattr(case.mesh, name)) for name in ("length", "height", "width"))
-    yield from ((("damping", name), getattr(case.damping, name)) for name in ("alpha", "beta"))
+        yield from ((("mesh", name), getattr(case.mesh, name)) for name in _dimensional("mesh"))
+    yield from ((("damping", name), getattr(case.damping, name)) for name in _dimensional("damping"))
     for index, contact in enumerate(case.contacts):
         yield from ((("contacts", index, name), getattr(contact, name)) for name in ("gap", "stiffness", "friction"))
         # A registered law's own numbers (those the contact does not hold under the same name already)

@@ -1,5 +1,5 @@
 """What the finite-element model is built from, as plain data: the mesh, materials, damping, initial
-state, supports and loads (the case file validates them: fem_impact/config/case.py), and the
+state, supports and loads (the case file validates them: fem_impact/config/schema.py), and the
 reduced model's choices. Nothing here reads a file or knows the case format."""
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Annotated, Literal, Union
+from typing import Annotated, ClassVar, Literal, Union
 
 from pydantic import (BaseModel, ConfigDict, Discriminator, Field, PlainValidator, Tag, TypeAdapter,
                       create_model, field_validator, model_validator)
@@ -59,6 +59,9 @@ class SolverParameters(BaseModel):
     """Keys every method takes: the time step, the end time, the mass matrix."""
 
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False)
+    # Whether the method's contact step takes Coulomb friction (the cone problem): the case file is
+    # checked against it without importing the integrator.
+    takes_friction: ClassVar[bool] = False
 
     method: str
     dt: float = _number("s", "time step", gt=0)
@@ -136,6 +139,7 @@ class MoreauJeanParameters(_MoreauJeanKeys, SolverParameters):
     """
 
     method: Literal["moreau_jean"] = "moreau_jean"
+    takes_friction: ClassVar[bool] = True
 
 
 class NewmarkParameters(_NewmarkKeys, SolverParameters):

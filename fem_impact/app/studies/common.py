@@ -15,7 +15,7 @@ import yaml
 
 from ...config.case import CaseError, yaml_value
 from ..outdir.writes import replacing
-from ...config.references import ERROR_MEASURES, RunReference, energy_growth, errors
+from ...references import ERROR_MEASURES, RunReference, energy_growth, errors
 from . import resolution
 from .levels import Outcome
 

@@ -19,7 +19,7 @@ import math
 from pathlib import Path
 
 from ...config.case import CaseError, yaml_value
-from ...config.references import ERROR_MEASURES, from_case
+from ...references import ERROR_MEASURES, from_case
 from . import methods as registry
 from . import resolution
 from .common import (

@@ -21,7 +21,7 @@ import math
 import sys
 from pathlib import Path
 
-from ...config.references import ERROR_MEASURES, from_case
+from ...references import ERROR_MEASURES, from_case
 from . import methods as registry
 from . import resolution
 from .common import (

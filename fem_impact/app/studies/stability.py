@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...config.references import ERROR_MEASURES, contact_spells, from_case
+from ...references import ERROR_MEASURES, contact_spells, from_case
 from . import methods as registry
 from . import resolution
 from .common import (
