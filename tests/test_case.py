@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from conftest import CASES
-from fem_impact.config.case import CaseError, load_case
+from fem_impact.config.case import Case, CaseError, load_case
 
 BASE = """\
 mesh:
@@ -541,3 +541,10 @@ def test_sections_declare_their_keys():
         {"key": "E", "unit": "Pa", "default": "required", "range": "> 0", "description": "Young's modulus"},
         {"key": "rho", "unit": "kg/m^3", "default": "required", "range": "> 0", "description": "density"}]
     assert key_rows(SECTIONS["contacts"])[5]["range"] == "in [0, 1]"   # (restitution: declared by the law)
+
+
+@pytest.mark.parametrize("path", sorted(CASES.glob("*.yaml")), ids=lambda p: p.stem)
+def test_every_shipped_cases_resolved_dump_reads_back_as_itself(path):
+    """case.resolved.yaml is a case file: read again it gives the same case (an axisymmetric one had an area)."""
+    case = load_case(path)
+    assert Case.from_dict(case.resolved()).resolved() == case.resolved()

@@ -165,9 +165,9 @@ class Case:
         mesh["file"] = None if self.mesh.file is None else str(self.mesh.file)
         data = {"name": self.name, "parameters": dict(self.parameters), "reference": self.reference, "mesh": mesh}
         if self.material is not None:
-            data["material"] = dataclasses.asdict(self.material)
+            data["material"] = _material_data(self.material, self.mesh.hypothesis)
         else:
-            data["materials"] = {body: dataclasses.asdict(m) for body, m in self.materials.items()}
+            data["materials"] = {body: _material_data(m, self.mesh.hypothesis) for body, m in self.materials.items()}
         data["damping"] = dataclasses.asdict(self.damping)
         data["initial"] = ({"from": str(self.initial.source)} if self.initial.source is not None else
                            {"displacement": _body_values_data(self.initial.displacement),
@@ -211,6 +211,14 @@ class Case:
             reason = getattr(err, "strerror", None) or err
             raise OutputFolderError(str(path), f"cannot write the resolved case: {reason}") from None
         return path
+
+
+def _material_data(material, hypothesis: str) -> dict:
+    """A material as the case file gives it: an axisymmetric model takes no area (its section is the circle)."""
+    data = dataclasses.asdict(material)
+    if hypothesis == "axisymmetric":
+        del data["area"]
+    return data
 
 
 def _contact_data(contact: Contact) -> dict:
