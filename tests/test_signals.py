@@ -57,9 +57,17 @@ def earlier(tmp_path):
     return out, snapshot(out)
 
 
+def default_signals() -> None:
+    """The run starts with the default dispositions, also when the suite was started with SIGHUP or SIGINT
+    ignored (nohup, a background job), which the run would rightly keep."""
+    for sig in (signal.SIGHUP, signal.SIGINT):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def start_and_kill(cmd, parent: Path, sig, target=None):
     """Start ``cmd``, wait until its time loop runs (its staging folder exists), send ``sig``; the result."""
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env())
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env(),
+                            preexec_fn=default_signals)
     deadline = time.monotonic() + 120
     while not list(parent.glob(".out.partial-*")):
         assert proc.poll() is None, proc.communicate()
@@ -133,7 +141,8 @@ def test_mpi_run_interrupted_keeps_its_checkpoint_and_says_so(earlier, sig):
     out, before = earlier
     cmd = ["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2",
            *command("run", CASE, "-o", out, "-q", *LONG, "--set", "output.checkpoint_every=200")]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env())
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env(),
+                            preexec_fn=default_signals)
     deadline = time.monotonic() + 120
     while not list(out.parent.glob(".out.checkpoint-*/checkpoint/state.json")):
         assert proc.poll() is None and time.monotonic() < deadline, "no checkpoint was written"
@@ -347,7 +356,8 @@ def test_study_with_children_interrupted_by_sigterm(earlier):
     out, before = earlier
     cmd = command("study", "convergence", CASE, "--vary", "mesh.cells=10,20,1000", "--set", "solver.t_end=20",
                   "-j", "2", "-q", "-o", out)
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env())
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env(),
+                            preexec_fn=default_signals)
     deadline = time.monotonic() + 120
     while not list(out.glob("levels/*/level.json")):
         assert proc.poll() is None, proc.communicate()
@@ -380,6 +390,7 @@ try:
 except Interrupted as err:
     sys.exit(100 + err.signum)
 """
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env(), timeout=120)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env(), timeout=120,
+                          preexec_fn=default_signals)
     assert done.returncode == 100 + sig, done.stderr
     assert "PETSC ERROR" not in done.stderr

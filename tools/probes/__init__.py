@@ -117,6 +117,13 @@ class _Hung(Exception):
         self.completed = completed
 
 
+
+def default_signals() -> None:
+    """A probed command starts with the default dispositions, also when the harness itself was started with
+    SIGHUP or SIGINT ignored (nohup, a background job): else it would rightly go on after them."""
+    for sig in (signal.SIGHUP, signal.SIGINT):
+        signal.signal(sig, signal.SIG_DFL)
+
 class Context:
     """What a probe works with: a folder of its own, the command line, snapshots of user files."""
 
@@ -146,7 +153,8 @@ class Context:
         environ.pop("PYTEST_CURRENT_TEST", None)
         start = time.monotonic()
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                cwd=cwd or self.folder, env=environ, start_new_session=True)
+                                cwd=cwd or self.folder, env=environ, start_new_session=True,
+                                preexec_fn=default_signals)
         if signal_at is not None:
             when, sig = signal_at
 
