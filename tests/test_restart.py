@@ -4,6 +4,7 @@ keeps its last checkpoint beside its output folder and continues from it to the 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import shutil
@@ -446,3 +447,33 @@ def test_a_restart_reads_the_checkpoint_it_names_not_another_killed_runs(tmp_pat
     beside = sorted(tmp_path.glob("run.checkpoint-*"))
     assert len(beside) == 1 and json.loads((beside[0] / "state.json").read_text())["t"] == 0.25
     assert not hidden.exists()
+
+
+def test_a_checkpoint_written_before_a_field_was_added_restores_it_at_its_default():
+    """A state saved by an earlier version lacks the fields added since (EnergyBudget.losses): those take
+    their defaults; a field without a default that is missing is still refused."""
+    from fem_impact.app.checkpoint.state import capture, check, restore
+    from fem_impact.mechanics.energy import EnergyBudget
+
+    class Part:
+        __checkpoint__ = ("budget",)
+
+        def __init__(self, budget):
+            self.budget = budget
+
+    saved = capture(Part(EnergyBudget(kinetic=1.5, strain=0.25, losses={"stop_loss": 0.125})))
+    earlier = {"budget": (*saved["budget"][:2], {k: v for k, v in saved["budget"][2].items() if k != "losses"})}
+    part = Part(EnergyBudget(losses={"stop_loss": 9.0}))
+    check(part, earlier)
+    restore(part, earlier)
+    assert part.budget.losses == {} and (part.budget.kinetic, part.budget.strain) == (1.5, 0.25)
+    from fem_impact.integrators.state import StepState
+
+    rows = np.zeros(1)
+    state = StepState(step=3, t=0.5, U=np.ones(2), V=np.zeros(2), A=np.zeros(2), gap=rows, force=rows, impulse=rows,
+                      energy=EnergyBudget(), normal_displacement=rows, normal_velocity=rows)
+    stepped = Part(state)
+    saved = capture(stepped)
+    without_t = {"budget": (*saved["budget"][:2], {k: v for k, v in saved["budget"][2].items() if k != "t"})}
+    with pytest.raises(ValueError, match=r"budget\.t: missing"):   # (StepState.t has no default)
+        check(stepped, without_t)

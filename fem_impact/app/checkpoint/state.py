@@ -110,6 +110,8 @@ def check(obj, state: dict) -> None:
                 raise ValueError(f"{path}: holds {', '.join(sorted(set(value[2]) - names))}, which it has not")
             for f in dataclasses.fields(template):
                 if f.name not in value[2]:
+                    if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING:
+                        continue   # a field added since the checkpoint was written: its default
                     raise ValueError(f"{path}.{f.name}: missing")
                 fits(getattr(template, f.name), value[2][f.name], f"{path}.{f.name}")
             return
