@@ -4,7 +4,6 @@ keeps its last checkpoint beside its output folder and continues from it to the 
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import re
 import shutil
