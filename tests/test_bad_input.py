@@ -1,4 +1,4 @@
-"""Bad input through the real command line (README.md, "Running cases").
+"""Bad input through the real command line (docs/running.md).
 
 Every bad case must end with a non-zero exit and a few plain lines on stderr naming the file,
 the key (and line, where known) and the problem; no traceback; the output folder, which holds

@@ -175,7 +175,7 @@ def test_the_fuzzer_reaches_both_outcomes():
 
 # --- the Python API and the command line with numeric extremes, wrong types and damaged meshes (issue 16) -------
 #
-# The policy (README, "Errors"): bad data raises CaseError naming the key, a run that cannot go on raises
+# The policy (docs/running.md, bad input and exit statuses): bad data raises CaseError naming the key, a run that cannot go on raises
 # SimulationError, an argument of a wrong Python type raises a TypeError that names the function and what it
 # takes; nothing else escapes. Cases are tiny (10 cells, 3 steps): most examples fail validation, and the few
 # that run take a fraction of a second.

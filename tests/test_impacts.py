@@ -1,5 +1,5 @@
 """impacts.csv: one row per impact (a contact's rows carrying impulses from one step to the last
-before none does): t, contact, impulse, speed, rows (README.md, "What a run writes")."""
+before none does): t, contact, impulse, speed, rows (docs/running.md, "What a run writes")."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ def impacts(folder):
 
 def test_the_free_bar_hits_the_wall_once_with_its_momentum(tmp_path):
     """B2a: one impact at t = gap / v0 = 0.1, approached at v0 = 1, impulse 2 rho A L v0 = 2 within
-    the scheme's 0.28 % (README, Verification); the bar's momentum changes by exactly the impulse."""
+    the scheme's 0.28 % (docs/verification.md); the bar's momentum changes by exactly the impulse."""
     result = fi.run(fi.load_case(CASES / "impacting_bar.yaml").with_changes({"output.vtk": False}),
                     outdir=tmp_path / "b2a")
     rows = impacts(tmp_path / "b2a")
@@ -35,7 +35,7 @@ def test_the_free_bar_hits_the_wall_once_with_its_momentum(tmp_path):
 
 
 def test_the_vibroconverter_gives_its_five_impacts(tmp_path):
-    """The free vibroconverter's five impacts: 21.657, 14.989, 8.266, 3.550, 0.921 mN s (README, Cases), each
+    """The free vibroconverter's five impacts: 21.657, 14.989, 8.266, 3.550, 0.921 mN s (docs/verification.md), each
     approached at a speed that falls with the mode's energy."""
     fi.run(fi.load_case(CASES / "vibroconverter_free.yaml").with_changes({"output.vtk": False}),
            outdir=tmp_path / "v")

@@ -1,4 +1,4 @@
-"""What a run writes (README.md, "What a run writes"): results.pvd, history.csv, summary.json, case.resolved.yaml."""
+"""What a run writes (docs/running.md, "What a run writes"): results.pvd, history.csv, summary.json, case.resolved.yaml."""
 
 from __future__ import annotations
 

@@ -139,7 +139,7 @@ def test_any_key_is_swept_at_the_case_forcing_frequency(tmp_path):
 
 
 def test_the_values_and_the_keys_a_sweep_takes():
-    """START,NEXT,...,END (the README's form) gives the evenly spaced values, END included; whole numbers
+    """START,NEXT,...,END (docs/studies.md's form) gives the evenly spaced values, END included; whole numbers
     stay whole; every other form is one plain refusal naming the option."""
     from fem_impact.app.studies.response import parse_vary
 

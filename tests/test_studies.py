@@ -174,7 +174,7 @@ def test_friction_case_methods_refuse_with_the_reason_or_run_when_a_given_change
 
 def test_a_method_is_applied_as_changes_and_the_given_changes_win():
     """A method is a mapping of changes; a study's given changes (the command line's --set) come after
-    them in the same change, so they win and may set the method's own keys (README: `--set
+    them in the same change, so they win and may set the method's own keys (docs/studies.md: `--set
     solver.modes=40` changes the modal methods' n1), which the file's newmark case alone refuses."""
     case = registry.apply("modal-static", load_case(BAR))
     assert (case.solver.method, case.solver.scheme, case.solver.modes) == ("modal", "newmark", 20)
@@ -559,7 +559,7 @@ def test_a_given_solver_key_goes_to_the_methods_that_take_it():
 
 
 def test_a_stability_study_takes_a_list_valued_change(tmp_path):
-    """``--set "loads=[{body: all, ...}]"`` (as the plate's map in the README): a level's changes hold a list."""
+    """``--set "loads=[{body: all, ...}]"`` (as the plate's map in docs/verification.md): a level's changes hold a list."""
     from fem_impact.app.studies.stability import stability_study
 
     result = stability_study(load_case(BAR), methods="moreau-jean", courants=[0.5], restitutions=[], lengths=[1.0],

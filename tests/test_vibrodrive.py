@@ -9,7 +9,7 @@
 - ``fem-impact sweep`` on the coarse case: sweep.csv and sweep.png, and bad input that exits
   with status 2 and writes nothing.
 
-Also a small command for the launch figures of a run (and the README's figure):
+Also a small command for the launch figures of a run (and the figure of docs/tutorials/vibrodrive.md):
 
     .venv/bin/python tests/test_vibrodrive.py results/vibrodrive [--plot docs/vibrodrive_history.png]
 

@@ -118,7 +118,7 @@ class FrictionColumns:
 
 
 class HistoryWriter:
-    """``history.csv``: one row for t = 0 and one per step (README.md, "What a run writes").
+    """``history.csv``: one row for t = 0 and one per step (docs/running.md, "What a run writes").
 
     With ``path`` None nothing is written: the rows are kept (on rank 0) for :meth:`columns_data`.
     """
@@ -340,7 +340,7 @@ class VTKWriter:
 
 class ImpactLog:
     """``impacts.csv``: one row per impact of a contact, from the step where its rows start to carry an
-    impulse to the last step before none does (README.md, "What a run writes").
+    impulse to the last step before none does (docs/running.md, "What a run writes").
 
     ``t`` is the end of the impact's first step (history.csv's time of it), ``impulse`` the contact's
     impulses summed over the impact, ``speed`` the largest normal approach speed (P V) among its rows

@@ -145,7 +145,7 @@ class MoreauJeanParameters(_MoreauJeanKeys, SolverParameters):
 class NewmarkParameters(_NewmarkKeys, SolverParameters):
     """``newmark``: the paper's scheme, Newmark with position-level multipliers and Carnot's correction.
 
-    Its contact forces can create energy at large steps in persistent contact (README).
+    Its contact forces can create energy at large steps in persistent contact (docs/methods.md).
     """
 
     method: Literal["newmark"]

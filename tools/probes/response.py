@@ -1,6 +1,6 @@
 """Class ``response``: ``fem-impact study response`` with every kind of ``--vary`` key (the frequency's
 parameter, an amplitude, a gap, the keys the study sets, keys that do not exist, malformed value lists, the
-README's own form), sizes beyond the guard, sweeps up and down into one folder, ``--no-shooting``,
+documented form), sizes beyond the guard, sweeps up and down into one folder, ``--no-shooting``,
 ``--flight events``, a free body, ``-q``, and the Python API with bad arguments. A probe judges an exact
 or physical answer where there is one (the impact oscillator's closed forms, linearity in the amplitude,
 a free body's momentum balance), else a plain refusal (status 2, one line naming the option), with
@@ -105,7 +105,7 @@ def _amplitude(ctx):
     return ok(f"impulse ratio {ratio:.10f}") if abs(ratio - 2) < 1e-7 else wrong(f"impulse ratio {ratio}, not 2")
 
 
-@probe("response", "the README's START,NEXT,...,END form, event-driven: the closed-form impact speed")
+@probe("response", "the documented START,NEXT,...,END form, event-driven: the closed-form impact speed")
 def _readme_form(ctx):
     out = ctx.folder / "out"
     r = ctx.run("study", "response", OSC, "--vary", "parameters.f=0.45,0.5,...,0.55", "--flight", "events",

@@ -1,6 +1,6 @@
 """Checkpoints: a run's whole state on disk, to continue it later (``fem-impact run CASE --restart DIR``).
 
-A checkpoint is a folder ``checkpoint/`` in the run's output folder (README.md, "Checkpoint and
+A checkpoint is a folder ``checkpoint/`` in the run's output folder (docs/running.md, "Checkpoint and
 restart"):
 
 - ``state.json``: where the state stands (``format``, ``t``, ``step``, ``ranks``) and what it
