@@ -123,3 +123,26 @@ def test_the_site_builds_with_warnings_as_errors(tmp_path):
     reference = re.sub(r"<[^>]+>", "", (tmp_path / "html" / "case_reference.html").read_text())
     assert "method: moreau_jean" in reference and "law: elastic_stop" in reference
     assert (tmp_path / "html" / "tutorials" / "vibrodrive.html").is_file()
+
+
+def test_the_law_example_of_the_python_api_page_runs_and_books_its_loss():
+    """The page's damped stop, as written there, registers and runs a case, its loss in its own column."""
+    import re as _re
+
+    import fem_impact
+    from fem_impact.config.case import load_case
+    from fem_impact.nonsmooth import laws
+
+    page = (ROOT / "docs" / "python_api.md").read_text()
+    code = next(block for block in _re.findall(r"```python\n(.*?)```", page, _re.S) if "class DampedStop" in block)
+    contact = _re.search(r"# contacts: (\[.*\])", code, _re.S).group(1)
+    try:
+        exec(compile(code, "docs/python_api.md", "exec"), {})
+        case = load_case(ROOT / "cases" / "impacting_bar.yaml",
+                         ["contacts=" + " ".join(contact.replace("#", "").split()), "solver.method=moreau_jean",
+                          "mesh.cells=20", "solver.dt=0.01", "solver.t_end=0.5"])
+        summary = fem_impact.run(case).summary
+    finally:
+        laws.LAWS.pop("damped_stop", None)
+    assert summary["stop_damping_loss"] > 0
+    assert summary["max_energy_error_relative"] <= 1e-10
