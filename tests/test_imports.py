@@ -220,3 +220,10 @@ def test_the_layer_check_sees_a_violation(tmp_path):
     assert layer_of("fem_impact") == 0 and layer_of("fem_impact.linalg.factor") == layer_of("fem_impact.linalg")
     assert layer_of("fem_impact.periodic.shooting") < layer_of("fem_impact.build") < layer_of("fem_impact.config")
     assert layer_of("fem_impact.unknown") is None
+
+
+def test_modules_are_of_a_size_a_reader_takes_in():
+    """A module per concern: none over 700 lines, the case file's front (config/case.py) under 400."""
+    sizes = {path.relative_to(ROOT).as_posix(): len(path.read_text().splitlines()) for path in PACKAGE.rglob("*.py")}
+    assert {path: n for path, n in sizes.items() if n > 700} == {}
+    assert sizes["fem_impact/config/case.py"] < 400
