@@ -95,7 +95,7 @@ def full_system(case: Case, model: Model, cons: Constraints) -> System:
     ops = Operators(model.M, model.K, model.C, model.load, cons.P_local, cons.d0, cons.restitution,
                     massless=model.massless, stop_compliance=cons.compliance,
                     friction=cons.friction if cons.pt else None, tangents=cons.tangent_local,
-                    tangent_of=cons.tangent_of, laws=cons.laws)
+                    tangent_of=cons.tangent_of, laws=cons.laws, relations=cons.relations)
     return System(model, cons, None, ops, StateFields(cons), model.U0, model.V0, {"modes": None})
 
 
@@ -118,7 +118,8 @@ def reduced_operators(red: ReducedModel, cons: Constraints) -> Operators:
     if cons.pt:
         friction = dict(friction=cons.friction, tangents=red.tangents, tangent_of=cons.tangent_of)
     return Operators(np.ones(red.modes), red.stiffness, red.damping, red.load, red.rows, cons.d0, cons.restitution,
-                     static=red.static, stop_compliance=cons.compliance, laws=cons.laws, **friction)
+                     static=red.static, stop_compliance=cons.compliance, laws=cons.laws, relations=cons.relations,
+                     **friction)
 
 
 def make_integrator(case: Case, operators: Operators):

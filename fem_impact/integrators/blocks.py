@@ -265,20 +265,33 @@ class BlockStepper:
         ops = self.ops
         if not ops.p:
             return t.size
-        scale = np.abs(steps.U) @ self.abs_Pt   # |P| |U| + |d0| + |offset| >= what P U and d0 are made of
-        scale += self.abs_d0
+        d, abs_d = self._gaps(t)
+        scale = np.abs(steps.U) @ self.abs_Pt   # |P| |U| + |d| + |offset| >= what P U and d are made of
+        scale += abs_d
         scale += np.abs(pu - steps.PU)
-        gap = ops.d0 - pu
+        gap = d - pu
         ok = gap > SAFETY * scale + TINY
         if self.predicted is not None:   # rows decided at a step's start: the gap predicted to mid-step
             rows = self.predicted
             pv = steps.PV[:, rows]
+            if ops.moving:   # (velocities relative to the obstacles, at each step's start)
+                pv = pv - np.array([ops.d_rate(tj) for tj in t])[:, rows]
             gap0 = np.concatenate((st.gap[None, rows], gap[:-1, rows]))
-            pv0 = np.concatenate((st.normal_velocity[None, rows], pv[:-1]))
-            scale0 = np.concatenate(((self.abs_d0 + np.abs(st.normal_displacement))[None, rows], scale[:-1, rows]))
+            pv0 = np.concatenate((ops.relative(st.normal_velocity, st.t)[None, rows], pv[:-1]))
+            abs_d0 = self.abs_d0 if d is ops.d0 else np.abs(ops.gap0(st.t))
+            scale0 = np.concatenate(((abs_d0 + np.abs(st.normal_displacement))[None, rows], scale[:-1, rows]))
             ok[:, rows] &= gap0 - 0.5 * self.integrator.dt * pv0 > SAFETY * scale0 + TINY
         good = ok.all(axis=1)
         return t.size if good.all() else int(np.argmin(good))
+
+    def _gaps(self, t) -> tuple[np.ndarray, np.ndarray]:
+        """The obstacles' positions ``d`` at the steps' times ``t`` (L x p) and ``|d|``; ``d0`` itself
+        (and its kept ``|d0|``) while no obstacle moves."""
+        ops = self.ops
+        if not ops.moving:
+            return ops.d0, self.abs_d0
+        d = np.array([ops.gap0(tj) for tj in t])
+        return d, np.abs(d)
 
     def _block(self, st: StepState, t, steps: OpenSteps, pu, loads, coefficients) -> StepBlock:
         """The StepBlock of the kept steps: contact rows and the energy budget of each step."""
@@ -327,7 +340,7 @@ class BlockStepper:
             constant(e0.numerical_loss),
             roundoff=np.finfo(float).eps * ((U * U) @ np.abs(self.open_step.stiffness)) + it._start_roundoff,
             losses=dict(e0.losses))
-        return StepBlock(np.arange(st.step + 1, st.step + size + 1), t, U, V, steps.A, ops.d0 - pu, zeros,
+        return StepBlock(np.arange(st.step + 1, st.step + size + 1), t, U, V, steps.A, self._gaps(t)[0] - pu, zeros,
                          zeros.copy(), energy, pu, steps.PV, st,
                          coefficients[1:] if coefficients is not None else None, dict(steps.carry, R=loads[1:]))
 

@@ -61,7 +61,7 @@ class CentralDifference(ContactScheme):
             raise ValueError("central difference needs mass on every dof (no mass redistribution)")
         S = ops.algebra.combine((1.0, ops.M), (0.5 * dt, ops.C))
         super().__init__(ops, dt, S, impact_correction=False)
-        # the laws' rows: g = d0 - P U + c lam (+ their memory) >= 0 at the step after next
+        # the laws' rows: g = d(t) - P U + c lam (+ their memory) >= 0 at the step after next
         self.lcp = OneStepProblem(self.W, ops.laws, dt, weight=dt * dt)
         self.start_matrix = None   # (built at the start if a contact needs it: it takes D)
         self.critical_dt = critical_time_step(ops)
@@ -83,10 +83,10 @@ class CentralDifference(ContactScheme):
         pu, pv, pa = self._initial_state(U0, V0, t0)
         force = np.zeros(ops.p)
         if ops.p:
-            q = ops.d0 - (pu + dt * pv + 0.5 * dt * dt * pa)
+            q = ops.gap0(t0 + dt) - (pu + dt * pv + 0.5 * dt * dt * pa)
             if np.any(q < 0.0):   # a contact closes in the first step
                 self.start_matrix = OneStepProblem(self.D, ops.laws, dt, weight=0.5 * dt * dt)
-                force, _, _ = self.start_matrix.solve(self.start_matrix.q(q, ops.d0 - pu))
+                force, _, _ = self.start_matrix.solve(self.start_matrix.q(q, ops.gap0(t0) - pu))
             if force.any():
                 self.H.subtract_from(self.A, force)
         energy = EnergyBudget()
@@ -96,7 +96,7 @@ class CentralDifference(ContactScheme):
         energy.scheme = SCHEME_ENERGY * dt * dt * float(self.alg.allsum(np.array([self.A @ self.MA]))[0])
         self._stop_force = np.zeros(ops.p)   # at t0 an elastic stop is relaxed (the initial gaps are open)
         energy.initial = energy.total
-        self.state = StepState(step=0, t=t0, U=self.U, V=self.V, A=self.A, gap=ops.d0 - pu, force=force,
+        self.state = StepState(step=0, t=t0, U=self.U, V=self.V, A=self.A, gap=ops.gap0(t0) - pu, force=force,
                                impulse=np.zeros(ops.p), energy=energy, normal_displacement=pu,
                                normal_velocity=pv)
         return self.state
@@ -117,11 +117,12 @@ class CentralDifference(ContactScheme):
         p = ops.p
         force = np.zeros(p)
         pu, pv = st.normal_displacement, st.normal_velocity
+        d1 = ops.gap0(t1)   # (the obstacles' positions at t1: d0 while none moves)
         if p:
             pu, pv_pred, pa = ops.project_many(U, V, A)
             # Forward increment: the force at t1 keeps the gaps at t1 + dt non-negative.
-            q = ops.d0 - (pu + dt * pv_pred + dt * dt * pa)
-            force, _, _ = self.lcp.solve(self.lcp.q(q, ops.d0 - pu), guess=st.force > 0.0)
+            q = ops.gap0(t1 + dt) - (pu + dt * pv_pred + dt * dt * pa)
+            force, _, _ = self.lcp.solve(self.lcp.q(q, d1 - pu), guess=st.force > 0.0)
             if force.any():
                 self.G.subtract_from(A, force)
                 pa = pa - self.W @ force
@@ -143,9 +144,10 @@ class CentralDifference(ContactScheme):
         self._step_energies(energy, t1, 0.5, 0.5, self.MV, KU_rest, float(pu.dot(force)) if p else 0.0,
                             scheme_weight=SCHEME_ENERGY * dt * dt)
         # The force of step n keeps the gaps at t_n+1: an elastic stop holds c F_n^2 / 2 at t1.
-        self._book_stops(energy, (self._stop_force, st.gap), (st.force, ops.d0 - pu))
+        gap = d1 - pu
+        self._book_stops(energy, (self._stop_force, st.gap), (st.force, gap))
         self._stop_force = st.force
-        self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=ops.d0 - pu, force=force,
+        self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=gap, force=force,
                                impulse=impulse, energy=energy, normal_displacement=pu, normal_velocity=pv)
         return self.state
 

@@ -6,7 +6,7 @@ contact acts over a step:
 
 - Newmark (the paper) books the contact forces with the trapezoidal weights: over a step the
   contact does the work ``-Delta(P U) . (F_n + lam0_n+1)/2``, which by complementarity at both
-  ends (``F . g = 0``, ``g = d0 - P U``) is ``(F_n . g_n+1 - lam0_n+1 . g_n) / 2``. The first
+  ends (``F . g = 0``, ``g = d(t) - P U``) is ``(F_n . g_n+1 - lam0_n+1 . g_n) / 2``. The first
   term is energy *given* to the structure by a row that carried a force at t_n and is open at
   t_n+1; at Courant numbers far above 1 the stiff modes ring with period 2 dt, rows open and
   close every step, and those release terms win: energy is created while the balance still
@@ -41,7 +41,7 @@ import numpy as np
 
 from ..errors import ContactSolverError
 from ..nonsmooth.friction import FrictionProblem
-from ..nonsmooth.lcp import TINY, solve_lcp
+from ..nonsmooth.lcp import solve_lcp
 from ..nonsmooth.problem import OneStepProblem, carnot_projection
 from .blocks import OpenStep, OpenSteps, diagonal
 from ..linalg.backends import DenseAlgebra
@@ -58,7 +58,7 @@ REGULARIZATION = 1e-10   # of the diagonal: the shift of a singular frictional W
 
 
 class MoreauJean(ContactScheme):
-    """Moreau-Jean theta-method for ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d0``, ``lam >= 0``.
+    """Moreau-Jean theta-method for ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d(t)``, ``lam >= 0``.
 
     Parameters (``solver.theta``, ``solver.level``):
 
@@ -216,7 +216,7 @@ class MoreauJean(ContactScheme):
         force = np.zeros(ops.p)
         if ops.static:   # forces of the compliant rows that the initial state already loads
             c = ~ops.static.rigid_rows
-            force[c] = solve_lcp(ops.static.compliance[c][:, c], (ops.d0 - ops.static.offset(t0) - pu)[c])[0]
+            force[c] = solve_lcp(ops.static.compliance[c][:, c], (ops.gap0(t0) - ops.static.offset(t0) - pu)[c])[0]
             pu = pu + ops.static.offset(t0) - ops.static.compliance @ force
         energy = EnergyBudget()
         energy.kinetic, energy.strain = self._quadratic_energies()
@@ -226,11 +226,12 @@ class MoreauJean(ContactScheme):
         alg.mult(ops.K, self.V, self.KV)
         if ops.C is not None:
             alg.mult(ops.C, self.V, self.CV)
-        self._book_stops(energy, (force, ops.d0 - pu), (force, ops.d0 - pu))
+        gap = ops.gap0(t0) - pu
+        self._book_stops(energy, (force, gap), (force, gap))
         if ops.static:
             energy.strain += ops.static.energy(t0, force)
         energy.initial = energy.total
-        self.state = StepState(step=0, t=t0, U=self.U, V=self.V, A=self.A, gap=ops.d0 - pu, force=force,
+        self.state = StepState(step=0, t=t0, U=self.U, V=self.V, A=self.A, gap=gap, force=force,
                                impulse=np.zeros(ops.p), energy=energy, normal_displacement=pu,
                                normal_velocity=pv)
         if self.friction is not None:
@@ -291,8 +292,10 @@ class MoreauJean(ContactScheme):
             step_contact_loss = float(impulse.dot(0.5 * (st.normal_velocity + pv_star)))
             if np.count_nonzero(self.carnot_rows):
                 pu_end = self._pu_dyn + dt * ((1.0 - theta) * st.normal_velocity + theta * pv_star)
-                pv, restitution_loss, lam = self._restitution(impulse, st.normal_velocity, pv, pu_end,
-                                                              step_contact_loss, jump)
+                guard = step_contact_loss
+                if ops.moving:   # (Carnot's guard weighs the loss in the obstacles' frame)
+                    guard = float(impulse.dot(ops.relative(0.5 * (st.normal_velocity + pv_star), t1)))
+                pv, restitution_loss, lam = self._restitution(impulse, st.normal_velocity, pv, pu_end, guard, jump, t1)
                 if lam is not None:   # Carnot's correction is an impulse too: the step's total (history)
                     percussion = impulse + lam
         np.subtract(V, A, out=A)
@@ -329,8 +332,9 @@ class MoreauJean(ContactScheme):
         self._step_energies(energy, t1, 1.0 - theta, theta, self.MV, KU=self.KU)
         if corrected and ops.C is not None:   # the next step starts from the corrected velocity
             alg.mult(ops.C, V, self.CV)
-        self._book_stored(energy, st, force, ops.d0 - pu, t1, theta)
-        self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=ops.d0 - pu, force=force,
+        gap = ops.gap0(t1) - pu
+        self._book_stored(energy, st, force, gap, t1, theta)
+        self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=gap, force=force,
                                impulse=percussion, energy=energy, normal_displacement=pu, normal_velocity=pv)
         if tangential is not None:
             if corrected:   # a velocity correction moved the tangent rows' dofs too
@@ -510,23 +514,25 @@ class MoreauJean(ContactScheme):
         ops, dt, theta = self.ops, self.dt, self.theta
         pv0 = st.normal_velocity   # P V0 (the dynamic part: a static part has no velocity of its own)
         gap0 = st.gap
-        # Rigid rows: active when the gap predicted to mid-step is closed. Newton's law
-        # -P V1 - e' P V0 >= 0, with e' = e while approaching (P V0 >= 0), 1 while separating.
-        e = np.where(pv0 >= 0.0, ops.restitution, 1.0)
-        q = -pv_free - e * pv0
-        active = self.position_rows | (gap0 - 0.5 * dt * pv0 <= 0.0)
+        # Rigid rows: active when the gap predicted to mid-step is closed. Newton's law on the
+        # velocities relative to the obstacles, -P V1 - e' P V0 >= 0, with e' = e while approaching
+        # (P V0 >= 0), 1 while separating.
+        rel0 = ops.relative(pv0, st.t)
+        e = np.where(rel0 >= 0.0, ops.restitution, 1.0)
+        q = -ops.relative(pv_free, t1) - e * rel0
+        active = self.position_rows | (gap0 - 0.5 * dt * rel0 <= 0.0)
         if np.count_nonzero(self.position_rows):
-            # Elastic rows (and every row at the position level): d0 - P U1 + c p / dt >= 0 with
+            # Elastic rows (and every row at the position level): d(t1) - P U1 + c p / dt >= 0 with
             # P U1 = P U0 + dt ((1 - theta) P V0 + theta P V1), divided by theta dt to keep the LCP
             # matrix symmetric.
             el = self.position_rows
             offset = ops.static.offset(t1) if ops.static else 0.0
-            g_free = (ops.d0 - offset - self._pu_dyn - dt * (1.0 - theta) * pv0) / (theta * dt) - pv_free
+            g_free = (ops.gap0(t1) - offset - self._pu_dyn - dt * (1.0 - theta) * pv0) / (theta * dt) - pv_free
             q = self.lcp.q(np.where(el, g_free, q), gap0)
         return q, active
 
     def _restitution(self, impulse: np.ndarray, pv0: np.ndarray, pv: np.ndarray, pu: np.ndarray,
-                     contact_loss: float, jump: float) -> tuple[np.ndarray, float, np.ndarray | None]:
+                     contact_loss: float, jump: float, t1: float) -> tuple[np.ndarray, float, np.ndarray | None]:
         """Position level: Carnot's correction on the rigid rows held at the end of the step.
 
         A row held by a position-level impulse leaves the trapezoidal step with a spurious
@@ -544,14 +550,16 @@ class MoreauJean(ContactScheme):
         # approaching without one (a gap closing exactly at the step's end: whether round-off
         # then gives an impulse of 1e-15 or none must not decide whether the row stops).
         ops = self.ops
-        at_obstacle = ops.d0 - pu <= 1e-10 * (self._abs_d0 + np.abs(pu)) + TINY
-        rows = np.flatnonzero(self.carnot_rows & ((impulse > 0.0) | (at_obstacle & (pv >= 0.0))))
+        at_obstacle = self._at_obstacle(pu, t1)
+        rel, rel0 = ops.relative(pv, t1), ops.relative(pv0, t1)   # (relative to the obstacles)
+        rows = np.flatnonzero(self.carnot_rows & ((impulse > 0.0) | (at_obstacle & (rel >= 0.0))))
         if not rows.size:
             return pv, 0.0, None
         e = self.ops.restitution[rows]
         # (In a persisting contact the held rows end the step at rest to round-off, P V* = -P V0 = 0:
         # no correction, and no solve with M.)
-        found = carnot_projection(self.carnot, rows, pv[rows], -e * np.maximum(pv0[rows], 0.0), e, contact_loss, jump)
+        found = carnot_projection(self.carnot, rows, rel[rows], -e * np.maximum(rel0[rows], 0.0), e, contact_loss,
+                                  jump)
         if found is None:
             return pv, 0.0, None
         lam_a, loss = found

@@ -19,7 +19,7 @@ CHECK_EVERY = 32   # steps: the strain energy by a product with K (see the end o
 
 
 class Newmark(ContactScheme):
-    """Newmark (beta, gamma) for ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d0``, ``lam >= 0``.
+    """Newmark (beta, gamma) for ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d(t)``, ``lam >= 0``.
 
     Parameters (``solver.beta``, ``solver.gamma``, ``solver.impact_correction``):
 
@@ -51,7 +51,7 @@ class Newmark(ContactScheme):
         super().__init__(ops, dt, S, impact_correction)
         # A quasi-static part (reduced model) makes the contact rows compliant: lam0 then
         # solves an LCP in beta dt^2 W + P S_k P^T; the laws add their compliance on the diagonal
-        # (g = d0 - P U + c lam0 >= 0) and their memory to q (nonsmooth/problem.py).
+        # (g = d(t) - P U + c lam0 >= 0) and their memory to q (nonsmooth/problem.py).
         static = ops.static
         self.lcp = OneStepProblem(self.W, ops.laws, dt, weight=beta * dt * dt,
                                   static=static.compliance if static else None)
@@ -145,22 +145,23 @@ class Newmark(ContactScheme):
         self._evaluate_load(t1)
         rhs = self._free_rhs(U, V)
 
-        # Position-level multipliers: g = d0 - P U_free + beta dt^2 W lam0 >= 0, lam0 >= 0.
+        # Position-level multipliers: g = d(t1) - P U_free + beta dt^2 W lam0 >= 0, lam0 >= 0.
         # (Small arrays below: .dot and count_nonzero cost half of @ and .any().)
         p, bdt2, gdt = ops.p, beta * dt * dt, gamma * dt
         lam0 = np.zeros(p)
+        d1 = ops.gap0(t1)   # (the obstacles' positions at t1: d0 while none moves)
         if p:
             offset = ops.static.offset(t1) if ops.static else 0.0
             guess = st.force > 0.0
             if self._condensed is not None:   # one solve, the multipliers between its halves
                 pu_pred, pv_pred = ops.project_many(U, V)
-                q_pred = ops.d0 - offset - pu_pred
+                q_pred = d1 - offset - pu_pred
                 pa, lam0 = self._condensed_solve(
                     rhs, A, lambda pa: self.lcp.solve(self.lcp.q(q_pred - bdt2 * pa, st.gap), guess=guess)[0])
             else:
                 self.solve_S(rhs, A)
                 pu_pred, pv_pred, pa = ops.project_many(U, V, A)
-                lam0 = self.lcp.solve(self.lcp.q(ops.d0 - offset - (pu_pred + bdt2 * pa), st.gap), guess=guess)[0]
+                lam0 = self.lcp.solve(self.lcp.q(d1 - offset - (pu_pred + bdt2 * pa), st.gap), guess=guess)[0]
                 if np.count_nonzero(lam0):
                     self.G.subtract_from(A, lam0)
             if np.count_nonzero(lam0):
@@ -184,9 +185,10 @@ class Newmark(ContactScheme):
             pv_star = pv_pred + gdt * pa
             f_mean = (1.0 - gamma) * st.force + gamma * lam0
             s0 = dt * f_mean
-            closed = self._closed(pu, lam0)
-            if np.count_nonzero(closed):
-                res = impact_correction(self.carnot, closed, s0, pv_star, st.normal_velocity, pa, lam0, ops.restitution)
+            closed = self._closed(pu, lam0, t1)
+            if np.count_nonzero(closed):   # (Newton's law on the velocities relative to the obstacles)
+                res = impact_correction(self.carnot, closed, s0, ops.relative(pv_star, t1),
+                                        ops.relative(st.normal_velocity, t1), pa, lam0, ops.restitution)
                 force, impulse = res.force, s0 + res.lam1
                 pv, loss = self._apply_corrections(res, pv_star)
                 energy.impact_loss += loss
@@ -213,8 +215,9 @@ class Newmark(ContactScheme):
         axpy(self.MV, dt * gamma, self.MA)
         KU_rest = self.MA if (st.step + 1) % CHECK_EVERY else None
         self._step_energies(energy, t1, 1.0 - gamma, gamma, self.MV, KU_rest, float(pu_dyn.dot(force)) if p else 0.0)
-        self._book_stored(energy, st, force, ops.d0 - pu, t1, gamma)
+        gap = d1 - pu
+        self._book_stored(energy, st, force, gap, t1, gamma)
 
-        self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=ops.d0 - pu, force=force,
+        self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=gap, force=force,
                                impulse=impulse, energy=energy, normal_displacement=pu, normal_velocity=pv)
         return self.state

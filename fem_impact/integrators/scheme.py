@@ -23,7 +23,7 @@ EPS = np.finfo(float).eps
 
 
 class ContactScheme:
-    """Base of the integrators: ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d0``, ``lam >= 0``.
+    """Base of the integrators: ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d(t)``, ``lam >= 0``.
 
     Built once: the factorization of the step matrix ``S`` (given by the subclass) and of ``M``,
     ``G = S^-1 P^T``, ``H = M^-1 P^T`` and the p x p matrices ``W = P G`` and ``D = P H``.
@@ -181,12 +181,18 @@ class ContactScheme:
         if self.track_du:
             np.copyto(self.U_prev, self.U)
 
-    def _closed(self, pu: np.ndarray, lam0: np.ndarray) -> np.ndarray:
-        """Impact rows closed at the end of a step: pushed by lam0, or at zero gap up to round-off."""
+    def _closed(self, pu: np.ndarray, lam0: np.ndarray, t: float) -> np.ndarray:
+        """Impact rows closed at the end of a step (at t): pushed by lam0, or at zero gap up to round-off."""
         closed = lam0 > 0.0
         if np.count_nonzero(closed) < closed.size:   # (all pushed: the common case in a contact)
-            closed |= self.ops.d0 - pu <= 1e-10 * (self._abs_d0 + np.abs(pu)) + TINY
+            closed |= self._at_obstacle(pu, t)
         return closed & self.impact_rows
+
+    def _at_obstacle(self, pu: np.ndarray, t: float) -> np.ndarray:
+        """The rows at zero gap ``d(t) - P U`` up to round-off."""
+        d = self.ops.gap0(t)
+        scale = self._abs_d0 if d is self.ops.d0 else np.abs(d)
+        return d - pu <= 1e-10 * (scale + np.abs(pu)) + TINY
 
     def _apply_corrections(self, res: ImpactResult, pv: np.ndarray) -> tuple[np.ndarray, float]:
         """Velocity (-H lam1) and acceleration (-H lam2) corrections; returns the new P V and the
@@ -333,15 +339,16 @@ class ContactScheme:
         force = np.zeros(p)
         if static:  # forces of the compliant rows that the initial state already loads
             c = ~static.rigid_rows
-            force[c] = solve_lcp(static.compliance[c][:, c], (ops.d0 - static.offset(t0) - pu)[c])[0]
+            force[c] = solve_lcp(static.compliance[c][:, c], (ops.gap0(t0) - static.offset(t0) - pu)[c])[0]
             if force.any():
                 self.H.subtract_from(self.A, force)
                 pa = pa - self.D @ force
             pu = pu + static.offset(t0) - static.compliance @ force
-        closed = self._closed(pu, force)
+        closed = self._closed(pu, force, t0)
         if not np.count_nonzero(closed):   # (nothing to correct: D and H are not needed)
             return force, np.zeros(p), pu, pv
-        res = impact_correction(self.carnot, closed, np.zeros(p), pv, pv, pa, force, ops.restitution)
+        rel = ops.relative(pv, t0)   # (Newton's law on the velocity relative to the obstacle)
+        res = impact_correction(self.carnot, closed, np.zeros(p), rel, rel, pa, force, ops.restitution)
         pv, energy.impact_loss = self._apply_corrections(res, pv)
         return res.force, res.lam1.copy(), pu, pv
 
@@ -393,7 +400,7 @@ class ContactScheme:
         (the static part's offset at its time added; no force)."""
         st, static = self.state, self.ops.static
         pu = pu_dyn + static.offset(st.t) - static.compliance.dot(st.force) if static is not None else pu_dyn
-        st.normal_displacement, st.normal_velocity, st.gap = pu, pv, self.ops.d0 - pu
+        st.normal_displacement, st.normal_velocity, st.gap = pu, pv, self.ops.gap0(st.t) - pu
 
     def start(self, U0, V0, t0: float = 0.0) -> StepState:
         """Initial acceleration from the equation of motion; closed contacts get their impulse and force."""
@@ -406,10 +413,11 @@ class ContactScheme:
         energy.kinetic, energy.strain = self._quadratic_energies()
         energy.load_scale = self._start_load_scale
         energy.roundoff = self._start_roundoff
-        self._book_stops(energy, (force, ops.d0 - pu), (force, ops.d0 - pu))
+        gap = ops.gap0(t0) - pu
+        self._book_stops(energy, (force, gap), (force, gap))
         if ops.static:
             energy.strain += ops.static.energy(t0, force)
         energy.initial = energy.total + energy.impact_loss
-        self.state = StepState(step=0, t=t0, U=self.U, V=self.V, A=self.A, gap=ops.d0 - pu, force=force,
+        self.state = StepState(step=0, t=t0, U=self.U, V=self.V, A=self.A, gap=gap, force=force,
                                impulse=impulse, energy=energy, normal_displacement=pu, normal_velocity=pv)
         return self.state

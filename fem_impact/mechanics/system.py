@@ -1,4 +1,4 @@
-"""The mechanical system the integrators step: ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d0``.
+"""The mechanical system the integrators step: ``M U'' + C U' + K U + P^T lam = R(t)``, ``P U <= d(t)``.
 
 ``Operators`` holds its matrices, loads and contact rows, with nothing of meshes (a 1-dof system
 or a finite-element model alike), and the Delassus matrix ``W = P A^-1 P^T`` of a factorized step
@@ -88,6 +88,9 @@ class Operators:
     tangents: sparse.spmatrix | np.ndarray | None = None
     tangent_of: np.ndarray | None = None
     laws: RowLaws | None = None   # (an integrator makes it from the arrays when None: ContactScheme)
+    # The rows' relations (a ``Relations``: their obstacles' positions ``d(t)`` and rates), or None:
+    # every obstacle fixed at ``d0``.
+    relations: object | None = None
 
     def __post_init__(self):
         self.algebra = PETScAlgebra(self.K) if isinstance(self.K, PETSc.Mat) else DenseAlgebra(self.K)
@@ -120,6 +123,24 @@ class Operators:
     @property
     def p(self) -> int:
         return self.d0.size
+
+    @property
+    def moving(self) -> bool:
+        """Whether an obstacle of the rows moves (a time-dependent relation)."""
+        return self.relations is not None and self.relations.time_dependent
+
+    def gap0(self, t: float) -> np.ndarray:
+        """``d(t)``: the rows' gaps at zero displacement at time t (``d0`` itself when nothing moves)."""
+        return self.relations.gap(t) if self.moving else self.d0
+
+    def d_rate(self, t: float) -> np.ndarray:
+        """``d'(t)``: how fast each row's obstacle recedes along its normal (zeros when nothing moves)."""
+        return self.relations.gap_velocity(t) if self.moving else np.zeros(self.p)
+
+    def relative(self, pv: np.ndarray, t: float) -> np.ndarray:
+        """The rows' normal velocities relative to their obstacles, ``P V - d'(t)`` (``pv`` itself
+        when nothing moves): what the impact laws act on."""
+        return pv - self.relations.gap_velocity(t) if self.moving else pv
 
     @property
     def pt(self) -> int:

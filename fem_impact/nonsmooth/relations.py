@@ -151,6 +151,13 @@ class Relations:
         self.relations, self.slices, self.d0 = relations, slices, d0
         self.time_dependent = any(r.time_dependent for r in relations)
 
+    @classmethod
+    def of(cls, relations: list[Relation]) -> Relations:
+        """The relations in row order, from relations whose rows (and gaps at t = 0) are known."""
+        sizes = np.cumsum([0] + [r.d0.size for r in relations])
+        return cls(relations, [slice(int(a), int(b)) for a, b in zip(sizes[:-1], sizes[1:])],
+                   np.concatenate([r.d0 for r in relations]) if relations else np.zeros(0))
+
     def gap(self, t: float) -> np.ndarray:
         """``d(t)`` of every row (the constant ``d0`` itself when no obstacle moves)."""
         if not self.time_dependent:
