@@ -58,9 +58,9 @@ def earlier(tmp_path):
 
 
 def default_signals() -> None:
-    """The run starts with the default dispositions, also when the suite was started with SIGHUP or SIGINT
-    ignored (nohup, a background job), which the run would rightly keep."""
-    for sig in (signal.SIGHUP, signal.SIGINT):
+    """The run starts with the default dispositions, also when the suite was started with SIGHUP, SIGINT or
+    SIGQUIT ignored (nohup; a shell's background job ignores SIGINT and SIGQUIT), which the run would rightly keep."""
+    for sig in (signal.SIGHUP, signal.SIGINT, signal.SIGQUIT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_DFL)
 
 

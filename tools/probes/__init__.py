@@ -120,8 +120,9 @@ class _Hung(Exception):
 
 def default_signals() -> None:
     """A probed command starts with the default dispositions, also when the harness itself was started with
-    SIGHUP or SIGINT ignored (nohup, a background job): else it would rightly go on after them."""
-    for sig in (signal.SIGHUP, signal.SIGINT):
+    SIGHUP, SIGINT or SIGQUIT ignored (nohup; a shell's background job ignores SIGINT and SIGQUIT): else it
+    would rightly go on after them."""
+    for sig in (signal.SIGHUP, signal.SIGINT, signal.SIGQUIT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_DFL)
 
 class Context:
