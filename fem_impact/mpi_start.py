@@ -1,7 +1,8 @@
 """How Open MPI starts in a process started alone (not by mpirun): set before mpi4py loads.
 
 A process started alone is one MPI process: Open MPI need not start a daemon nor probe the network's
-transports for it (most of a tiny run's start). Isolated processes all take job family 0, so they would
+transports for it (most of a tiny run's start). Shared memory stays among its transports: an mpirun started
+from such a process (a test, a script) passes these settings on to its ranks, which must reach each other. Isolated processes all take job family 0, so they would
 share one session folder, and one process's MPI_Finalize could remove it while another's MPI_Init creates
 its own inside: each gets a base folder of its own, removed at exit. A user's own settings win; mpirun's
 ranks keep theirs (they may span machines).
@@ -14,7 +15,7 @@ import os
 import shutil
 import tempfile
 
-SERIAL_MPI = {"OMPI_MCA_ess_singleton_isolated": "1", "OMPI_MCA_pml": "ob1", "OMPI_MCA_btl": "self"}
+SERIAL_MPI = {"OMPI_MCA_ess_singleton_isolated": "1", "OMPI_MCA_pml": "ob1", "OMPI_MCA_btl": "self,vader"}
 SESSION_BASE = "FEM_IMPACT_MPI_SESSION_BASE"   # the session folder's base fem-impact chose (not the user)
 _LAUNCHED = ("OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK", "PMI_SIZE")
 _OWN: list[str] = []

@@ -325,6 +325,17 @@ def test_a_command_started_alone_starts_mpi_for_one_process_and_mpirun_ranks_kee
     assert [eval(seen) for seen in re.findall(r"\{[^{}]*\}", ranks.stdout)] == [dict.fromkeys(SERIAL_MPI)] * 2
 
 
+def test_mpirun_started_from_a_process_started_alone_has_ranks_that_reach_each_other():
+    """mpirun passes its environment, the settings for one process included, to its ranks: with self alone
+    among the transports the two ranks could not reach each other ("unreachable proc")."""
+    from fem_impact.mpi_start import SERIAL_MPI
+
+    env = {**mpirun_environment(), **SERIAL_MPI}
+    ranks = subprocess.run(["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, "-c",
+                            "from mpi4py import MPI; print(MPI.COMM_WORLD.allreduce(1))"],
+                           capture_output=True, text=True, env=env, timeout=120)
+    assert ranks.returncode == 0 and ranks.stdout.split() == ["2", "2"], ranks.stderr[-2000:]
+
 def test_commands_started_alone_have_session_folders_of_their_own_removed_at_exit(tmp_path):
     """Isolated processes share Open MPI's job family 0: in one session folder, one process's MPI_Finalize
     removed the folder another's MPI_Init was creating ("Local abort before MPI_INIT completed"). Each
