@@ -100,13 +100,9 @@ class NodePair(Relation):
         return self._done(RelationRows(col, t_cols, gap))
 
 
-class MeanPair(Relation):
+class MeanPair(NodePair):
     """Two faces, each on its mean motion: one row between the means, whatever the nodes (a pad on
-    a flat face: the contact follows the face as it slides along it)."""
-
-    def __init__(self, a: NodeSet, b: NodeSet, normal, tangents, gap: float | None):
-        super().__init__(normal, tangents)
-        self.a, self.b, self.gap0 = a, b, gap
+    a flat face: the contact follows the face as it slides along it). Built as a node pair."""
 
     def rows(self, model: Model) -> RelationRows:
         n_local, bs, dim = model.U0.getLocalSize(), model.bs, model.meshdata.dim
