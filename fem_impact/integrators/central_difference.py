@@ -135,7 +135,7 @@ class CentralDifference(ContactScheme):
         f_mean = 0.5 * (st.force + force)
         impulse = dt * f_mean
         if p:
-            self._book_work(energy, pu - st.normal_displacement, f_mean)
+            self._book_work(energy, f_mean, pu - st.normal_displacement, obstacle=ops.obstacle_moved(st.t, t1))
         # K U1 = R1 - C V1 - M A1 - P^T lam1 (the step's equation): two products, M V and M A
         # (diagonal with the lumped mass), and every CHECK_EVERY-th step one with K instead.
         self.alg.mult(ops.M, V, self.MV)

@@ -284,20 +284,24 @@ class MoreauJean(ContactScheme):
         if ops.C is not None:   # C V1 of the step's equation (before Carnot's correction): its damping work
             alg.mult(ops.C, V, self.CV)
         pv_star, pt_star, restitution_loss, percussion = pv, pt, 0.0, impulse
-        stick_loss = 0.0
+        stick_loss = self._stick_obstacle_work = 0.0
         numerical_loss = self._numerical_loss(st, impulse, tangential, pv, pt) if theta != 0.5 else 0.0
         if tangential is not None and self._persists is not None:
-            pv, pt, tangential, stick_loss = self._stick(impulse, tangential, pv, pt, jump)
+            pv, pt, tangential, stick_loss = self._stick(impulse, tangential, pv, pt, jump, t1)
+        carnot = None
         if p:   # the work of the impulse with the step's mean velocity (exact for theta = 1/2)
+            # (moving obstacles: their mean rate over the step, (d(t1) - d(t0)) / dt, is theirs, and the
+            # laws book the work on the velocity relative to it; a row held at both ends loses nothing)
+            moved = ops.obstacle_moved(st.t, t1)
+            obstacle_rate = None if moved is None else moved / dt
             step_contact_loss = float(impulse.dot(0.5 * (st.normal_velocity + pv_star)))
             if np.count_nonzero(self.carnot_rows):
                 pu_end = self._pu_dyn + dt * ((1.0 - theta) * st.normal_velocity + theta * pv_star)
-                guard = step_contact_loss
-                if ops.moving:   # (Carnot's guard weighs the loss in the obstacles' frame)
-                    guard = float(impulse.dot(ops.relative(0.5 * (st.normal_velocity + pv_star), t1)))
-                pv, restitution_loss, lam = self._restitution(impulse, st.normal_velocity, pv, pu_end, guard, jump, t1)
-                if lam is not None:   # Carnot's correction is an impulse too: the step's total (history)
-                    percussion = impulse + lam
+                guard = step_contact_loss if moved is None else step_contact_loss - float(impulse.dot(obstacle_rate))
+                pv, restitution_loss, carnot = self._restitution(impulse, st.normal_velocity, pv, pu_end, guard, jump,
+                                                                 t1)
+                if carnot is not None:   # Carnot's correction is an impulse too: the step's total (history)
+                    percussion = impulse + carnot
         np.subtract(V, A, out=A)
         A *= 1.0 / dt
         force = impulse / dt
@@ -321,10 +325,19 @@ class MoreauJean(ContactScheme):
             pu = self._pu_dyn = ops.project_many(U)[0]
             if ops.static:
                 pu = pu + ops.static.offset(t1) - ops.static.compliance.dot(force)
-            self._book_work(energy, impulse, 0.5 * (st.normal_velocity + pv_star), total=step_contact_loss)
+            self._book_work(energy, impulse, 0.5 * (st.normal_velocity + pv_star), total=step_contact_loss,
+                            obstacle=obstacle_rate)
             energy.impact_loss += restitution_loss
-            if tangential is not None:   # the friction impulses' work (_friction_velocity)
-                energy.friction_loss += float(self._r_t.dot(self._friction_velocity(st.tangential_velocity, pt_star)))
+            if carnot is not None:
+                self._book_impulse(energy, carnot, t1)
+            if tangential is not None:   # the friction impulses' work (_friction_velocity), relative to the obstacles
+                slide = self._friction_velocity(st.tangential_velocity, pt_star)
+                if ops.moving:
+                    obstacle = self._friction_velocity(ops.obstacle_tangent_velocity(st.t),
+                                                       ops.obstacle_tangent_velocity(t1))
+                    slide = slide - obstacle
+                    energy.external_work -= float(self._r_t.dot(obstacle)) + self._stick_obstacle_work
+                energy.friction_loss += float(self._r_t.dot(slide))
                 energy.friction_loss += stick_loss
             if ops.static:
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
@@ -402,11 +415,13 @@ class MoreauJean(ContactScheme):
         # A closing row whose friction would do positive work over the step (its tangential velocity
         # reverses within it, pushed by the rest of the body: the impulse acted along the velocity it
         # started with) takes the slip law too, and the problem is solved again.
-        pt0 = st.tangential_velocity
+        # (Moving obstacles: Coulomb's law on the velocities relative to them, at t0 and t1.)
+        pt0 = ops.relative_tangent(st.tangential_velocity, st.t)
+        pt_free_rel = ops.relative_tangent(pt_free, t1)
         slip_law = (st.impulse > 0.0)[ops.tangent_of]
         guess = self.r_prev
         for attempt in range(p + 1):   # (each new solve adds a row to the slip law: at most p)
-            q_t = -pt_free - np.where(slip_law, (1.0 - self.theta) / self.theta * pt0, 0.0)
+            q_t = -pt_free_rel - np.where(slip_law, (1.0 - self.theta) / self.theta * pt0, 0.0)
             sol = self.friction.solve(np.concatenate([q, q_t]), active, guess=guess)
             self.friction_residual = max(self.friction_residual, sol.residual)
             self.friction_sweeps = max(self.friction_sweeps, sol.sweeps)
@@ -416,8 +431,8 @@ class MoreauJean(ContactScheme):
                     f"the frictional contact problem was not solved at t = {t1:.6g} (step {st.step + 1}): residual "
                     f"{sol.residual:.3g} after {sol.sweeps} sweeps (tolerance {self.friction.TOLERANCE:.0e}), worst "
                     f"at contact row {sol.worst_row}{self._row_name(sol.worst_row)}" + self._degenerate_hint())
-            r_t = sol.r[p:]   # (P_T V1 = pt_free - W_T r = pt_free - y_T + q_t)
-            work = np.bincount(ops.tangent_of, weights=r_t * (pt0 + pt_free - sol.y[p:] + q_t),
+            r_t = sol.r[p:]   # (P_T V1 = pt_free - W_T r = pt_free - y_T + q_t; relative likewise)
+            work = np.bincount(ops.tangent_of, weights=r_t * (pt0 + pt_free_rel - sol.y[p:] + q_t),
                                minlength=p)[ops.tangent_of]
             giving = ~slip_law & (work < 0.0)
             if not np.count_nonzero(giving) or attempt == p:
@@ -438,7 +453,7 @@ class MoreauJean(ContactScheme):
             Wr[:p] -= self.compliance.dot(r[:p])
         return r[:p], r[p:], pv_free - Wr[:p], pt_free - Wr[p:], float(np.abs(Wr[:p]).max())
 
-    def _stick(self, impulse: np.ndarray, r_t: np.ndarray, pv: np.ndarray, pt: np.ndarray, jump: float):
+    def _stick(self, impulse: np.ndarray, r_t: np.ndarray, pv: np.ndarray, pt: np.ndarray, jump: float, t1: float):
         """Carnot's correction in the tangent plane, on the persisting rows that stick.
 
         The slip law of a persisting row sticks when the slip over the step vanishes, which for
@@ -447,15 +462,18 @@ class MoreauJean(ContactScheme):
         M that brings those rows' ``P_T V`` to zero, ``dV = -M^-1 P_T^T lam``, ``lam = D_ss^-1
         P_T V`` (``D = P_T M^-1 P_T^T`` on them), removes it and loses ``1/2 x . D_ss^-1 x >= 0``; it is
         kept where the step's total tangential impulse stays in the cone (a row where it would not
-        is left as it is). Returns (P V, P_T V, the tangential impulses, the loss).
+        is left as it is). Returns (P V, P_T V, the tangential impulses, the loss). On a moving
+        obstacle the velocities are relative to it, and its work on ``lam`` is kept in
+        ``_stick_obstacle_work`` (``lam . v_obstacle``, what the external work loses).
         """
         ops, p = self.ops, self.ops.p
+        absolute, pt = pt, ops.relative_tangent(pt, t1)
         mu_r_n = (ops.friction * impulse)[ops.tangent_of]
         size = np.sqrt(np.bincount(ops.tangent_of, weights=r_t * r_t, minlength=p))[ops.tangent_of]
         stuck = self._persists & (mu_r_n > 0.0) & (size < (1.0 - 1e-9) * mu_r_n)
         stuck &= np.abs(pt) > ROUND_OFF * max(jump, float(np.abs(pt).max()))
         if not np.count_nonzero(stuck):
-            return pv, pt, r_t, 0.0
+            return pv, absolute, r_t, 0.0
         if self._stick_D is None:   # (on the tangent rows only: less than half the memory of all rows')
             self._stick_D, self._stick_H = self.ops.tangent_rows().delassus(self.solve_M)
         D = self._stick_D
@@ -471,13 +489,15 @@ class MoreauJean(ContactScheme):
                 break
             stuck &= ~outside
             if not np.count_nonzero(stuck):
-                return pv, pt, r_t, 0.0
+                return pv, absolute, r_t, 0.0
         else:
-            return pv, pt, r_t, 0.0
+            return pv, absolute, r_t, 0.0
         c = np.zeros(ops.pt)
         c[s] = lam
         self._stick_H.subtract_from(self.V, c)
         loss = float(lam.dot(pt[s]) - 0.5 * lam.dot(D_ss.dot(lam)))
+        if ops.moving:
+            self._stick_obstacle_work = float(c.dot(ops.obstacle_tangent_velocity(t1)))
         new = self.rows.project_many(self.V)[0]   # (the normal rows move too: a sparse product)
         return new[:p], new[p:], total, loss
 

@@ -188,10 +188,10 @@ class Newmark(ContactScheme):
             closed = self._closed(pu, lam0, t1)
             if np.count_nonzero(closed):   # (Newton's law on the velocities relative to the obstacles)
                 res = impact_correction(self.carnot, closed, s0, ops.relative(pv_star, t1),
-                                        ops.relative(st.normal_velocity, t1), pa, lam0, ops.restitution)
+                                        ops.relative(st.normal_velocity, t1), ops.relative_acceleration(pa, t1), lam0,
+                                        ops.restitution)
                 force, impulse = res.force, s0 + res.lam1
-                pv, loss = self._apply_corrections(res, pv_star)
-                energy.impact_loss += loss
+                pv = self._apply_corrections(res, pv_star, energy, t1)
                 # M V: -P^T lam1 for the velocity correction, + gamma dt P^T lam2 as the update
                 # below takes M A after the acceleration correction (M H = P^T: the corrected
                 # rows touch no massless dof).
@@ -201,7 +201,7 @@ class Newmark(ContactScheme):
             else:
                 impulse, pv = s0, pv_star
             # Work absorbed by the position-level forces over the step (docs/theory.md s. 9).
-            self._book_work(energy, pu - st.normal_displacement, f_mean)
+            self._book_work(energy, f_mean, pu - st.normal_displacement, obstacle=ops.obstacle_moved(st.t, t1))
 
         # Energy budget: kinetic and strain energy of the state; work terms with the scheme's own
         # weights (1 - gamma, gamma), so that the balance closes to round-off. One product per

@@ -194,19 +194,41 @@ class ContactScheme:
         scale = self._abs_d0 if d is self.ops.d0 else np.abs(d)
         return d - pu <= 1e-10 * (scale + np.abs(pu)) + TINY
 
-    def _apply_corrections(self, res: ImpactResult, pv: np.ndarray) -> tuple[np.ndarray, float]:
-        """Velocity (-H lam1) and acceleration (-H lam2) corrections; returns the new P V and the
-        kinetic energy that dV = -H lam1 removes, 1/2 V-MV- - 1/2 V+MV+ (exactly, in p x p terms)."""
+    def _apply_corrections(self, res: ImpactResult, pv: np.ndarray, energy: EnergyBudget, t: float) -> np.ndarray:
+        """Velocity (-H lam1) and acceleration (-H lam2) corrections at t; returns the new P V. The
+        kinetic energy that dV = -H lam1 removes, 1/2 V-MV- - 1/2 V+MV+ (exactly, in p x p terms),
+        is the impact loss in the obstacles' frame plus the work of moving obstacles on the impulse
+        (``_book_impulse``)."""
         Dlam1 = self.D.dot(res.lam1)
         if np.count_nonzero(res.lam1):
             self.H.subtract_from(self.V, res.lam1)
             pv = pv - Dlam1
         if np.count_nonzero(res.lam2):
             self.H.subtract_from(self.A, res.lam2)
-        return pv, float(res.lam1.dot(pv + 0.5 * Dlam1))
+        energy.impact_loss += float(res.lam1.dot(self.ops.relative(pv, t) + 0.5 * Dlam1))
+        self._book_impulse(energy, res.lam1, t)
+        return pv
 
-    def _book_work(self, energy: EnergyBudget, force: np.ndarray, motion: np.ndarray, total: float | None = None) -> None:
-        """The contact forces' work over the step, ``force . motion``, in each law's loss column."""
+    def _book_impulse(self, energy: EnergyBudget, impulse: np.ndarray, t: float) -> None:
+        """What moving obstacles give the structure through an impulse at t: ``-impulse . d'(t)``,
+        external work (the obstacle that approaches a row pushes it)."""
+        if self.ops.moving:
+            energy.external_work -= float(impulse.dot(self.ops.d_rate(t)))
+
+    def _book_work(self, energy: EnergyBudget, force: np.ndarray, motion: np.ndarray, total: float | None = None,
+                   obstacle: np.ndarray | None = None) -> None:
+        """The contact forces' work over the step, ``force . motion``, in each law's loss column.
+
+        ``obstacle``: the obstacles' motion in the units of ``motion`` (``Operators.obstacle_moved``,
+        per unit of time where ``motion`` is a velocity), None when none moves. The laws then book
+        the work on the motion relative to the obstacles, and the obstacles' own work on the
+        structure, ``-force . obstacle``, goes to the external work.
+        """
+        if obstacle is not None:
+            moved = float(force.dot(obstacle))
+            energy.external_work -= moved
+            motion = motion - obstacle
+            total = None if total is None else total - moved
         for column, work in self.ops.laws.work(force, motion, total).items():
             energy.add_loss(column, work)
 
@@ -348,8 +370,9 @@ class ContactScheme:
         if not np.count_nonzero(closed):   # (nothing to correct: D and H are not needed)
             return force, np.zeros(p), pu, pv
         rel = ops.relative(pv, t0)   # (Newton's law on the velocity relative to the obstacle)
-        res = impact_correction(self.carnot, closed, np.zeros(p), rel, rel, pa, force, ops.restitution)
-        pv, energy.impact_loss = self._apply_corrections(res, pv)
+        res = impact_correction(self.carnot, closed, np.zeros(p), rel, rel, ops.relative_acceleration(pa, t0), force,
+                                ops.restitution)
+        pv = self._apply_corrections(res, pv, energy, t0)
         return res.force, res.lam1.copy(), pu, pv
 
     def _track_work(self) -> None:
@@ -417,7 +440,7 @@ class ContactScheme:
         self._book_stops(energy, (force, gap), (force, gap))
         if ops.static:
             energy.strain += ops.static.energy(t0, force)
-        energy.initial = energy.total + energy.impact_loss
+        energy.initial = energy.total + energy.impact_loss - energy.external_work   # (before the correction)
         self.state = StepState(step=0, t=t0, U=self.U, V=self.V, A=self.A, gap=gap, force=force,
                                impulse=impulse, energy=energy, normal_displacement=pu, normal_velocity=pv)
         return self.state

@@ -142,6 +142,25 @@ class Operators:
         when nothing moves): what the impact laws act on."""
         return pv - self.relations.gap_velocity(t) if self.moving else pv
 
+    def relative_acceleration(self, pa: np.ndarray, t: float) -> np.ndarray:
+        """The rows' normal accelerations relative to their obstacles, ``P A - d''(t)`` (``pa``
+        itself when nothing moves): what a closed row's acceleration condition is on."""
+        return pa - self.relations.gap_acceleration(t) if self.moving else pa
+
+    def relative_tangent(self, pt: np.ndarray, t: float) -> np.ndarray:
+        """The tangent rows' velocities relative to their obstacles (``pt`` itself when nothing
+        moves): what Coulomb's law acts on."""
+        return pt - self.relations.tangent_velocity(t) if self.moving else pt
+
+    def obstacle_tangent_velocity(self, t: float) -> np.ndarray:
+        """The obstacles' velocities along the tangent rows (zeros when nothing moves)."""
+        return self.relations.tangent_velocity(t) if self.moving else np.zeros(self.pt)
+
+    def obstacle_moved(self, t0: float, t1: float) -> np.ndarray | None:
+        """How far each row's obstacle receded over ``[t0, t1]``, ``d(t1) - d(t0)``, or None when
+        nothing moves (the obstacles then do no work)."""
+        return self.relations.gap(t1) - self.relations.gap(t0) if self.moving else None
+
     @property
     def pt(self) -> int:
         """Tangent rows (rows with friction, times 1 in 2D, 2 in 3D)."""

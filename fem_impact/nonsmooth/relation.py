@@ -148,6 +148,7 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
         cons.tangent_local, cons.tangent_of, cons.tangent_dirs = free_tangents(
             sparse.hstack(tangent_columns).tocsr(), free, np.concatenate(tangent_of), np.concatenate(tangent_dirs),
             model.comm)
+        cons.relations.tangent_of, cons.relations.tangent_dirs = cons.tangent_of, cons.tangent_dirs
     norms = np.sqrt(model.comm.allreduce(np.asarray(P_local.power(2).sum(axis=0)).ravel(), op=MPI.SUM))
     for c in contacts:
         if np.any(norms[c.rows] == 0.0):

@@ -3,8 +3,12 @@ time dependence (docs/theory.md s. 2.1, 2.5).
 
 A relation maps the model's displacement to its rows' normal displacements ``P U`` and says where
 the obstacle is: the row's gap ``g(t) = d(t) - P U``. The fixed relations here have a constant
-``d``; a relation whose obstacle moves overrides ``gap(t)`` and ``gap_velocity(t)`` (the rate of
-``d``) and says so with ``time_dependent``: the one-step problem reads the gaps through them.
+``d``; a relation whose obstacle moves overrides ``gap(t)``, ``gap_velocity(t)`` and
+``gap_acceleration(t)`` (``d``, ``d'``, ``d''``) and, when it also slides along its plane,
+``velocity(t)`` (the obstacle's velocity vector, which gives its tangential rates), and says so
+with ``time_dependent``. The integrators read them through ``Operators`` (mechanics/system.py):
+the laws act on the motion relative to the obstacle, and the obstacle's work goes to the
+external work (docs/theory.md s. 2.6).
 """
 
 from __future__ import annotations
@@ -46,6 +50,15 @@ class Relation:
     def gap_velocity(self, t: float) -> np.ndarray:
         """``d'(t)``: how fast the obstacle recedes along each row's normal (0 here)."""
         return np.zeros_like(self.d0)
+
+    def gap_acceleration(self, t: float) -> np.ndarray:
+        """``d''(t)``: the rate of ``d'`` (0 here; a relation moving at a constant speed keeps it)."""
+        return np.zeros_like(self.d0)
+
+    def velocity(self, t: float) -> np.ndarray | None:
+        """The obstacle's velocity vector at each row (rows x dim), or None when it does not slide
+        along its plane (then its tangential rates are 0)."""
+        return None
 
     def _done(self, rows: RelationRows) -> RelationRows:
         self.d0 = rows.gap
@@ -146,6 +159,10 @@ class Relations:
     def __init__(self, relations: list[Relation], slices: list[slice], d0: np.ndarray):
         self.relations, self.slices, self.d0 = relations, slices, d0
         self.time_dependent = any(r.time_dependent for r in relations)
+        # The tangent rows (friction): the normal row of each and its unit direction (pt x dim),
+        # set where the tangent rows are built (relation.build_constraints).
+        self.tangent_of: np.ndarray | None = None
+        self.tangent_dirs: np.ndarray | None = None
 
     @classmethod
     def of(cls, relations: list[Relation]) -> Relations:
@@ -165,8 +182,31 @@ class Relations:
         return out
 
     def gap_velocity(self, t: float) -> np.ndarray:
+        """``d'(t)`` of every row."""
+        return self._rates(t, "gap_velocity")
+
+    def gap_acceleration(self, t: float) -> np.ndarray:
+        """``d''(t)`` of every row."""
+        return self._rates(t, "gap_acceleration")
+
+    def _rates(self, t: float, hook: str) -> np.ndarray:
         out = np.zeros(self.d0.size)
         for r, rows in zip(self.relations, self.slices):
             if r.time_dependent:
-                out[rows] = r.gap_velocity(t)
+                out[rows] = getattr(r, hook)(t)
+        return out
+
+    def tangent_velocity(self, t: float) -> np.ndarray:
+        """The obstacles' velocities along every tangent row's direction (0 where none slides)."""
+        pt = 0 if self.tangent_of is None else self.tangent_of.size
+        out = np.zeros(pt)
+        if not pt:
+            return out
+        for r, rows in zip(self.relations, self.slices):
+            velocity = r.velocity(t) if r.time_dependent else None
+            if velocity is None:
+                continue
+            mine = (self.tangent_of >= rows.start) & (self.tangent_of < rows.stop)
+            dirs = self.tangent_dirs[mine]
+            out[mine] = np.einsum("ij,ij->i", velocity[self.tangent_of[mine] - rows.start][:, :dirs.shape[1]], dirs)
         return out
