@@ -150,6 +150,28 @@ def test_a_moving_support_agrees_on_two_ranks(tmp_path, method):
 
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
+@pytest.mark.parametrize("case, overrides", [
+    # a wall given a motion strikes the bar at rest (Carnot's rows, the wall's work)
+    ("impacting_bar.yaml", ["mesh.cells=60", "initial.velocity=[0.0]", "contacts.0.motion=[t]", "solver.dt=0.005",
+                            "solver.t_end=1.0", "solver.method=moreau_jean"]),
+    # a 2D bar at rest struck by a wall that also slides along itself (friction on the relative motion)
+    ("impacting_bar.yaml", ["mesh.dim=2", "mesh.cells=60", "initial.velocity=[0.0, 0.0]", "contacts.0.friction=0.3",
+                            "contacts.0.motion=[t, '0.5*t']", "solver.dt=0.005", "solver.t_end=1.0",
+                            "solver.method=moreau_jean"]),
+], ids=["wall", "sliding wall"])
+def test_a_moving_obstacle_agrees_on_two_ranks(tmp_path, case, overrides):
+    """An obstacle given a motion (docs/theory.md s. 2.6): the same history on 2 ranks, the obstacle's work
+    in the external work included."""
+    sets = [arg for change in overrides + ["output.vtk=false", "output.every=1"] for arg in ("--set", change)]
+    run_serial_and_two_ranks(str(CASES / case), tmp_path, sets)
+    a, b = read_history(tmp_path / "serial"), read_history(tmp_path / "mpi")
+    assert a["external_work"][-1] > 0.1 * a["kinetic"].max()   # (the obstacle did the work)
+    if "friction_loss" in a.dtype.names:
+        assert a["friction_loss"][-1] > 0.0
+    assert_same_history(a, b, 1e-10)
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
 @pytest.mark.parametrize("method", ["moreau_jean", "newmark"])
 def test_a_run_without_contacts_agrees_on_two_ranks(tmp_path, method):
     """No contact row: the implicit schemes' Delassus solve has no right-hand side, which MUMPS refused on

@@ -259,6 +259,7 @@ def test_a_restart_under_changed_loads_is_the_run_that_switched_them_at_the_chec
     ("block", "contacts.0.friction=0", "contacts.0.friction"),
     ("block", "mesh.elements=hex", "mesh.elements"),
     ("block", "parameters.v0=3", "parameters.v0"),    # (used by the initial velocity, not by a load)
+    ("block", "contacts.0.motion=['0.5*t', 0]", "contacts.0.motion.0"),   # (the floor set moving: a new relation)
 ])
 def test_a_restart_refuses_a_change_of_what_its_state_depends_on_naming_the_key(checkpoints, which, change, named):
     """The model, its constraints, the method and its keys and the initial state: the saved state belongs

@@ -184,7 +184,8 @@ class Case:
         return data
 
     def expressions(self):
-        """Every expression of the case as (key path, Expression): initial fields, supports' motions and loads."""
+        """Every expression of the case as (key path, Expression): initial fields, supports' motions, loads
+        and obstacles' motions."""
         for which in ("displacement", "velocity"):
             items = getattr(self.initial, which)
             for i, item in enumerate(items):
@@ -198,6 +199,9 @@ class Case:
             for name in ("force", "acceleration"):
                 for comp, expr in enumerate(getattr(load, name) or ()):
                     yield ("loads", i, name, comp), expr
+        for i, contact in enumerate(self.contacts):
+            for comp, expr in enumerate(contact.motion or ()):
+                yield ("contacts", i, "motion", comp), expr
 
     def write_resolved(self, path) -> Path:
         """Write the resolved case as YAML to `path` (a folder gets ``case.resolved.yaml``)."""
@@ -233,6 +237,10 @@ def _contact_data(contact: Contact) -> dict:
     if not contact.friction:   # (frictionless: the key left out, as files without friction write it)
         data.pop("friction", None)
     data.pop("point" if contact.point is None else "gap", None)
+    if contact.motion is None:
+        data.pop("motion", None)
+    else:
+        data["motion"] = _sources(contact.motion)
     return data | {"nodes": contact.nodes[0] if contact.type == "obstacle" else list(contact.nodes)}
 
 

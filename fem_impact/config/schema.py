@@ -256,6 +256,9 @@ _RELATION = {   # the relation's keys of a contact, whatever its law
     "friction": (Real, key("-", "Coulomb's coefficient mu on every row (default 0: frictionless)", None, ge=0)),
     "point": (vector(Real), key("m", "obstacle: a point of its plane, instead of gap: each node's gap is its own "
                                    "distance to the plane")),
+    "motion": (vector(expression(TIME)), key("m", "obstacle: the plane's displacement from where gap or point put it "
+                                                  "at t = 0, one expression in t per axis (default: fixed); the laws "
+                                                  "act on the motion relative to it, its work is external work")),
 }
 
 
@@ -270,6 +273,8 @@ def _relation(contact: Section) -> dict:
         if f["gap"] is not None:
             raise _Invalid(("point",), "give either gap (one for every node) or point (each node's gap "
                                        "its own distance to the plane through it), not both")
+    if f["motion"] is not None and f["type"] != "obstacle":
+        raise _Invalid(("motion",), "a motion is for an obstacle contact's plane (a pair moves with its bodies)")
     if f["type"] == "obstacle":
         if not (isinstance(nodes, list) and len(nodes) == 1):
             raise _Invalid(("nodes",), f"an obstacle contact takes one node group, got {_show(f['nodes'])}")
@@ -323,7 +328,7 @@ def _built_in_law(contact: Section, value: dict) -> None:
 
 
 _CONTACT_ORDER = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness", "law", "friction",
-                  "point")
+                  "point", "motion")
 _contact_keys = {**_RELATION, "restitution": _law_key("newton", "restitution"),
            "stiffness": _law_key("elastic_stop", "stiffness", None)}
 ContactSection = create_model("ContactSection", __base__=_ContactChecks, __module__=__name__,

@@ -14,8 +14,8 @@ from ..errors import ModelInputError
 from ..fem.model import Model, NodeSet, pad_vector
 from ..parallel import allsum
 from .laws import Coulomb, RowLaws, law_of
-from .relations import (FixedPlane, MeanCoupling, MeanPair, NodePair, PlaneThroughPoint, Relation, Relations,
-                        node_rows)
+from .relations import (FixedPlane, MeanCoupling, MeanPair, MovingPlane, NodePair, PlaneThroughPoint, Relation,
+                        Relations, node_rows)
 from .specs import Contact
 
 
@@ -91,6 +91,11 @@ def relation_of(contact: Contact, model: Model, key: tuple) -> Relation:
             relation = PlaneThroughPoint(nodes, normal, tangents, point)
         else:
             relation = FixedPlane(nodes, normal, tangents, contact.gap if contact.gap is not None else 0.0)
+        if contact.motion is not None:
+            if len(contact.motion) != dim:
+                raise ModelInputError(key + ("motion",), f"gives {len(contact.motion)} expression(s) for a {dim}D "
+                                                          f"model: give one per axis ({', '.join('xyz'[:dim])})")
+            relation = MovingPlane(relation, contact.motion, contact.name)
         return MeanCoupling(relation) if contact.coupling == "mean" else relation
     a = model.node_set(contact.nodes[0], key + ("nodes",))
     b = model.node_set(contact.nodes[1], key + ("nodes",))

@@ -130,18 +130,79 @@ class MeanPair(NodePair):
         return self._done(RelationRows(col, t_cols, gap))
 
 
+class MovingPlane(Relation):
+    """An obstacle's plane (a ``FixedPlane`` or a ``PlaneThroughPoint``) displaced by a given motion
+    ``m(t)`` from where it is at t = 0: ``d(t) = d0 + n . m(t)`` and its rates, exact (the motion's
+    derivatives by Taylor arithmetic, ``Expression.time_derivative``); along the plane, the
+    obstacle's velocity ``m'(t)`` (docs/theory.md s. 2.6).
+
+    ``motion``: one expression in t per axis of the model (its parameters resolved); ``name``: how
+    an error names the contact.
+    """
+
+    time_dependent = True
+
+    def __init__(self, inner: FixedPlane, motion: list, name: str = "obstacle"):
+        super().__init__(inner.normal, inner.tangents)
+        self.inner, self.name = inner, name
+        self.motion = [[f.time_derivative(order) for f in motion] for order in range(3)]
+
+    def rows(self, model: Model) -> RelationRows:
+        rows = self.inner.rows(model)
+        # (the motion at t = 0 is where gap or point put the plane: m(0) is subtracted)
+        self._start = self._vector(0.0, 0)
+        return self._done(rows)
+
+    def _vector(self, t: float, order: int) -> np.ndarray:
+        value = np.array([f.at_time(t) for f in self.motion[order]])
+        if not np.all(np.isfinite(value)):
+            from ..errors import SimulationError
+
+            what = ("motion", "its velocity", "its acceleration")[order]
+            raise SimulationError(f"contact {self.name}: the obstacle's {what} is not finite at t = {t:.6g} "
+                                  f"(motion: {', '.join(str(f.source) for f in self.motion[0])})")
+        return value
+
+    def gap(self, t: float) -> np.ndarray:
+        return self.d0 + float(self.normal @ (self._vector(t, 0) - self._start))
+
+    def gap_velocity(self, t: float) -> np.ndarray:
+        return np.full(self.d0.size, float(self.normal @ self._vector(t, 1)))
+
+    def gap_acceleration(self, t: float) -> np.ndarray:
+        return np.full(self.d0.size, float(self.normal @ self._vector(t, 2)))
+
+    def velocity(self, t: float) -> np.ndarray:
+        return np.broadcast_to(self._vector(t, 1), (self.d0.size, self.normal.size))
+
+
 class MeanCoupling(Relation):
     """One row on a relation's mean normal displacement (a distributing coupling): its force
-    ``P^T lam`` is shared equally by the nodes, as a load on a node group is."""
+    ``P^T lam`` is shared equally by the nodes, as a load on a node group is. Its gap in time is
+    the mean of the inner relation's (an obstacle that moves moves the coupling's)."""
 
     def __init__(self, inner: Relation):
         super().__init__(inner.normal, inner.tangents)
         self.inner = inner
+        self.time_dependent = inner.time_dependent
 
     def rows(self, model: Model) -> RelationRows:
         rows = self.inner.rows(model)
         return self._done(RelationRows(rows.normal.mean(axis=1), [t.mean(axis=1) for t in rows.tangents],
                                        np.array([rows.gap.mean()])))
+
+    def gap(self, t: float) -> np.ndarray:
+        return np.array([self.inner.gap(t).mean()]) if self.time_dependent else self.d0
+
+    def gap_velocity(self, t: float) -> np.ndarray:
+        return np.array([self.inner.gap_velocity(t).mean()])
+
+    def gap_acceleration(self, t: float) -> np.ndarray:
+        return np.array([self.inner.gap_acceleration(t).mean()])
+
+    def velocity(self, t: float) -> np.ndarray | None:
+        inner = self.inner.velocity(t)
+        return None if inner is None else inner.mean(axis=0, keepdims=True)
 
 
 def node_rows(n_local: int, bs: int, normal: np.ndarray, nodes: NodeSet) -> sparse.csr_matrix:

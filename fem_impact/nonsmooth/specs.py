@@ -19,6 +19,9 @@ class Contact:
     law_keys: dict = field(default_factory=dict)   # the law's own keys, as its schema validated them
     friction: float = 0.0       # Coulomb's coefficient mu on every row of the contact (0: frictionless)
     point: list[float] | None = None   # obstacle: a point of its plane; each node's gap its own distance to it
+    # obstacle: the plane's displacement from where gap or point put it, one expression in t per axis
+    # (fem_impact.expressions.Expression; None: the plane is fixed)
+    motion: list | None = None
 
     @property
     def law_is_inferred(self) -> bool:

@@ -68,6 +68,9 @@ class ReducedSystem:
             raise ShootingError("shooting takes rigid stops only (no contact stiffness)")
         if ops.pt:
             raise ShootingError("shooting takes frictionless contacts only")
+        if ops.moving:   # (its flights meet the rows' fixed stops d0: refused rather than answered wrong)
+            raise ShootingError("shooting (--flight events) takes fixed obstacles only; an obstacle with a motion "
+                                "needs the integrator's flights (--flight scheme)")
         w2 = np.asarray(ops.K, dtype=float).copy()
         c = np.zeros_like(w2) if ops.C is None else np.asarray(ops.C, dtype=float).copy()
         P = np.asarray(ops.P_local.toarray() if hasattr(ops.P_local, "toarray") else ops.P_local).T.copy()

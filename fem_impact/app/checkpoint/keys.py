@@ -34,6 +34,7 @@ def model_keys(case) -> dict:
         out["mesh.file"] = "sha256:" + _file_digest(case.mesh.file)
     expressions = [e for item in case.initial.displacement + case.initial.velocity for e in item.value]
     expressions += [e for s in case.supports for e in (s.displacement or ())]
+    expressions += [e for c in case.contacts for e in (c.motion or ())]
     for name in _parameters_of(case, expressions):
         out[f"parameters.{name}"] = case.parameters[name]
     return out
