@@ -390,3 +390,11 @@ def test_a_study_called_from_python_claims_its_folder_as_the_command_does(tmp_pa
                        shooting=False)
         files = json.loads((out / MARKER).read_text())["files"]
         assert "response.csv" in files and "study.json" in files
+
+
+def test_a_case_without_probes_is_studied_on_its_contacts_alone(tmp_path):
+    """A case with no output.probes: the section has no columns but the contacts' (numpy compared an empty
+    float array of column kinds with a string as one False, and the study stopped with a traceback)."""
+    case = fi.load_case(CASES / "impact_oscillator.yaml", ["output.probes={}"])
+    result = response_study(case, "parameters.f=0.5", tmp_path, settle=2, periods=2, quiet=True)
+    assert result["rows"] and all(row["stop.impulse"] > 0.0 for row in result["rows"])

@@ -158,7 +158,7 @@ class MovingPlane(Relation):
         if not np.all(np.isfinite(value)):
             from ..errors import SimulationError
 
-            what = ("motion", "its velocity", "its acceleration")[order]
+            what = ("motion", "velocity", "acceleration")[order]
             raise SimulationError(f"contact {self.name}: the obstacle's {what} is not finite at t = {t:.6g} "
                                   f"(motion: {', '.join(str(f.source) for f in self.motion[0])})")
         return value

@@ -69,7 +69,7 @@ def detect_period(states: np.ndarray, tolerance: float) -> int:
 
 def _kinds(names) -> tuple[np.ndarray, np.ndarray]:
     """Masks of the displacement and velocity columns among probe columns ``P.ux`` ... ``P.vz``."""
-    kinds = np.array([name.rsplit(".", 1)[1][0] for name in names])
+    kinds = np.array([name.rsplit(".", 1)[1][0] for name in names], dtype=str)   # (str: a case without probes too)
     return kinds == "u", kinds == "v"
 
 
@@ -113,7 +113,7 @@ def _section(folder, key, value, frequency, direction, settle, periods, steps, t
     states = np.column_stack([h[p][section] for p in probes]) if probes else np.zeros((periods, 0))
     window = slice(section[0] - steps, section[-1] + 1)
     u, v = _kinds(probes)
-    columns = np.column_stack([h[p][window] for p in probes]) if probes else np.zeros((1, 0))
+    columns = np.column_stack([h[p][window] for p in probes]) if probes else np.zeros((t[window].size, 0))
     omega = 2 * np.pi * frequency
     tol = section_tolerance(probes, columns, omega, tolerance, floor)
     # The timing error of an impact placed at the end of a step: the step times the velocity's jump in
