@@ -343,19 +343,47 @@ class ImpactLog:
     impulse to the last step before none does (docs/running.md, "What a run writes").
 
     ``t`` is the end of the impact's first step (history.csv's time of it), ``impulse`` the contact's
-    impulses summed over the impact, ``speed`` the largest normal approach speed (P V) among its rows
-    at the step before, ``rows`` how many of its rows carried an impulse.
+    impulses summed over the impact, ``speed`` the largest normal approach speed among its rows at the
+    step before (relative to a moving obstacle), ``rows`` how many of its rows carried an impulse,
+    ``t_contact`` the time its first row closed, found within the step from that row's gap and approach
+    speed at the step before (the step's end when no row was approaching), and, with a drive period
+    (``output.period``), ``phase``: ``t_contact`` within the period, in [0, 1).
     """
 
-    COLUMNS = ("t", "contact", "impulse", "speed", "rows")
-    __checkpoint__ = ("_open", "_rows", "_approach")   # the impacts under way (a restart continues them)
+    COLUMNS = ("t", "contact", "impulse", "speed", "rows", "t_contact")
+    # the impacts under way (a restart continues them); the rows' gaps and time at the step before
+    __checkpoint__ = ("_open", "_rows", "_approach", "_gap", "_t_prev")
+    __checkpoint_added__ = ("_gap", "_t_prev")
 
-    def __init__(self, cons: Constraints):
-        self.cons = cons
+    def __init__(self, cons: Constraints, period: float | None = None):
+        self.cons, self.period = cons, period
         self.events: list[list] = []
         self._open: dict[str, list] = {}
         self._rows: dict[str, np.ndarray] = {}
         self._approach: np.ndarray | None = None
+        self._gap: np.ndarray | None = None
+        self._t_prev: float | None = None
+
+    def _remember(self, t: float, gap: np.ndarray, normal_velocity: np.ndarray) -> None:
+        """The step's gaps and approach speeds relative to the obstacles, for the next step's impacts."""
+        relations = self.cons.relations
+        moving = relations is not None and relations.time_dependent
+        self._approach = np.array(normal_velocity - relations.gap_velocity(t) if moving else normal_velocity,
+                                  dtype=float)
+        self._gap = np.array(gap, dtype=float)
+        self._t_prev = float(t)
+
+    def _contact_time(self, rows: slice, carrying: np.ndarray, t: float) -> float:
+        """When the first of the carrying rows closed: gap / approach speed after the step before, within
+        the step (a first-order estimate: the row's relative acceleration within the step is left out)."""
+        if self._gap is None or self._t_prev is None:
+            return float(t)
+        gap, speed = self._gap[rows][carrying], self._approach[rows][carrying]
+        approaching = speed > 0.0
+        if not np.count_nonzero(approaching):
+            return float(t)
+        when = self._t_prev + np.maximum(gap[approaching], 0.0) / speed[approaching]
+        return float(np.clip(when.min(), self._t_prev, t))
 
     def write(self, state: StepState) -> None:
         for c in self.cons.contacts:
@@ -365,13 +393,14 @@ class ImpactLog:
             if np.count_nonzero(carrying):
                 if event is None:
                     before = self._approach[c.rows] if self._approach is not None else np.zeros(0)
-                    event = self._open[c.name] = [state.t, c.name, 0.0, float(max(before.max(initial=0.0), 0.0)), 0]
+                    event = self._open[c.name] = [state.t, c.name, 0.0, float(max(before.max(initial=0.0), 0.0)), 0,
+                                                  self._contact_time(c.rows, carrying, state.t)]
                     self._rows[c.name] = np.zeros(impulse.size, dtype=bool)
                 event[2] += float(impulse.sum())
                 self._rows[c.name] |= carrying
             elif event is not None:
                 self._finish(c.name)
-        self._approach = np.array(state.normal_velocity, copy=True)
+        self._remember(state.t, state.gap, state.normal_velocity)
 
     def write_block(self, block) -> None:
         """A block of steps: without impulses it ends the impacts still open (else step by step)."""
@@ -381,7 +410,7 @@ class ImpactLog:
             return
         for name in list(self._open):
             self._finish(name)
-        self._approach = np.array(block.normal_velocity[-1], copy=True)
+        self._remember(float(block.t[-1]), block.gap[-1], block.normal_velocity[-1])
 
     def _finish(self, name: str) -> None:
         event = self._open.pop(name)
@@ -398,9 +427,17 @@ class ImpactLog:
     def save(self, path: Path) -> None:
         with open(path, "w", newline="") as f:
             writer = csv.writer(f)
-            writer.writerow(self.COLUMNS)
-            for t, name, impulse, speed, rows in self.close():
-                writer.writerow([f"{t:.12g}", name, f"{impulse:.12g}", f"{speed:.12g}", rows])
+            writer.writerow(self.COLUMNS + (("phase",) if self.period else ()))
+            for t, name, impulse, speed, rows, t_contact in self.close():
+                phase = [f"{phase_of(t_contact, self.period):.12g}"] if self.period else []
+                writer.writerow([f"{t:.12g}", name, f"{impulse:.12g}", f"{speed:.12g}", rows, f"{t_contact:.12g}",
+                                 *phase])
+
+
+def phase_of(t: float, period: float) -> float:
+    """The time ``t`` within a period, in [0, 1) (a time a hair below a period's end is its end: 0)."""
+    phase = (t / period) % 1.0
+    return 0.0 if phase >= 1.0 - 1e-12 else phase
 
 
 class RunStatistics:

@@ -235,6 +235,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     from . import checkpoint
     from .outdir.interruption import install_signal_handlers
     from .output import BodyMomenta, HistoryWriter, ImpactLog, Progress, RunStatistics, VTKWriter
+    from .periods import PeriodLog
 
     install_signal_handlers()   # again: PETSc, imported just now, installs its own (SIGHUP, SIGQUIT)
 
@@ -251,10 +252,14 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     n_steps = steps_for(solver.t_end, solver.dt)
     # What a checkpoint holds: the state of every part of the run that carries one from step to step.
     raw = integrator.integrator if model.motion is not None else integrator
-    impacts = ImpactLog(cons)
+    impacts = ImpactLog(cons, case.output.period)
     stats = RunStatistics(cons)
     watch = EnergyWatch(stop_on_energy_gain, scheme=raw.name, stable=getattr(raw, "unconditionally_stable", None))
+    momenta = BodyMomenta(model, fields)
+    periods = PeriodLog(case.output.period, cons.contacts, momenta, impacts) if case.output.period else None
     parts = {"integrator": raw, "fields": system.fields, "watch": watch, "impacts": impacts, "statistics": stats}
+    if periods is not None:
+        parts["periods"] = periods
     if model.motion is not None:
         parts["motion"] = integrator
     model_keys = checkpoint.model_keys(case)
@@ -278,6 +283,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     if restart is not None:
         try:
             trees = checkpoint.read_parts(saved, comm, built, dof_keys)
+            if periods is not None and "periods" not in trees:   # (output.period new on restart: from here on)
+                del parts["periods"]
             integrator.start(system.U0, system.V0, 0.0)   # (allocates what the state then overwrites)
             checkpoint.restore_parts(parts, trees, saved, comm)
         except checkpoint.Damaged as err:
@@ -290,12 +297,11 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
 
     with out.staged() if out is not None else contextlib.nullcontext(None) as stage:
-        momenta = BodyMomenta(model, fields)
         history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
                                 scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name,
                                 reactions=model.motion.names if model.motion else (),
                                 numerical_loss=getattr(raw, "theta", 0.5) != 0.5)
-        observers = [history, stats, impacts]
+        observers = [history, stats, impacts] + ([periods] if periods is not None else [])
         vtk = None
         if case.output.vtk and stage is not None:
             vtk = VTKWriter(stage, model, fields, case.output.every, n_steps, case.output.format)
@@ -384,6 +390,9 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                 case.write_resolved(stage / "case.resolved.yaml")
             with writing(stage / "impacts.csv"):
                 impacts.save(stage / "impacts.csv")
+            if periods is not None:
+                with writing(stage / "periods.csv"):
+                    periods.save(stage / "periods.csv")
             if vtk is not None and case.output.format == "vtu":   # (view.py loads results.pvd)
                 from .paraview_view import write_view_script
 

@@ -134,6 +134,8 @@ def check(obj, state: dict) -> None:
 
     for name in obj.__checkpoint__:
         if name not in state:
+            if name in getattr(obj, "__checkpoint_added__", ()):
+                continue   # declared since the checkpoint was written: it keeps the value the case built
             raise ValueError(f"{name}: missing")
         fits(getattr(obj, name), state[name], name)
     arrays = set(_array_paths(state))
@@ -203,7 +205,7 @@ def restore(obj, state: dict) -> None:
             return ("object", {k: build(v, f"{path}.{k}") for k, v in value[1].items()})
         raise ValueError(f"unknown entry {kind!r}")
 
-    built = {name: build(state[name], name) for name in obj.__checkpoint__}
+    built = {name: build(state[name], name) for name in obj.__checkpoint__ if name in state}
     for name, value in built.items():
         if isinstance(value, tuple) and value and value[0] == "object":
             target = getattr(obj, name)
