@@ -15,6 +15,8 @@ the obstacle's work in W_ext.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from petsc4py import PETSc
@@ -188,12 +190,50 @@ def test_a_motion_that_stops_being_finite_stops_the_run_naming_the_contact(tmp_p
     assert "contact wall" in out.stderr and "not finite" in out.stderr, out.stderr
 
 
-def test_event_driven_flights_refuse_an_obstacle_with_a_motion(tmp_path):
-    """The response study's event-driven flights meet fixed stops only: a moving one is refused, with
-    the flights that take it named, rather than answered against the stop's place at t = 0."""
-    from fem_impact.periodic.shooting import ReducedSystem, ShootingError
+def test_event_driven_flights_meet_the_shaken_table_exactly():
+    """The response study's event-driven flights (periodic/shooting.py) against the moving table of
+    cases/bouncing_ball.yaml: shooting finds the period-1 orbit with its impact at T/2 (where the table's
+    shifted motion puts the orbit's phase) and its approach speed g T / 2 + A w cos(phi), exactly; its
+    multipliers cross -1 at the period doubling's Gamma = sqrt((pi (1 - e) / (1 + e))^2 + (2 (1 + e^2) /
+    (1 + e)^2)^2) (bisection: within 0.1 %)."""
+    from fem_impact.periodic.shooting import poincare_map, reduced_scene, shoot
 
-    case = load_case(CASES / "impact_oscillator.yaml", ["contacts.0.motion=['0.01*sin(t)']", "mesh.cells=20"])
-    system = build_system(case)
-    with pytest.raises(ShootingError, match=r"fixed obstacles only.*--flight scheme"):
-        ReducedSystem.from_operators(system.operators)
+    f, g, e = 50.0, 9.81, 0.5
+    T = 1.0 / f
+
+    def orbit(gamma):
+        scene = reduced_scene(fi.load_case(CASES / "bouncing_ball.yaml", [f"parameters.Gamma={gamma}"]))
+        x = scene.start.copy()
+        for _ in range(5):   # (near the orbit first: Newton from the settling ball)
+            x = poincare_map(scene.system, x, T)
+        return shoot(scene.system, x, T, 1)
+
+    settled = orbit(1.3)
+    (t, row, speed), = settled.impacts
+    phi = np.arccos(np.pi * (1 - e) / ((1 + e) * 1.3))
+    assert t == pytest.approx(T / 2, rel=1e-9) and settled.stable
+    assert speed == pytest.approx(g * T / 2 + 1.3 * g / (2 * np.pi * f) * np.cos(phi), rel=1e-9)
+    low, high = 1.45, 1.6
+    assert orbit(low).multipliers.real.min() > -1.0 > orbit(high).multipliers.real.min()
+    for _ in range(12):
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if orbit(mid).multipliers.real.min() > -1.0 else (low, mid)
+    doubling = np.sqrt((np.pi * (1 - e) / (1 + e)) ** 2 + (2 * (1 + e * e) / (1 + e) ** 2) ** 2)
+    assert 0.5 * (low + high) == pytest.approx(doubling, rel=1e-3)
+
+
+def test_the_response_study_sweeps_the_shaken_tables_amplitude_with_event_driven_flights(tmp_path):
+    """``study response --flight events`` over Gamma at the fixed drive frequency: period 1 below the
+    period doubling, period 2 above it, and the doubling located (from the shooting's multipliers) within
+    0.1 % of sqrt((pi (1 - e) / (1 + e))^2 + (2 (1 + e^2) / (1 + e)^2)^2) = 1.5268."""
+    from fem_impact.app.studies.response import response_study
+
+    case = fi.load_case(CASES / "bouncing_ball.yaml")
+    result = response_study(case, "parameters.Gamma=1.3,1.5,1.55", tmp_path, settle=300, periods=4, flight="events",
+                            frequency="f", quiet=True)
+    periods = {row["parameters.Gamma"]: row["period"] for row in result["rows"]}
+    assert periods == {1.3: 1, 1.5: 1, 1.55: 2}
+    (mark,) = json.loads((tmp_path / "response-up.json").read_text())["bifurcations"]
+    e = 0.5
+    doubling = np.sqrt((np.pi * (1 - e) / (1 + e)) ** 2 + (2 * (1 + e * e) / (1 + e) ** 2) ** 2)
+    assert mark["kind"] == "period_doubling" and mark["parameters.Gamma"] == pytest.approx(doubling, rel=1e-3)

@@ -2,13 +2,14 @@
 the stroboscopic Poincare map, Newton on ``P^k(x) = x``, Floquet multipliers.
 
 The reduced model without static correction (``method: modal``, ``static_correction: false``) is
-``Z'' + c Z' + w^2 Z = Y1^T R(t)`` between impacts, with rigid rows ``g = d0 - (P Y1) Z >= 0``. A
+``Z'' + c Z' + w^2 Z = Y1^T R(t)`` between impacts, with rigid rows ``g = d(t) - (P Y1) Z >= 0`` (``d = d0``
+for fixed stops; an obstacle's motion moves it, and Newton's law acts on the speed relative to it). A
 time-stepping scheme puts each impact at the end of a step: its impact instant, and so the orbit,
 carry an error of the order of the step (docs/impact_oscillator.md). Shooting needs the map's derivative, which depends
 on the impact instants (the saltation matrix): here the flight is integrated by an adaptive
 Runge-Kutta method (DOP853, relative tolerance 1e-12) with the gaps as events, so that an impact
 is located to the tolerance, and Newton's law is applied there, row by row:
-``Z'+ = Z'- - (1 + r) (P_j Z'-) P_j^T / |P_j|^2`` (unit modal masses). The Jacobian of ``P^k``
+``Z'+ = Z'- - (1 + r) (P_j Z'- - d_j'(t)) P_j^T / |P_j|^2`` (unit modal masses). The Jacobian of ``P^k``
 is taken by central differences, which then include the saltation.
 
 It handles isolated impacts (every orbit a frequency sweep follows); a row that meets its stop
@@ -58,6 +59,20 @@ class ReducedSystem:
     P: np.ndarray                # p x n1: P Y1
     d0: np.ndarray
     restitution: np.ndarray
+    # The rows' relations when an obstacle moves (their d(t), d'(t), d''(t): docs/theory.md s. 2.6), else None
+    obstacles: object | None = None
+
+    def gap0(self, t: float) -> np.ndarray:
+        """``d(t)``: the rows' stops at time t."""
+        return self.obstacles.gap(t) if self.obstacles is not None else self.d0
+
+    def stop_rate(self, t: float) -> np.ndarray:
+        """``d'(t)``: how fast each stop recedes (0 for fixed ones)."""
+        return self.obstacles.gap_velocity(t) if self.obstacles is not None else np.zeros(self.d0.size)
+
+    def stop_acceleration(self, t: float) -> np.ndarray:
+        """``d''(t)``."""
+        return self.obstacles.gap_acceleration(t) if self.obstacles is not None else np.zeros(self.d0.size)
 
     @classmethod
     def from_operators(cls, ops) -> ReducedSystem:
@@ -68,13 +83,11 @@ class ReducedSystem:
             raise ShootingError("shooting takes rigid stops only (no contact stiffness)")
         if ops.pt:
             raise ShootingError("shooting takes frictionless contacts only")
-        if ops.moving:   # (its flights meet the rows' fixed stops d0: refused rather than answered wrong)
-            raise ShootingError("shooting (--flight events) takes fixed obstacles only; an obstacle with a motion "
-                                "needs the integrator's flights (--flight scheme)")
         w2 = np.asarray(ops.K, dtype=float).copy()
         c = np.zeros_like(w2) if ops.C is None else np.asarray(ops.C, dtype=float).copy()
         P = np.asarray(ops.P_local.toarray() if hasattr(ops.P_local, "toarray") else ops.P_local).T.copy()
-        return cls(w2, c, ops.load, P, np.asarray(ops.d0, float), np.asarray(ops.restitution, float))
+        return cls(w2, c, ops.load, P, np.asarray(ops.d0, float), np.asarray(ops.restitution, float),
+                   ops.relations if ops.moving else None)
 
     @property
     def n(self) -> int:
@@ -134,7 +147,8 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
     system.load.evaluate(0.5 * (t0 + t1), force)
     load = np.maximum(np.abs(system.load.evaluate(t0, np.zeros(n))), np.abs(force))
     reach = float((load / np.maximum(system.w2, 1.0 / max(t1 - t0, 1e-300) ** 2)).max(initial=0.0))
-    scale = max(np.abs(x[:n]).max(), reach, np.abs(system.d0).max(initial=0.0), 1e-300)
+    stops = np.abs(system.gap0(t0)).max(initial=0.0)
+    scale = max(np.abs(x[:n]).max(), reach, stops, 1e-300)
     vscale = max(np.abs(x[n:]).max(), scale * np.sqrt(system.w2.max()), scale / span, 1e-300)
     scale = max(scale, np.abs(x[n:]).max())
     stuck: list[int] = []
@@ -144,8 +158,9 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
         return force - system.damping * y[n:n2] - system.w2 * y[:n]
 
     def holding(t, y, j):
+        """The force that keeps row j on its stop (moving with the stop's acceleration)."""
         row = system.P[j]
-        return float(row @ free_acceleration(t, y)) / float(row @ row)
+        return (float(row @ free_acceleration(t, y)) - float(system.stop_acceleration(t)[j])) / float(row @ row)
 
     def rhs(t, y):
         if deadline is not None and time.monotonic() > deadline:
@@ -154,13 +169,13 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
         lam = 0.0
         for j in stuck:
             row = system.P[j]
-            lam = (row @ a) / (row @ row)
+            lam = (row @ a - system.stop_acceleration(t)[j]) / (row @ row)
             a = a - lam * row
         return np.concatenate([y[n:n2], a, [lam]])   # (the last: the impulse that holds the stuck row)
 
     def gap_event(j):   # (crossing a hair beyond the stop: a row that starts on it, at zero, is seen coming back)
         def event(t, y):
-            return system.d0[j] - system.P[j] @ y[:n] + at_stop if j not in stuck else 1.0
+            return system.gap0(t)[j] - system.P[j] @ y[:n] + at_stop if j not in stuck else 1.0
         event.terminal, event.direction = True, -1
         return event
 
@@ -172,7 +187,7 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
     t, y, count, stalls = t0, np.concatenate([np.asarray(x, dtype=float), [0.0]]), 0, 0
     atol = np.full(n2 + 1, ATOL_FACTOR * scale)
     atol[-1] = ATOL_FACTOR * vscale / max(np.linalg.norm(system.P, axis=1).max(initial=0.0), 1e-300)
-    at_stop = 1e-12 * max(scale, np.abs(system.d0).max(initial=0.0))   # a row this close is on its stop
+    at_stop = 1e-12 * max(scale, stops)   # a row this close is on its stop
     lost = 1e-9 * scale                                                  # a row this far beyond it was lost
     pressed = 1e-10 * max(vscale * np.sqrt(system.w2.max()), vscale / span, load.max())   # |acceleration| of a row
 
@@ -182,7 +197,7 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
             raise ShootingError(f"row {j} meets its stop at t = {t:.6g} while row {stuck[0]} sticks: two rows at "
                                 "once are not followed")
         row = system.P[j]
-        speed = float(row @ y[n:n2])   # approach speed (>= 0)
+        speed = float(row @ y[n:n2]) - float(system.stop_rate(t)[j])   # approach speed to the stop (>= 0)
         count += 1
         if count > max_impacts:
             raise ShootingError(f"more than {max_impacts} impacts at t = {t:.6g} ({MAX_IMPACTS} a forcing period): "
@@ -192,26 +207,26 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
         y[n:n2] -= (1.0 + system.restitution[j]) * speed * row / (row @ row)
         rebound, pull = system.restitution[j] * speed, holding(t, y, j) * float(row @ row)
         if pull > 0.0 and (rebound <= STICK_SPEED * vscale or rebound ** 2 <= 2.0 * pull * HOP * at_stop):
-            _stick(y, n, row, stuck, j, held)   # the end of a chatter sequence (or a plastic impact): it stays
+            _stick(y, n, row, stuck, j, held, system.stop_rate(t)[j])   # the end of a chatter sequence: it stays
 
     def on_stops(t, y):
         """Rows on their stops where a flight starts or goes on (an event cannot see a gap that starts at
         zero): moving in, an impact now; at rest (to the sticking speed) and pressed by the load, stuck."""
         for j in range(system.P.shape[0]):
             row = system.P[j]
-            gap = system.d0[j] - row @ y[:n]
+            gap = system.gap0(t)[j] - row @ y[:n]
             if j in stuck or gap > at_stop:
                 continue
             if gap < 0.0:   # (on it: at the event a hair beyond, or round-off)
                 y[:n] += gap / (row @ row) * row
-            speed = float(row @ y[n:n2])
+            speed = float(row @ y[n:n2]) - float(system.stop_rate(t)[j])
             if speed > STICK_SPEED * vscale:
                 impact(t, j, y)
             elif speed > -STICK_SPEED * vscale and holding(t, y, j) * np.linalg.norm(row) > pressed:
                 if stuck:
                     raise ShootingError(f"rows {stuck[0]} and {j} stick at once at t = {t:.6g}: two rows at once "
                                         "are not followed")
-                _stick(y, n, row, stuck, j, held)
+                _stick(y, n, row, stuck, j, held, system.stop_rate(t)[j])
 
     on_stops(t, y)
     while t < t1:
@@ -223,7 +238,9 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
         if sol.status == -1 or not np.all(np.isfinite(sol.y[:, -1])):
             raise ShootingError(f"the flight's integration failed at t = {t:.6g}: {sol.message}")
         free = [j for j in range(system.P.shape[0]) if j not in stuck]
-        depth = (system.P[free] @ sol.y[:n] - system.d0[free, None]).max(initial=-np.inf) if free else -np.inf
+        stops_then = (system.d0[:, None] if system.obstacles is None
+                      else np.column_stack([system.gap0(ti) for ti in sol.t]))
+        depth = (system.P[free] @ sol.y[:n] - stops_then[free]).max(initial=-np.inf) if free else -np.inf
         if depth > lost:   # (a row beyond its stop between two events: the flight lost a contact)
             raise ShootingError(f"a row went {depth:.3g} beyond its stop after t = {t:.6g}: a contact the "
                                 "event-driven flight lost")
@@ -258,9 +275,10 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
     return y[:n2]
 
 
-def _stick(y, n, row, stuck, j, held) -> None:
-    """Row j stays on its stop: its remaining approach speed is taken by an impulse (counted in ``held``)."""
-    lam = (row @ y[n:2 * n]) / (row @ row)
+def _stick(y, n, row, stuck, j, held, rate: float = 0.0) -> None:
+    """Row j stays on its stop: its remaining approach speed (relative to the stop, which recedes at
+    ``rate``) is taken by an impulse (counted in ``held``)."""
+    lam = (row @ y[n:2 * n] - rate) / (row @ row)
     y[n:2 * n] -= lam * row
     if held is not None:
         held[j] += lam

@@ -98,7 +98,8 @@ def plot_response(rows: list[dict], key: str, path: Path, marks=(), frequency_ax
                             rotation=90, va="top", ha="right", fontsize=7)
     axes[0, 0].set_ylabel(f"{probe} at forcing phase 0" if probe else "")
     axes[0, 0].set_title("Bifurcation diagram: the stroboscopic Poincare section of the settled response")
-    axes[0, 0].legend(loc="best", fontsize=8)
+    if axes[0, 0].get_legend_handles_labels()[0]:   # (no probe: nothing drawn there to name)
+        axes[0, 0].legend(loc="best", fontsize=8)
     if contacts:
         axes[1, 0].set_ylabel("impulse per forcing period")
         axes[1, 0].legend(loc="best", fontsize=8)
