@@ -237,3 +237,15 @@ def test_the_response_study_sweeps_the_shaken_tables_amplitude_with_event_driven
     e = 0.5
     doubling = np.sqrt((np.pi * (1 - e) / (1 + e)) ** 2 + (2 * (1 + e * e) / (1 + e) ** 2) ** 2)
     assert mark["kind"] == "period_doubling" and mark["parameters.Gamma"] == pytest.approx(doubling, rel=1e-3)
+
+
+@pytest.mark.parametrize("restitution, dt, says", [(0.5, 0.05, True), (0.0, 0.05, False), (0.5, 0.002, False)])
+def test_a_restitution_on_an_elastic_body_at_a_long_step_is_explained_once(tmp_path, restitution, dt, says):
+    """Nodal e on the full model at a step above 2 / omega_max: the run says once what e does there."""
+    out = run_cli("run", str(CASES / "impacting_bar.yaml"), "-q", "-o", str(tmp_path / "out"), "--set",
+                  f"contacts.0.restitution={restitution}", "--set", "solver.method=moreau_jean", "--set",
+                  "mesh.cells=50", "--set", f"solver.dt={dt}", "--set", "solver.t_end=0.2", "--set", "output.vtk=false")
+    assert out.returncode == 0, out.stderr
+    assert out.stderr.count("the restitution acts on the contact's nodes alone") == (1 if says else 0), out.stderr
+    if says:
+        assert "contacts[0] (wall, e = 0.5)" in out.stderr and "cases/bouncing_ball.yaml" in out.stderr

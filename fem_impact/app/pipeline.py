@@ -246,6 +246,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     if changed:   # a restart under other loads: from the checkpoint's load at its time to the case's after it
         system.operators.load = checkpoint.ChangedLoad(system.operators.load)
     integrator = make_integrator(case, system.operators)
+    if not is_reduced(solver):
+        _restitution_advice(case, system.operators)
     fields = system.fields
     if model.motion is not None:   # moving supports: the run seen as the whole structure's
         integrator, fields = model.motion.view(integrator, fields, comm)
@@ -401,6 +403,28 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     summary["outdir"] = str(outdir.resolve()) if outdir is not None else None
     columns = None if outdir is not None else comm.bcast(history.columns_data(), root=0)
     return Result(summary, outdir.resolve() if outdir is not None else None, columns)
+
+
+def _restitution_advice(case: Case, ops) -> None:
+    """Say once when a rigid contact's restitution acts on an elastic body at a step longer than the
+    shortest period its mesh carries (dt above 2 / omega_max): e then acts on the contact's nodes alone
+    within a step, and the body's rebound comes from its waves and depends on the step, not on e
+    (docs/case_files.md, "Restitution on an elastic body")."""
+    from ..integrators.central_difference import critical_time_step
+
+    bouncing = [(i, c) for i, c in enumerate(case.contacts)
+                if c.law == "newton" and c.restitution > 0.0 and c.stiffness is None]
+    if not bouncing:
+        return
+    limit = critical_time_step(ops)   # (collective: every rank calls it)
+    if case.solver.dt <= limit or ops.comm.rank != 0:   # (said once: by rank 0)
+        return
+    named = ", ".join(f"contacts[{i}] ({c.name}, e = {c.restitution:g})" for i, c in bouncing)
+    log.warning("%s: the restitution acts on the contact's nodes alone; at dt = %.3g, %.3g times the shortest "
+                "period the mesh carries (2/omega_max = %.3g), the elastic body's rebound comes from its waves and "
+                "depends on the step, not on e. For a body's restitution, model its rigid motion (solver.method: "
+                "modal with its rigid modes, as cases/bouncing_ball.yaml); see docs/case_files.md, \"Restitution "
+                "on an elastic body\"", named, case.solver.dt, case.solver.dt / limit, limit)
 
 
 def _relative_note(case: Case, err) -> str:
