@@ -67,6 +67,7 @@ class System:
     V0: object
     summary: dict                # keys of the run's summary: the reduced model's modes, ...
     reduced: ReducedModel | None = None   # the reduced model (method: modal), else None
+    rigid: object | None = None  # the rigid bodies (fem_impact.rigid.bodies.RigidBodies) of a rigid scene, else None
 
 
 def build_system(case: Case, comm: MPI.Comm | None = None, *, check_initial: bool = False,
@@ -82,8 +83,53 @@ def build_system(case: Case, comm: MPI.Comm | None = None, *, check_initial: boo
     if check_initial:
         check_initial_state(cons, model)
     found = find_probes(case.output.probes, model) if probes else None
-    system = (reduced_system if is_reduced(case.solver) else full_system)(case, model, cons)
+    if any(model == "rigid" for model in case.bodies.values()):
+        system = rigid_system(case, model, cons)
+    else:
+        system = (reduced_system if is_reduced(case.solver) else full_system)(case, model, cons)
     system.probes = found
+    return system
+
+
+def rigid_system(case: Case, model: Model, cons: Constraints) -> System:
+    """A scene of rigid bodies: every body of the mesh rigid, in large rotations (fem_impact/rigid/). What
+    it does not take yet is refused, naming the key."""
+    from .errors import ModelInputError
+    from .rigid.bodies import rigid_bodies
+
+    names = list(model.momentum_rows)
+    unknown = sorted(set(case.bodies) - set(names))
+    if unknown:
+        raise ModelInputError(("bodies", unknown[0]), f"no body {unknown[0]} in the mesh (its bodies: "
+                                                      f"{', '.join(names)})")
+    elastic = [name for name in names if case.bodies.get(name, "elastic") != "rigid"]
+    if elastic:
+        raise ModelInputError(("bodies", elastic[0]), f"body {elastic[0]} is elastic beside rigid ones: a scene "
+                                                      "mixes them not yet; make every body rigid, or none")
+    refusals = [
+        (case.supports, ("supports",), "a rigid body takes no supports (hold it by contacts, or move an obstacle)"),
+        (case.solver.method != "moreau_jean", ("solver", "method"), "rigid bodies take moreau_jean (the default)"),
+        (getattr(case.solver, "theta", 0.5) != 0.5, ("solver", "theta"), "rigid bodies take theta = 1/2"),
+        (case.damping.alpha or case.damping.beta, ("damping",), "a rigid body has no damping of its own"),
+        (case.mesh.hypothesis == "axisymmetric", ("mesh", "hypothesis"),
+         "a rigid body is not a solid of revolution here (plane_stress, plane_strain or 3D)"),
+        (any(not (e.is_constant and e.at_time(0.0) == 0.0) for item in case.initial.displacement for e in item.value),
+         ("initial", "displacement"), "a rigid body starts where its mesh is (no initial displacement)"),
+        (case.initial.source is not None, ("initial", "from"), "a rigid scene does not start from a saved run yet"),
+        (any(c.type != "obstacle" for c in case.contacts), ("contacts",),
+         "rigid bodies meet obstacles only, for now (no pair contacts)"),
+        (any(c.stiffness is not None or c.law not in ("newton",) for c in case.contacts), ("contacts",),
+         "rigid bodies take Newton's law (restitution) and friction, for now"),
+    ]
+    for refused, key, message in refusals:
+        if refused:
+            raise ModelInputError(key, message)
+    system = full_system(case, model, cons)
+    system.rigid = rigid_bodies(model, names, ("bodies",))
+    system.summary["rigid_bodies"] = {name: {"mass": float(m), "centre": [float(x) for x in c],
+                                             "inertia": (float(j) if system.rigid.dim == 2 else j.tolist())}
+                                      for name, m, c, j in zip(names, system.rigid.mass, system.rigid.centre,
+                                                               system.rigid.inertia)}
     return system
 
 
@@ -122,8 +168,13 @@ def reduced_operators(red: ReducedModel, cons: Constraints) -> Operators:
                      **friction)
 
 
-def make_integrator(case: Case, operators: Operators):
-    """The time integrator of ``solver.method`` (the reduced model: of its ``solver.scheme``)."""
+def make_integrator(case: Case, operators: Operators, rigid=None):
+    """The time integrator of ``solver.method`` (the reduced model: of its ``solver.scheme``; ``rigid``, a
+    system's rigid bodies: Moreau-Jean on them)."""
     from .integrators import integrator_class, scheme_of
 
+    if rigid is not None:
+        from .rigid.scheme import RigidMoreauJean
+
+        return RigidMoreauJean(operators, rigid, case.solver.dt)
     return integrator_class(scheme_of(case.solver)).from_solver(operators, case.solver)

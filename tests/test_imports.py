@@ -154,6 +154,7 @@ LAYERS = (
     ("periodic", ("fem_impact.periodic",)),              # periodic orbits of the reduced model
     ("build", ("fem_impact.build",)),                    # a case becomes a system
     ("config", ("fem_impact.config",)),                  # the case file (reads the schemas below, no PETSc)
+    ("rigid", ("fem_impact.rigid",)),                    # rigid bodies in large rotation and their scheme
     ("integrators", ("fem_impact.integrators",)),        # time schemes and the time loop
     ("nonsmooth", ("fem_impact.nonsmooth",)),            # contact relations, laws, one-step problems
     ("mechanics", ("fem_impact.mechanics",)),            # the system in matrices, its energy

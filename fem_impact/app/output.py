@@ -125,8 +125,9 @@ class HistoryWriter:
 
     def __init__(self, path: Path | None, cons: Constraints, probes: Probes, comm: MPI.Comm, fields,
                  flush_every: int = 2000, momenta: BodyMomenta | None = None, scheme_energy: bool = False,
-                 name: str = "run", reactions: list[str] = (), numerical_loss: bool = False):
+                 name: str = "run", reactions: list[str] = (), numerical_loss: bool = False, rigid=None):
         self.cons, self.probes, self.comm, self.fields = cons, probes, comm, fields
+        self.rigid = rigid   # the rigid bodies of a rigid scene (their state: StepState.bodies)
         self.name = name
         # FEM_IMPACT_RECORD=DIR: every run also keeps its rows unrounded in DIR (tools/same_histories.py).
         self._recorded: list | None = [] if os.environ.get("FEM_IMPACT_RECORD") and comm.rank == 0 else None
@@ -190,6 +191,11 @@ class HistoryWriter:
             groups.append(ColumnGroup(["numerical_loss"], "the scheme's own dissipation (Moreau-Jean, theta > 1/2)",
                                       lambda state: [state.energy.numerical_loss],
                                       lambda block: [block.energy.numerical_loss]))
+        if self.rigid is not None:
+            groups.append(ColumnGroup(rigid_columns(self.rigid), "per rigid body: its centre BODY.x (.y, .z), its "
+                                      "velocity BODY.vx (...), 2D its angle BODY.angle and its rate BODY.omega, 3D "
+                                      "its spin BODY.wx, BODY.wy, BODY.wz (global axes)",
+                                      lambda state: state.bodies.tolist(), None))
         laws = self.cons.laws.extra_columns()   # (constant over a block of steps: no contact acts in it)
         groups.append(ColumnGroup(laws, "per contact law with a column of its own: the work absorbed on its "
                                         "rows, less what they store (docs/theory.md s. 2.5)",
@@ -281,6 +287,14 @@ class HistoryWriter:
             return None
         data = self._data()
         return {name: data[:, i].copy() for i, name in enumerate(self.columns)}
+
+
+def rigid_columns(bodies) -> list[str]:
+    """history.csv's columns of rigid bodies, in the order of ``StepState.bodies``."""
+    axes = AXES[:bodies.dim]
+    spin = ["angle", "omega"] if bodies.dim == 2 else ["wx", "wy", "wz"]
+    return [f"{name}.{what}" for name in bodies.names
+            for what in [*axes, *(f"v{a}" for a in axes), *spin]]
 
 
 class CsvRows:

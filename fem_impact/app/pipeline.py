@@ -245,8 +245,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     meshdata = model.meshdata
     if changed:   # a restart under other loads: from the checkpoint's load at its time to the case's after it
         system.operators.load = checkpoint.ChangedLoad(system.operators.load)
-    integrator = make_integrator(case, system.operators)
-    if not is_reduced(solver):
+    integrator = make_integrator(case, system.operators, system.rigid)
+    if not is_reduced(solver) and system.rigid is None:
         _restitution_advice(case, system.operators)
     fields = system.fields
     if model.motion is not None:   # moving supports: the run seen as the whole structure's
@@ -302,7 +302,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
                                 scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name,
                                 reactions=model.motion.names if model.motion else (),
-                                numerical_loss=getattr(raw, "theta", 0.5) != 0.5)
+                                numerical_loss=getattr(raw, "theta", 0.5) != 0.5, rigid=system.rigid)
         observers = [history, stats, impacts] + ([periods] if periods is not None else [])
         vtk = None
         if case.output.vtk and stage is not None:

@@ -459,6 +459,14 @@ def _solver(value):
     return solver_section(value, ())
 
 
+class BodySection(Section):
+    """An entry of ``bodies``: how a body of the mesh is modelled."""
+
+    model: choice("elastic", "rigid") = Field("elastic", description=(
+        "elastic: the finite-element model (the default); rigid: its rigid motion in large rotations, mass, "
+        "centre and inertia from its mesh and material (every body of a scene rigid, for now)"))
+
+
 class CaseFile(Section):
     """A case file: the model (mesh, materials, supports, loads, contacts), the method, the outputs."""
 
@@ -472,6 +480,8 @@ class CaseFile(Section):
     supports: list_of(SupportSection) = Field([], description="fixed or moved node groups")
     loads: list_of(LoadSection) = Field([], description="forces and body accelerations")
     contacts: Annotated[list_of(_Contact), AfterValidator(_unique_names)] = Field([], description="contacts")
+    bodies: mapping_of(BodySection) = Field({}, description="per body of the mesh, how it is modelled (default "
+                                                           "elastic)")
     solver: Annotated[Any, PlainValidator(_solver), WithJsonSchema({"type": "object"})] = Field(
         description="the time integration: the keys of its method (fem_impact.integrators.parameters)")
     output: OutputSection = Field(None, description="what the run writes")
@@ -510,7 +520,8 @@ def validate_case(data: dict, folder: Path) -> dict:
         "damping": Damping() if case.damping is None else case.damping.spec(),
         "initial": Initial() if case.initial is None else case.initial.spec(),
         "supports": [s.spec() for s in case.supports], "loads": [load.spec() for load in case.loads],
-        "contacts": case.contacts, "solver": case.solver, "output": case.output, "parameters": parameters,
+        "contacts": case.contacts, "bodies": {name: body.model for name, body in case.bodies.items()},
+        "solver": case.solver, "output": case.output, "parameters": parameters,
         "reference": case.reference}
 
 
@@ -519,4 +530,5 @@ def validate_case(data: dict, folder: Path) -> dict:
 SECTIONS: dict[str, type[Section]] = {
     "mesh": MeshSection, "material": MaterialSection, "materials": MaterialSection, "damping": DampingSection,
     "initial": InitialSection, "supports": SupportSection, "loads": LoadSection, "contacts": ContactSection,
+    "bodies": BodySection,
     "solver": SolverParameters, "output": OutputSection}

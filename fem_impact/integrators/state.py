@@ -27,3 +27,4 @@ class StepState:
     tangential: np.ndarray | None = None            # friction forces r_T / dt per tangent row (with friction)
     tangential_velocity: np.ndarray | None = None   # P_T V per tangent row: the sliding velocity
     reaction: np.ndarray | None = None              # per moving support pattern (fem/prescribed.py)
+    bodies: np.ndarray | None = None                # rigid bodies: per body its centre, velocity and spin

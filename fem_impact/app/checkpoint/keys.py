@@ -16,7 +16,7 @@ from ...integrators.parameters import REDUCED
 APPLIED_SOLVER_KEYS = ("t_end", "blocks")
 # The reduced model's choice of modes: compared as the count it made (``modes`` of state.json).
 MODE_KEYS = ("modes", "tolerance")
-MODEL_SECTIONS = ("mesh", "material", "materials", "damping", "initial", "supports", "contacts", "solver")
+MODEL_SECTIONS = ("mesh", "material", "materials", "damping", "initial", "supports", "contacts", "bodies", "solver")
 
 
 def model_keys(case) -> dict:

@@ -1,0 +1,319 @@
+"""Moreau-Jean for rigid bodies in large rotation (docs/theory.md s. 12), with the contact layer's rows.
+
+Each body's generalized velocity ``nu = (v, omega)``; the generalized mass ``diag(m I, J)`` (J = R J0
+R^T in 3D); the nodes' velocities ``V = B(q) nu`` (``NodalMap``), so a contact row's velocity is
+``P V = H nu`` with ``H = P B(q)``. A step of length h, theta = 1/2:
+
+- the free velocity: translation ``v* = v0 + h F / m`` (the loads' resultant, the nodal load R(t)
+  at the mid-step time); rotation in 2D ``omega* = omega0 + h tau / J``; in 3D the implicit midpoint
+  rule on Euler's equations in the body frame, ``J0 (W1 - W0) = h T - h W_m x J0 W_m``
+  (``W_m = (W0 + W1)/2``), which keeps the kinetic energy of a free body exactly (a quadratic
+  invariant), solved by fixed-point iteration to round-off;
+- the impulses ``r`` at the velocity level (Newton's law on the rows whose gap, predicted to
+  mid-step, is closed; Coulomb's cone on their tangent rows): one LCP, or the cone problem, in
+  ``W = H M^-1 H^T``; ``nu1 = nu* - M^-1 H^T r`` (3D: the gyroscopic term taken again at the new
+  mid-step velocity, and the impulses with it, until both settle);
+- positions: ``x1 = x0 + h v_m``; the angle ``+ h omega_m`` (2D), or ``R1 = R0 cay(h W_m)`` (3D,
+  orthogonal to round-off): the nodes at ``x + R X`` exactly, whatever the rotation.
+
+The energy budget: ``Delta T = h F . nu_m - r . H nu_m`` exactly (theta = 1/2, the gyroscopic term
+does no work at W_m): the loads' work ``h F . nu_m``, the impulses' work in the laws' and the
+friction's loss columns on the motion relative to moving obstacles (the obstacles' own work in the
+external work), as the elastic integrators book them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ContactSolverError
+from ..integrators.state import StepState
+from ..mechanics.energy import EnergyBudget
+from ..nonsmooth.friction import FrictionProblem
+from ..nonsmooth.lcp import solve_lcp
+from .bodies import NodalMap, RigidBodies, cayley, rotation_2d
+
+AT_OBSTACLE = 1e-9    # of a body's size: a row this close to its obstacle counts as closed
+GYRO_ITERATIONS = 50
+
+
+class RigidMoreauJean:
+    """Moreau-Jean on rigid bodies (see the module's docstring); the integrator interface of the time loop."""
+
+    name = "moreau_jean"
+    scheme_energy = False
+    unconditionally_stable = True
+    takes_friction = True
+    __checkpoint__ = ("t0", "U", "V", "A", "xs", "rots", "angle", "nu", "state", "friction_residual", "friction_sweeps",
+                      "friction_retries")
+
+    def __init__(self, ops, bodies: RigidBodies, dt: float):
+        self.ops, self.bodies, self.dt = ops, bodies, dt
+        self.alg = ops.algebra
+        self.map = NodalMap(bodies)
+        nb, dim, size = len(bodies.names), bodies.dim, bodies.size
+        self.size = size
+        new = self.alg.vector
+        self.U, self.V, self.A, self.R = new(), new(), new(), new()
+        self.x = bodies.centre.copy()                       # centres now (nb x dim)
+        self.rot = np.tile(np.eye(dim), (nb, 1, 1))         # rotations now (nb x dim x dim)
+        self.angle = np.zeros(nb)                           # 2D: the bodies' angles (not wrapped)
+        self.nu = np.zeros(nb * size)                       # generalized velocities (3D: spins in the body frame)
+        self.t0 = 0.0
+        self.state: StepState | None = None
+        self.timings: dict[str, float] = {}
+        self.extent = max(float(np.abs(bodies.offset).max(initial=0.0)), 1e-300)
+        self.friction = None
+        self.friction_residual, self.friction_sweeps, self.friction_retries = 0.0, 0, 0
+        self._rows = ops.with_tangents() if ops.pt else ops
+
+    # The centres (nb x dim) and rotations (nb x dim x dim), kept flat (a checkpoint's arrays are).
+    @property
+    def x(self) -> np.ndarray:
+        return self.xs.reshape(-1, self.bodies.dim)
+
+    @x.setter
+    def x(self, value: np.ndarray) -> None:
+        self.xs = np.ascontiguousarray(value, dtype=float).ravel()
+
+    @property
+    def rot(self) -> np.ndarray:
+        dim = self.bodies.dim
+        return self.rots.reshape(-1, dim, dim)
+
+    @rot.setter
+    def rot(self, value: np.ndarray) -> None:
+        self.rots = np.ascontiguousarray(value, dtype=float).ravel()
+
+    # -- generalized quantities ------------------------------------------------------------------
+    def _split(self, nu: np.ndarray):
+        nb, dim = len(self.bodies.names), self.bodies.dim
+        blocks = nu.reshape(nb, self.size)
+        return blocks[:, :dim], blocks[:, dim:]
+
+    def _spatial_spins(self, spins: np.ndarray) -> np.ndarray:
+        """The spins in global axes (3D: R W; 2D: the angle's rate itself)."""
+        return spins if self.bodies.dim == 2 else np.einsum("bij,bj->bi", self.rot, spins)
+
+    def _inverse_mass(self) -> np.ndarray:
+        """``M^-1`` of the generalized velocities in global axes (block diagonal, nb * size square)."""
+        b, dim, size = self.bodies, self.bodies.dim, self.size
+        inv = np.zeros((len(b.names) * size,) * 2)
+        for k in range(len(b.names)):
+            s = k * size
+            inv[s:s + dim, s:s + dim] = np.eye(dim) / b.mass[k]
+            if dim == 2:
+                inv[s + 2, s + 2] = 1.0 / b.inertia[k]
+            else:
+                R = self.rot[k]
+                inv[s + 3:s + 6, s + 3:s + 6] = R @ np.linalg.inv(b.inertia[k]) @ R.T
+        return inv
+
+    def _global(self, nu: np.ndarray) -> np.ndarray:
+        """``nu`` with its spins in global axes (what B and H take)."""
+        v, w = self._split(nu)
+        return np.concatenate([v, self._spatial_spins(w)], axis=1).ravel()
+
+    def _kinetic(self, nu: np.ndarray) -> float:
+        b = self.bodies
+        v, w = self._split(nu)
+        rot = 0.5 * np.sum(b.inertia * w[:, 0] ** 2) if b.dim == 2 else 0.5 * np.einsum("bi,bij,bj->", w, b.inertia, w)
+        return float(0.5 * np.sum(b.mass[:, None] * v * v) + rot)
+
+    def _loads(self, t: float) -> np.ndarray:
+        """The loads' generalized force in global axes, ``B^T R(t)`` (resultant and moment about the centre)."""
+        self.ops.load.evaluate(t, self.R)
+        return self.alg.allsum(self._B.T @ self.R)
+
+    def _nodal(self) -> None:
+        """U and V of the nodes from the bodies' motion now."""
+        v, w = self._split(self.nu)
+        self.map.displacement(self.x, self.rot, self.U)
+        self.map.velocity(v, self._spatial_spins(w), self.rot, self.V)
+
+    # -- the time loop's interface ----------------------------------------------------------------
+    def start(self, U0, V0, t0: float = 0.0) -> StepState:
+        """The bodies at their meshes' places; their rigid velocities with the momentum and angular
+        momentum of the initial velocity field."""
+        self.t0 = t0
+        V0 = np.asarray(V0.array_r if hasattr(V0, "array_r") else V0, dtype=float)
+        self._B = self.map.columns(self.rot)
+        given, M_V = self.alg.vector(), self.alg.vector()
+        given[:] = V0
+        self.alg.mult(self.ops.M, given, M_V)
+        momenta = self.alg.allsum(self._B.T @ M_V)   # generalized momenta, global axes
+        nu = np.zeros_like(momenta)
+        b, dim, size = self.bodies, self.bodies.dim, self.size
+        for k in range(len(b.names)):
+            s = k * size
+            nu[s:s + dim] = momenta[s:s + dim] / b.mass[k]
+            nu[s + dim:s + size] = (momenta[s + 2] / b.inertia[k] if dim == 2
+                                    else np.linalg.solve(b.inertia[k], momenta[s + 3:s + 6]))
+        self.nu = nu
+        self._nodal()
+        self.A[:] = 0.0
+        energy = EnergyBudget()
+        energy.kinetic = self._kinetic(self.nu)
+        energy.initial = energy.total
+        ops = self.ops
+        pu, pv = (ops.project_many(self.U, self.V) if ops.p else (np.zeros(0), np.zeros(0)))
+        self.state = StepState(step=0, t=t0, U=self.U, V=self.V, A=self.A, gap=ops.gap0(t0) - pu,
+                               force=np.zeros(ops.p), impulse=np.zeros(ops.p), energy=energy,
+                               normal_displacement=pu, normal_velocity=pv)
+        if ops.pt:
+            self.state.tangential = np.zeros(ops.pt)
+            self.state.tangential_velocity = self._rows.project_many(self.V)[0][ops.p:]
+        self.state.bodies = self._body_values()
+        return self.state
+
+    def restored(self) -> StepState:
+        self._B = self.map.columns(self.rot)
+        return self.state
+
+    def open_step(self):
+        return None
+
+    def block_ready(self, state) -> bool:
+        return False
+
+    def step(self) -> StepState:
+        ops, st, h, b = self.ops, self.state, self.dt, self.bodies
+        t1 = self.t0 + (st.step + 1) * h
+        dim, size, nb = b.dim, self.size, len(b.names)
+        nu0 = self.nu
+        self._B = self.map.columns(self.rot)   # B at the step's start (its rotations)
+        force = self._loads(st.t + 0.5 * h)    # global axes
+        F = force.reshape(nb, size)
+        p, pt = ops.p, ops.pt
+        H_all = self._rows.project(self._B) if p else None   # rows x generalized velocities (global axes)
+        inv = self._inverse_mass()
+        impulse_all = np.zeros(p + pt)
+        nu1 = None
+        for _ in range(GYRO_ITERATIONS if dim == 3 else 1):
+            free = self._free(nu0, F, nu1)
+            if p:
+                impulse_all = self._impulses(st, H_all, inv, free, nu0, t1)
+            change = (inv @ (H_all.T @ impulse_all)) if p and np.count_nonzero(impulse_all) else 0.0
+            new = self._from_global(self._global(free) - change)
+            if nu1 is not None and np.abs(new - nu1).max() <= 1e-15 * max(np.abs(new).max(), 1e-300):
+                nu1 = new
+                break
+            nu1 = new
+        # positions from the mean velocity (g_mid: it in global axes at the step's start, as B and H take it)
+        numid = 0.5 * (nu0 + nu1)
+        g_mid = self._global(numid)
+        vm, wm = self._split(numid)
+        self.x = self.x + h * vm
+        if dim == 2:
+            self.angle = self.angle + h * wm[:, 0]
+            self.rot = np.array([rotation_2d(a) for a in self.angle])
+        else:
+            self.rot = np.array([self.rot[k] @ cayley(h * wm[k]) for k in range(nb)])
+        V_prev = self.V.copy()
+        self.nu = nu1
+        self._nodal()
+        np.subtract(self.V, V_prev, out=self.A)
+        self.A *= 1.0 / h
+        # the energy budget: the loads' work h F . nu_m (global axes), the impulses' on the rows' mean velocity
+        energy = st.energy.copy()
+        energy.external_work += h * float(force @ g_mid)
+        normal, tangent = impulse_all[:p], impulse_all[p:]
+        if p:
+            rates = H_all @ g_mid
+            moved = ops.obstacle_moved(st.t, t1)
+            obstacle = None if moved is None else moved / h
+            for column, work in ops.laws.work(normal, rates[:p] - (0.0 if obstacle is None else obstacle)).items():
+                energy.add_loss(column, work)
+            if obstacle is not None:
+                energy.external_work -= float(normal @ obstacle)
+            if pt:
+                slide = rates[p:]
+                if ops.moving:
+                    along = 0.5 * (ops.obstacle_tangent_velocity(st.t) + ops.obstacle_tangent_velocity(t1))
+                    energy.external_work -= float(tangent @ along)
+                    slide = slide - along
+                energy.friction_loss += float(tangent @ slide)
+        energy.kinetic = self._kinetic(self.nu)
+        pu, pv = (ops.project_many(self.U, self.V) if p else (np.zeros(0), np.zeros(0)))
+        self.state = StepState(step=st.step + 1, t=t1, U=self.U, V=self.V, A=self.A, gap=ops.gap0(t1) - pu,
+                               force=normal / h, impulse=normal, energy=energy, normal_displacement=pu,
+                               normal_velocity=pv)
+        if pt:
+            self.state.tangential = tangent / h
+            self.state.tangential_velocity = self._rows.project_many(self.V)[0][p:]
+        self.state.bodies = self._body_values()
+        return self.state
+
+    def _body_values(self) -> np.ndarray:
+        """Per body: centre, velocity, then 2D angle and its rate, 3D the spin in global axes."""
+        v, w = self._split(self.nu)
+        spin = np.column_stack([self.angle, w[:, 0]]) if self.bodies.dim == 2 else self._spatial_spins(w)
+        return np.concatenate([self.x, v, spin], axis=1).ravel()
+
+    # -- pieces of a step ------------------------------------------------------------------------
+    def _free(self, nu0: np.ndarray, F: np.ndarray, nu1: np.ndarray | None) -> np.ndarray:
+        """The velocity without impulses (spins: 2D global, 3D body frame); 3D: the gyroscopic term at the
+        mid-step spin of ``nu1`` (the step's latest estimate; None: the free flight's own)."""
+        b, h, dim = self.bodies, self.dt, self.bodies.dim
+        v0, w0 = self._split(nu0)
+        v = v0 + h * F[:, :dim] / b.mass[:, None]
+        if dim == 2:
+            w = w0 + h * F[:, 2:3] / b.inertia[:, None]
+            return np.concatenate([v, w], axis=1).ravel()
+        torque = np.einsum("bji,bj->bi", self.rot, F[:, 3:])   # body frame
+        w = np.empty_like(w0)
+        for k in range(len(b.names)):
+            J = b.inertia[k]
+            if nu1 is None:   # the free flight: Euler's equations by fixed point at their own midpoint
+                w1 = w0[k].copy()
+                for _ in range(GYRO_ITERATIONS):
+                    wm = 0.5 * (w0[k] + w1)
+                    nxt = w0[k] + np.linalg.solve(J, h * torque[k] - h * np.cross(wm, J @ wm))
+                    if np.abs(nxt - w1).max() <= 1e-16 * max(np.abs(nxt).max(), 1e-300):
+                        w1 = nxt
+                        break
+                    w1 = nxt
+                w[k] = w1
+            else:
+                wm = 0.5 * (w0[k] + self._split(nu1)[1][k])
+                w[k] = w0[k] + np.linalg.solve(J, h * torque[k] - h * np.cross(wm, J @ wm))
+        return np.concatenate([v, w], axis=1).ravel()
+
+    def _from_global(self, g: np.ndarray) -> np.ndarray:
+        """Generalized velocities with global spins back to the state's (3D: body-frame spins)."""
+        if self.bodies.dim == 2:
+            return g
+        nb, size = len(self.bodies.names), self.size
+        blocks = g.reshape(nb, size).copy()
+        blocks[:, 3:] = np.einsum("bji,bj->bi", self.rot, blocks[:, 3:])
+        return blocks.ravel()
+
+    def _impulses(self, st: StepState, H: np.ndarray, inv: np.ndarray, free: np.ndarray, nu0: np.ndarray,
+                  t1: float) -> np.ndarray:
+        """The step's impulses (normal, then tangent rows): Newton's law at the velocity level on the rows
+        whose gap, predicted to mid-step, is closed; Coulomb's cone on their tangent rows."""
+        ops, h, p, pt = self.ops, self.dt, self.ops.p, self.ops.pt
+        g_free, g0 = self._global(free), self._global(nu0)
+        rates_free, rates0 = H @ g_free, H @ g0
+        rel0 = ops.relative(rates0[:p], st.t)
+        e = np.where(rel0 >= 0.0, ops.restitution, 1.0)
+        q = -ops.relative(rates_free[:p], t1) - e * rel0
+        active = st.gap - 0.5 * h * rel0 <= AT_OBSTACLE * self.extent
+        out = np.zeros(p + pt)
+        if not np.count_nonzero(active):
+            return out
+        W = H @ inv @ H.T
+        if not pt:
+            a = np.flatnonzero(active)
+            out[a] = solve_lcp(W[np.ix_(a, a)], q[a])[0]
+            return out
+        q_t = -ops.relative_tangent(rates_free[p:], t1)
+        problem = FrictionProblem(W.copy(), ops.tangent_of, ops.friction)
+        sol = problem.solve(np.concatenate([q, q_t]), active)
+        self.friction_residual = max(self.friction_residual, sol.residual)
+        self.friction_sweeps = max(self.friction_sweeps, sol.sweeps)
+        self.friction_retries += sol.newton
+        if not sol.converged:
+            raise ContactSolverError(f"the frictional contact problem of the rigid bodies was not solved at t = "
+                                     f"{t1:.6g}: residual {sol.residual:.3g} after {sol.sweeps} sweeps")
+        return sol.r
