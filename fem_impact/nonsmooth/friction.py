@@ -230,7 +230,7 @@ class FrictionProblem:
             nonlocal residual, worst, sweeps, exact
             before = r.copy() if split else None
             done, residual, worst = cone.gauss_seidel(self.upper, q, r, y, rows, self.start, self.sizes,
-                                                      self.mu, self.rho, target, most, layout, stall)
+                                                      self.mu, self.rho, target, most, layout, stall, cone.INNER)
             sweeps += done
             exact = split
             if split:

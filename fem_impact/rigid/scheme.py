@@ -44,8 +44,8 @@ class RigidMoreauJean:
     scheme_energy = False
     unconditionally_stable = True
     takes_friction = True
-    __checkpoint__ = ("t0", "U", "V", "A", "xs", "rots", "angle", "nu", "state", "friction_residual", "friction_sweeps",
-                      "friction_retries")
+    __checkpoint__ = ("t0", "U", "V", "A", "xs", "rots", "angle", "nu", "state", "_r_prev", "friction_residual",
+                      "friction_sweeps", "friction_retries")
 
     def __init__(self, ops, bodies: RigidBodies, dt: float):
         self.ops, self.bodies, self.dt = ops, bodies, dt
@@ -63,7 +63,8 @@ class RigidMoreauJean:
         self.state: StepState | None = None
         self.timings: dict[str, float] = {}
         self.extent = max(float(np.abs(bodies.offset).max(initial=0.0)), 1e-300)
-        self.friction = None
+        self.friction = None       # the last step's frictional problem, and its impulses (the next one's start)
+        self._r_prev = None
         self.friction_residual, self.friction_sweeps, self.friction_retries = 0.0, 0, 0
         self._rows = ops.with_tangents() if ops.pt else ops
 
@@ -308,12 +309,14 @@ class RigidMoreauJean:
             out[a] = solve_lcp(W[np.ix_(a, a)], q[a])[0]
             return out
         q_t = -ops.relative_tangent(rates_free[p:], t1)
-        problem = FrictionProblem(W.copy(), ops.tangent_of, ops.friction)
-        sol = problem.solve(np.concatenate([q, q_t]), active)
+        # (W changes as the bodies turn: the problem is built each step, warm-started from the last impulses)
+        self.friction = FrictionProblem(W.copy(), ops.tangent_of, ops.friction)
+        sol = self.friction.solve(np.concatenate([q, q_t]), active, guess=self._r_prev)
         self.friction_residual = max(self.friction_residual, sol.residual)
         self.friction_sweeps = max(self.friction_sweeps, sol.sweeps)
         self.friction_retries += sol.newton
         if not sol.converged:
             raise ContactSolverError(f"the frictional contact problem of the rigid bodies was not solved at t = "
                                      f"{t1:.6g}: residual {sol.residual:.3g} after {sol.sweeps} sweeps")
+        self._r_prev = sol.r
         return sol.r
