@@ -146,6 +146,7 @@ class MovingPlane(Relation):
         super().__init__(inner.normal, inner.tangents)
         self.inner, self.name = inner, name
         self.motion = [[f.time_derivative(order) for f in motion] for order in range(3)]
+        self._known: dict = {}
 
     def rows(self, model: Model) -> RelationRows:
         rows = self.inner.rows(model)
@@ -154,6 +155,12 @@ class MovingPlane(Relation):
         return self._done(rows)
 
     def _vector(self, t: float, order: int) -> np.ndarray:
+        """``m(t)``, ``m'(t)`` or ``m''(t)`` (a step asks for each at a few times, several times: kept)."""
+        known = self._known.get((t, order))
+        if known is not None:
+            return known
+        if len(self._known) >= 16:
+            self._known.clear()
         value = np.array([f.at_time(t) for f in self.motion[order]])
         if not np.all(np.isfinite(value)):
             from ..errors import SimulationError
@@ -161,6 +168,8 @@ class MovingPlane(Relation):
             what = ("motion", "velocity", "acceleration")[order]
             raise SimulationError(f"contact {self.name}: the obstacle's {what} is not finite at t = {t:.6g} "
                                   f"(motion: {', '.join(str(f.source) for f in self.motion[0])})")
+        value.flags.writeable = False
+        self._known[(t, order)] = value
         return value
 
     def gap(self, t: float) -> np.ndarray:
