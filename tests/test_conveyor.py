@@ -107,7 +107,8 @@ def test_an_elastic_part_is_conveyed_at_the_theorys_speed(tmp_path, theory):
 def test_a_rigid_part_hops_along_at_the_theorys_speed(tmp_path):
     theory = hopping_speeds(periods=10, **{**THEORY, "throw": 1.5})
     case = fi.load_case(CASES / "vibratory_conveyor.yaml", ["bodies={bar: {model: rigid}}", "parameters.throw=1.5",
-                                                            "solver.dt=6.25e-5", "solver.t_end=0.5", "output.vtk=false"])
+                                                            "solver.dt=6.25e-5", "solver.t_end=0.5",
+                                                            "output.vtk=false"])
     result = fi.run(case, tmp_path / "hopping")
     assert mean_speeds(result) == pytest.approx(theory, rel=0.01)
     assert result.summary["impacts"]["tray"] >= 10   # (it lands every period)

@@ -22,9 +22,9 @@ import pytest
 from petsc4py import PETSc
 
 import fem_impact as fi
-from conftest import CASES, ConstantLoad, read_history, run_cli
+from conftest import CASES, ConstantLoad, run_cli
 from fem_impact.build import build_system, make_integrator
-from fem_impact.config.case import CaseError, load_case
+from fem_impact.config.case import load_case
 from fem_impact.expressions import parse_expression
 from fem_impact.integrators import MoreauJean, Operators, integrate
 from fem_impact.nonsmooth import laws

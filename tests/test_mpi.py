@@ -155,17 +155,19 @@ def test_a_moving_support_agrees_on_two_ranks(tmp_path, method):
     ("impacting_bar.yaml", ["mesh.cells=60", "initial.velocity=[0.0]", "contacts.0.motion=[t]", "solver.dt=0.005",
                             "solver.t_end=1.0", "solver.method=moreau_jean"]),
     # a 2D bar at rest struck by a wall that also slides along itself (friction on the relative motion)
-    ("impacting_bar.yaml", ["mesh.dim=2", "mesh.cells=60", "initial.velocity=[0.0, 0.0]", "contacts.0.friction=0.3",
+    pytest.param("impacting_bar.yaml", ["mesh.dim=2", "mesh.cells=60", "initial.velocity=[0.0, 0.0]",
+                                        "contacts.0.friction=0.3",
                             "contacts.0.motion=[t, '0.5*t']", "solver.dt=0.005", "solver.t_end=1.0",
-                            "solver.method=moreau_jean"]),
+                            "solver.method=moreau_jean"], marks=pytest.mark.slow),
     # a rigid block launched along a floor (friction), the rigid scene's state replicated, its nodes distributed
     ("sliding_block.yaml", ["bodies={bar: {model: rigid}}", "solver.t_end=0.8", "output.probes={}"]),
     # a rigid 3D block spun in the air, struck by a wall closing in (large rotation, an impact)
-    ("sliding_block.yaml", ["bodies={bar: {model: rigid}}", "mesh.dim=3", "mesh.width=0.05", "material.area=null",
+    pytest.param("sliding_block.yaml", ["bodies={bar: {model: rigid}}", "mesh.dim=3", "mesh.width=0.05",
+                                        "material.area=null",
                             "loads=[]", "initial.velocity=['-1 + 20*(z - 0.025)', '30*(z - 0.025)', "
                             "'-20*(x - 0.1) - 30*(y - 0.025)']", "contacts.0.normal=[-1.0, 0.0, 0.0]",
                             "contacts.0.gap=0.01", "contacts.0.motion=['0.5*t', 0, 0]", "contacts.0.nodes=left",
-                            "solver.t_end=0.2", "solver.dt=0.0005", "output.probes={}"]),
+                            "solver.t_end=0.2", "solver.dt=0.0005", "output.probes={}"], marks=pytest.mark.slow),
 ], ids=["wall", "sliding wall", "rigid block", "rigid 3D block"])
 def test_a_moving_obstacle_agrees_on_two_ranks(tmp_path, case, overrides):
     """An obstacle given a motion (docs/theory.md s. 2.6), rigid bodies (s. 12): the same history on 2 ranks,

@@ -8,7 +8,6 @@ balance closes, the losses are >= 0, E <= E0 + W_ext; what a rigid scene does no
 from __future__ import annotations
 
 import csv
-import shutil
 
 import numpy as np
 import pytest
@@ -153,6 +152,7 @@ def disk_mesh(folder, radius: float, points: int):
     return path
 
 
+@pytest.mark.slow
 def test_a_rigid_disk_on_a_shaken_table_settles_on_the_period_one_orbits_phase(tmp_path):
     """A rigid disk (e = 0.5) on a table shaken at 50 Hz, Gamma = 1.3, the table's motion shifted so that the
     period-1 orbit's impacts fall at T/2: impacts.csv's phase within 0.5 deg of 1/2 once settled, one impact a

@@ -65,7 +65,8 @@ class PeriodLog:
 
     def write_block(self, block) -> None:
         e = block.energy
-        cum = np.column_stack([np.broadcast_to(e.external_work, block.t.shape), np.broadcast_to(lost(e), block.t.shape)])
+        shape = block.t.shape
+        cum = np.column_stack([np.broadcast_to(e.external_work, shape), np.broadcast_to(lost(e), shape)])
         impulse = (np.column_stack([block.impulse[:, c.rows].sum(axis=1) for c in self.contacts])
                    if self.contacts else np.zeros((len(block), 0)))
         self._advance(np.asarray(block.t, float), self.momenta.values_block(block), cum, impulse)
