@@ -621,3 +621,36 @@ def test_the_friction_solver_calls_its_compiled_sweeps_without_a_type_search(mon
     for scale in (1.0, 2.0, 0.5):
         assert problem.solve(scale * q, np.array([True, True])).converged
     assert searches == []
+
+
+@pytest.mark.parametrize("tangents", [1, 2])
+def test_the_compiled_alart_curnier_jacobian_is_the_derivative_of_its_function(tangents):
+    """Newton's function and Jacobian (nonsmooth/cone.py: alart_curnier) on rows open, sticking and
+    slipping: J against central differences of F, away from the kinks."""
+    from fem_impact.nonsmooth import cone
+
+    rng = np.random.default_rng(7)
+    rows, m = 4, 1 + tangents
+    n = rows * m
+    B = rng.normal(size=(n, n))
+    W = B @ B.T + n * np.eye(n)
+    q = rng.normal(size=n)
+    starts, sizes = np.arange(rows, dtype=np.int64) * m, np.full(rows, m, dtype=np.int64)
+    rho, mu = 1.0 / np.diag(W)[starts], np.array([0.3, 0.3, 2.0, 0.3])
+    kinds = set()
+    for _ in range(20):
+        r = rng.normal(size=n)
+        F, J = cone.alart_curnier(W, q, r, starts, sizes, rho, mu, True)
+        y = W @ r + q
+        for b, k in enumerate(starts):
+            z_n = r[k] - rho[b] * y[k]
+            z_t = r[k + 1:k + m] - rho[b] * y[k + 1:k + m]
+            kinds.add("open" if z_n <= 0 else "stick" if np.linalg.norm(z_t) <= mu[b] * z_n else "slip")
+        h, numeric = 1e-7, np.empty((n, n))
+        for j in range(n):
+            e = np.zeros(n)
+            e[j] = h
+            numeric[:, j] = (cone.alart_curnier(W, q, r + e, starts, sizes, rho, mu, False)[0]
+                             - cone.alart_curnier(W, q, r - e, starts, sizes, rho, mu, False)[0]) / (2 * h)
+        assert np.abs(J - numeric).max() <= 1e-6 * max(1.0, np.abs(J).max())
+    assert kinds == {"open", "stick", "slip"}

@@ -415,3 +415,64 @@ def _axpy2(y, w0, w1, c0, c1):
 def _axpy3(y, w0, w1, w2, c0, c1, c2):
     for m in range(y.shape[0]):
         y[m] += c0 * w0[m] + c1 * w1[m] + c2 * w2[m]
+
+
+@njit(cache=True)
+def alart_curnier(W, q, r, starts, sizes, rho, mu, jacobian):
+    """Alart and Curnier's function ``F(r)`` of the closed rows and, with ``jacobian``, its generalized
+    Jacobian ``J`` (FrictionProblem._newton: the rows' unknowns at ``starts`` with ``sizes``, their
+    ``rho = 1 / W_NN`` and ``mu``): per row ``F_N = r_N - max(0, r_N - rho y_N)``, ``F_T = r_T -
+    proj_B(r_T - rho y_T)`` on the disk of radius ``mu max(0, r_N - rho y_N)``, ``y = W r + q``."""
+    n = r.size
+    y = W @ r + q
+    F = np.empty(n)
+    J = np.zeros((n, n)) if jacobian else np.zeros((1, 1))
+    for b in range(starts.size):
+        k, m, rh, friction = starts[b], sizes[b], rho[b], mu[b]
+        z_n = r[k] - rh * y[k]
+        F[k] = r[k] - max(z_n, 0.0)
+        if jacobian:
+            J[k, k] = 1.0
+            if z_n > 0.0:
+                for j in range(n):
+                    J[k, j] += rh * W[k, j]
+                J[k, k] -= 1.0
+        if m == 1:
+            continue
+        nt = m - 1
+        z_t = np.empty(nt)
+        norm = 0.0
+        for a in range(nt):
+            z_t[a] = r[k + 1 + a] - rh * y[k + 1 + a]
+            norm += z_t[a] * z_t[a]
+        norm = np.sqrt(norm)
+        radius = friction * max(z_n, 0.0)
+        if norm <= radius:   # stick: F_T = rho y_T
+            for a in range(nt):
+                F[k + 1 + a] = rh * y[k + 1 + a]
+                if jacobian:
+                    for j in range(n):
+                        J[k + 1 + a, j] = rh * W[k + 1 + a, j]
+        elif radius > 0.0:   # slip on the disk's edge
+            u = z_t / norm
+            for a in range(nt):
+                F[k + 1 + a] = r[k + 1 + a] - radius * u[a]
+            if jacobian:
+                scale = radius / norm
+                for j in range(n):
+                    dz_n = -rh * W[k, j] + (1.0 if j == k else 0.0)
+                    dz = np.empty(nt)
+                    for a in range(nt):
+                        dz[a] = -rh * W[k + 1 + a, j] + (1.0 if j == k + 1 + a else 0.0)
+                    u_dz = 0.0
+                    for a in range(nt):
+                        u_dz += u[a] * dz[a]
+                    for a in range(nt):   # -(u mu dz_n + radius/norm (I - u u^T) dz) + I on the row's own
+                        value = -(u[a] * friction * dz_n + scale * (dz[a] - u[a] * u_dz))
+                        J[k + 1 + a, j] = value + (1.0 if j == k + 1 + a else 0.0)
+        else:                # open: no friction
+            for a in range(nt):
+                F[k + 1 + a] = r[k + 1 + a]
+                if jacobian:
+                    J[k + 1 + a, k + 1 + a] = 1.0
+    return F, J

@@ -129,6 +129,9 @@ class FrictionProblem:
     TOLERANCE = 1e-10
     MAX_SWEEPS = 2000
     NEWTON_AFTER = 100   # sweeps of Gauss-Seidel before Newton's method takes over (coupled rows)
+    # ... and on a small problem, whose dense Newton step costs less than a few sweeps: a block on its floor
+    # (a handful of rows coupled through the block) crawls for the 100 sweeps and then needs Newton anyway
+    SMALL, NEWTON_AFTER_SMALL = 60, 8
     NEWTON_SIZE = 6000   # unknowns up to which it may (its steps are dense LU solves)
     LEAST_SQUARES_SIZE = 600   # ... and least-squares ones where J is singular
     SINGLE_FROM = 2000   # unknowns from which W is kept as two float32 parts (the sweeps are memory-bound)
@@ -244,8 +247,9 @@ class FrictionProblem:
             sweep(target, self.NEWTON_AFTER, True)
             if residual <= self.TOLERANCE:
                 break
+        after = self.NEWTON_AFTER_SMALL if idx.size <= self.SMALL else self.NEWTON_AFTER
         while sweeps < self.MAX_SWEEPS and residual > self.TOLERANCE:
-            sweep(self.TOLERANCE, min(self.NEWTON_AFTER, self.MAX_SWEEPS - sweeps), False)
+            sweep(self.TOLERANCE, min(after, self.MAX_SWEEPS - sweeps), False)
             if residual <= self.TOLERANCE or sweeps >= self.MAX_SWEEPS:
                 break
             if 1 < idx.size <= self.NEWTON_SIZE:
@@ -303,47 +307,15 @@ class FrictionProblem:
         Coulomb law. Each step solves ``J d = -F`` by least squares (W may be singular: many impulses
         give the same velocities) and takes the largest of 1, 1/2, ... that decreases ``|F|``.
         """
-        n = r.size
+        cone = _kernels()
+        W = np.ascontiguousarray(W, dtype=float)
+        starts = np.array([s.start for s in where], dtype=np.int64)
+        sizes = np.array([s.stop - s.start for s in where], dtype=np.int64)
+        rho, mu = np.asarray(self.rho[rows], dtype=float), np.asarray(self.mu[rows], dtype=float)
 
         def evaluate(r, jacobian=True):
-            y = W.dot(r) + q
-            F = np.empty(n)
-            J = np.zeros((n, n)) if jacobian else None
-            for i, s in zip(rows, where):
-                rho, mu = self.rho[i], self.mu[i]
-                k = s.start
-                z_n = r[k] - rho * y[k]
-                F[k] = r[k] - max(z_n, 0.0)
-                if jacobian:
-                    J[k, k] = 1.0
-                    if z_n > 0.0:
-                        J[k] -= -rho * W[k]
-                        J[k, k] -= 1.0
-                if s.stop - k == 1:
-                    continue
-                t = slice(k + 1, s.stop)
-                z_t = r[t] - rho * y[t]
-                radius = mu * max(z_n, 0.0)
-                norm = float(np.linalg.norm(z_t))
-                if norm <= radius:   # stick: F_T = rho y_T
-                    F[t] = rho * y[t]
-                    if jacobian:
-                        J[t] = rho * W[t]
-                elif radius > 0.0:   # slip on the disk's edge
-                    u = z_t / norm
-                    F[t] = r[t] - radius * u
-                    if jacobian:
-                        dz_t = -rho * W[t]
-                        dz_t[:, t] += np.eye(s.stop - k - 1)
-                        dz_n = -rho * W[k]
-                        dz_n[k] += 1.0
-                        J[t] = -(np.outer(u, mu * dz_n) + radius / norm * (np.eye(u.size) - np.outer(u, u)) @ dz_t)
-                        J[t, t] += np.eye(s.stop - k - 1)
-                else:                # open: no friction
-                    F[t] = r[t]
-                    if jacobian:
-                        J[t, t] = np.eye(s.stop - k - 1)
-            return F, J
+            return cone.alart_curnier(W, np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(r, dtype=float),
+                                      starts, sizes, rho, mu, jacobian)
 
         F, J = evaluate(r)
         size = float(F.dot(F))
