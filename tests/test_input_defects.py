@@ -167,3 +167,24 @@ def test_a_step_count_beyond_what_a_float_holds_is_refused_naming_the_key(key):
 
     with pytest.raises(CaseError, match=rf"{key}: must be in \[\d, 9007199254740992\]"):
         load_case(CASES / "impacting_bar.yaml", [f"{key}={10**30}", "solver.method=modal"])
+
+
+@pytest.mark.parametrize("text, key", [('"extra_\\uD800": 1\n', None), ('damping: {alpha: "a\\uDC00"}\n', "damping.alpha")])
+def test_a_character_that_is_not_text_is_refused_naming_its_line(tmp_path, text, key):
+    """A YAML escape may make half of a UTF-16 pair (\\uD800), which no message or output can hold: the
+    validation stopped with a UnicodeEncodeError (found by the fuzz test's long run). Refused in the file,
+    with --set and from Python, naming the line or the key."""
+    case = tmp_path / "case.yaml"
+    case.write_text((CASES / "impacting_bar.yaml").read_text() + text)
+    out = subprocess.run([sys.executable, "-m", "fem_impact", "run", str(case), "-q", "-o", str(tmp_path / "o")],
+                         capture_output=True, text=True)
+    assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+    assert "not text" in out.stderr and "case.yaml:" in out.stderr, out.stderr
+    if key:
+        assert f"{key}:" in out.stderr
+    import fem_impact as fi
+
+    with pytest.raises(fi.CaseError, match="not text"):
+        fi.Case.from_dict({"name": "a\udc00"})
+    with pytest.raises(fi.CaseError, match="not text"):
+        fi.load_case(CASES / "impacting_bar.yaml", ['name="b\\uD800"'])

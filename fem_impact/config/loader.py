@@ -123,11 +123,19 @@ def _record_lines(node, path, lines, seen, file, ancestors=frozenset()):
     if len(path) > MAX_DEPTH:
         raise CaseError(file, _dotted(path[:3]) + ".(...)", node.start_mark.line + 1,
                         f"nested more than {MAX_DEPTH} levels deep")
+    if isinstance(node, yaml.ScalarNode) and _not_text(node.value):
+        raise CaseError(file, _dotted(path) or None, node.start_mark.line + 1 if file != "--set" else None,
+                        f"holds a character that is not text ({_not_text(node.value)}: half of a UTF-16 pair, "
+                        "from an escape such as \\uD800)")
     if isinstance(node, yaml.MappingNode):
         keys = set()
         for key_node, value_node in node.value:
             key = key_node.value if isinstance(key_node, yaml.ScalarNode) else id(key_node)
             line = key_node.start_mark.line + 1
+            if isinstance(key, str) and _not_text(key):
+                raise CaseError(file, _dotted(path) or None, line if file != "--set" else None,
+                                f"a key holds a character that is not text ({_not_text(key)}: half of a UTF-16 "
+                                "pair, from an escape such as \\uD800)")
             if key in keys:
                 raise CaseError(file, _dotted(path + (key,)), line, "duplicate key")
             keys.add(key)
@@ -137,6 +145,15 @@ def _record_lines(node, path, lines, seen, file, ancestors=frozenset()):
         for index, item in enumerate(node.value):
             lines[path + (index,)] = item.start_mark.line + 1
             _record_lines(item, path + (index,), lines, seen, file, ancestors)
+
+
+def _not_text(text: str) -> str:
+    """The first lone surrogate in ``text`` as an escape (``\\ud800``), or "" (a YAML escape may make one;
+    no file, message or output can hold it)."""
+    for char in text:
+        if "\ud800" <= char <= "\udfff":
+            return f"\\u{ord(char):04x}"
+    return ""
 
 
 # --- errors -----------------------------------------------------------------------------
@@ -252,6 +269,8 @@ def _plain(value, path):
     validation to refuse. Nested deeper than a case file may be: _Invalid."""
     if len(path) > MAX_DEPTH:
         raise _Invalid(path[:3] + ("(...)",), f"nested more than {MAX_DEPTH} levels deep")
+    if type(value) is str and _not_text(value):
+        raise _Invalid(path, f"holds a character that is not text ({_not_text(value)}: half of a UTF-16 pair)")
     if value is None or type(value) in (str, bool, int, float):
         return value
     if isinstance(value, Mapping):
