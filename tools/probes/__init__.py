@@ -77,6 +77,55 @@ class Probe:
 PROBES: list[Probe] = []
 
 
+def run_case(ctx, data: dict, *options, mpi: int = 0, out: str = "out"):
+    """Write the case ``data`` into the probe's folder and run it into ``out`` there: (completed, folder)."""
+    import yaml
+
+    case = ctx.folder / f"{data['name']}.yaml"
+    case.write_text(yaml.safe_dump(data, sort_keys=False))
+    folder = ctx.folder / out
+    return ctx.run("run", case, "-q", "-o", folder, *options, mpi=mpi), folder
+
+
+def history(out) -> dict:
+    """A run's history.csv as columns by name."""
+    import csv
+
+    import numpy as np
+
+    with open(Path(out) / "history.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    values = np.array(rows[1:], dtype=float)
+    return {name: values[:, k] for k, name in enumerate(rows[0])}
+
+
+def solved(ctx, data: dict, *options, mpi: int = 0, out: str = "out"):
+    """(the run's history, None), or (None, the verdict of a run that did not end cleanly)."""
+    r, folder = run_case(ctx, data, *options, mpi=mpi, out=out)
+    bad = ctx.succeeded(r)
+    return (None, bad) if bad else (history(folder), None)
+
+
+def restart_parts(ctx, data: dict, t_split: float, t_end: float):
+    """A run of ``data`` to ``t_split`` continued to ``t_end`` with --restart, against the run straight to
+    ``t_end``: (None, the largest difference of a history column), or (the verdict of a run that failed, None)."""
+    import numpy as np
+
+    data["solver"]["t_end"] = t_split
+    _, bad = solved(ctx, data, out="first")
+    if bad:
+        return bad, None
+    data["solver"]["t_end"] = t_end
+    whole, bad = solved(ctx, data, out="whole")
+    if bad:
+        return bad, None
+    continued, bad = solved(ctx, data, "--restart", ctx.folder / "first", out="continued")
+    if bad:
+        return bad, None
+    n = continued["t"].size
+    return None, max(np.abs(whole[k][-n:] - continued[k]).max() for k in continued)
+
+
 def probe(cls: str, name: str, timeout: float = 180.0):
     """Register the decorated ``body(ctx) -> Verdict`` as a probe of class ``cls``."""
     def register(body):

@@ -18,9 +18,8 @@ from __future__ import annotations
 import csv
 
 import numpy as np
-import yaml
 
-from . import CASES, ok, probe, wrong
+from . import CASES, ok, probe, restart_parts, run_case, solved, wrong
 
 V, GAP, CELLS = 1.0, 0.1, 40
 METHODS = {
@@ -64,26 +63,6 @@ def _rod(dim: int, method: str, motion=None, coupling: str = "each", point: bool
             "output": {"vtk": False, "every": 1}}
 
 
-def _run(ctx, data: dict, *options, mpi: int = 0, out: str = "out"):
-    case = ctx.folder / f"{data['name']}.yaml"
-    case.write_text(yaml.safe_dump(data, sort_keys=False))
-    folder = ctx.folder / out
-    return ctx.run("run", case, "-q", "-o", folder, *options, mpi=mpi), folder
-
-
-def _history(out) -> dict[str, np.ndarray]:
-    with open(out / "history.csv", newline="") as f:
-        rows = list(csv.reader(f))
-    values = np.array(rows[1:], dtype=float)
-    return {name: values[:, k] for k, name in enumerate(rows[0])}
-
-
-def _solved(ctx, data: dict, *options, mpi: int = 0, out: str = "out"):
-    r, folder = _run(ctx, data, *options, mpi=mpi, out=out)
-    bad = ctx.succeeded(r)
-    return (None, bad) if bad else (_history(folder), None)
-
-
 def _budget(h, scale: float, problems: list, closes: float = 1e-9) -> None:
     """The balance closed, the contact's losses >= 0, E <= E0 + W_ext (all to ``closes`` of ``scale``)."""
     if np.abs(h["energy_error"]).max() > closes * scale:
@@ -118,7 +97,7 @@ def _struck(h, dt: float, m: float, problems: list) -> None:
 def _wall(dim: int, method: str, **keys):
     def body(ctx):
         data = _rod(dim, method, **keys)
-        h, bad = _solved(ctx, data)
+        h, bad = solved(ctx, data)
         if bad:
             return bad
         problems: list = []
@@ -142,10 +121,10 @@ probe("moving-obstacles", "3D free rod struck by a wall through a point closing 
 @probe("moving-obstacles", "2D free rod struck by a wall closing in, on 2 MPI ranks as serially")
 def _two_ranks(ctx):
     data = _rod(2, "moreau_jean")
-    a, bad = _solved(ctx, data, out="serial")
+    a, bad = solved(ctx, data, out="serial")
     if bad:
         return bad
-    b, bad = _solved(ctx, data, mpi=2, out="mpi")
+    b, bad = solved(ctx, data, mpi=2, out="mpi")
     if bad:
         return bad
     energy = max((a["kinetic"] + a["strain"]).max(), 1e-300)
@@ -163,10 +142,10 @@ def _two_ranks(ctx):
 
 @probe("moving-obstacles", "frictionless wall sliding along itself too: as the wall moving along its normal")
 def _sliding_frictionless(ctx):
-    a, bad = _solved(ctx, _rod(2, "moreau_jean"), out="normal")
+    a, bad = solved(ctx, _rod(2, "moreau_jean"), out="normal")
     if bad:
         return bad
-    b, bad = _solved(ctx, _rod(2, "moreau_jean", motion=[f"{V}*t", "3*sin(40*t)"]), out="sliding")
+    b, bad = solved(ctx, _rod(2, "moreau_jean", motion=[f"{V}*t", "3*sin(40*t)"]), out="sliding")
     if bad:
         return bad
     worst = max(np.abs(a[k] - b[k]).max() for k in ("wall.impulse", "left.ux", "kinetic") if k in a)
@@ -182,7 +161,7 @@ def _belt(ctx):
             "contacts": [{"name": "floor", "type": "obstacle", "nodes": "bottom", "normal": [0.0, -1.0],
                           "gap": 0.0, "friction": mu, "motion": [f"{vb}*t", 0.0]}],
             "solver": {"dt": 0.002, "t_end": 0.5}, "output": {"vtk": False, "every": 1}}
-    h, bad = _solved(ctx, data)
+    h, bad = solved(ctx, data)
     if bad:
         return bad
     mass = 0.2 * 0.05 * 1000.0
@@ -202,7 +181,7 @@ def _refusal(change: dict, status: int, *needles: str):
     def body(ctx):
         data = _rod(1, "moreau_jean")
         data["contacts"][0].update(change)
-        r, out = _run(ctx, data)
+        r, out = run_case(ctx, data)
         verdict = ctx.refused(r, *needles, status=status)
         if verdict.kind == "ok" and status == 2 and out.exists():
             return wrong(f"refused, yet {out} was written")
@@ -225,23 +204,13 @@ for _name, _change, _status, _needles in (
 @probe("moving-obstacles", "restart: a moving wall's run continues exactly; a changed motion is refused")
 def _restart(ctx):
     data = _rod(1, "moreau_jean")
-    data["solver"]["t_end"] = 1.0
-    first, bad = _solved(ctx, data, out="first")
+    bad, worst = restart_parts(ctx, data, 1.0, 2.6)
     if bad:
         return bad
-    data["solver"]["t_end"] = 2.6
-    whole, bad = _solved(ctx, data, out="whole")
-    if bad:
-        return bad
-    continued, bad = _solved(ctx, data, "--restart", ctx.folder / "first", out="continued")
-    if bad:
-        return bad
-    n = continued["t"].size
-    worst = max(np.abs(whole[k][-n:] - continued[k]).max() for k in continued)
     if worst > 1e-12:
         return wrong(f"the continued run parts from the whole one by {worst:.3g}")
     data["contacts"][0]["motion"] = ["2*t"]
-    r, _ = _run(ctx, data, "--restart", ctx.folder / "first", out="changed")
+    r, _ = run_case(ctx, data, "--restart", ctx.folder / "first", out="changed")
     return ctx.refused(r, "contacts.0.motion.0", "--restart")
 
 

@@ -13,12 +13,9 @@ Each probe judges an exact answer where there is one, or a refusal in one line n
 
 from __future__ import annotations
 
-import csv
-
 import numpy as np
-import yaml
 
-from . import ok, probe, wrong
+from . import ok, probe, restart_parts, run_case, solved, wrong
 
 G = 9.81
 
@@ -39,26 +36,6 @@ def _block(dim: int, **extra) -> dict:
     return data
 
 
-def _run(ctx, data: dict, *options, mpi: int = 0, out: str = "out"):
-    case = ctx.folder / f"{data['name']}.yaml"
-    case.write_text(yaml.safe_dump(data, sort_keys=False))
-    folder = ctx.folder / out
-    return ctx.run("run", case, "-q", "-o", folder, *options, mpi=mpi), folder
-
-
-def _history(out) -> dict[str, np.ndarray]:
-    with open(out / "history.csv", newline="") as f:
-        rows = list(csv.reader(f))
-    values = np.array(rows[1:], dtype=float)
-    return {name: values[:, k] for k, name in enumerate(rows[0])}
-
-
-def _solved(ctx, data: dict, *options, mpi: int = 0, out: str = "out"):
-    r, folder = _run(ctx, data, *options, mpi=mpi, out=out)
-    bad = ctx.succeeded(r)
-    return (None, bad) if bad else (_history(folder), None)
-
-
 def _budget(h, scale: float, problems: list) -> None:
     if np.abs(h["energy_error"]).max() > 1e-9 * scale:
         problems.append(f"balance residual {np.abs(h['energy_error']).max():.3g} of {scale:.3g}")
@@ -77,7 +54,7 @@ def _sliding(dim: int, mpi: int = 0, moving: bool = False):
         data["contacts"][0]["friction"] = mu
         if moving:   # the floor a belt at vb along the block's motion: it slides at v0 - vb relative
             data["contacts"][0]["motion"] = [f"{vb}*t"] + [0.0] * (dim - 1)
-        h, bad = _solved(ctx, data, mpi=mpi)
+        h, bad = solved(ctx, data, mpi=mpi)
         if bad:
             return bad
         problems: list = []
@@ -109,7 +86,7 @@ def _dropped(dim: int, e: float):
         data = _block(dim, initial={"velocity": [0.0, -v0] + [0.0] * (dim - 2)}, loads=[])
         data["contacts"][0].update({"gap": 0.01, "restitution": e})
         data["solver"].update({"dt": 1e-4, "t_end": 0.02})
-        h, bad = _solved(ctx, data)
+        h, bad = solved(ctx, data)
         if bad:
             return bad
         problems: list = []
@@ -139,7 +116,7 @@ def _spin(ctx):
     data = _block(3, initial={"velocity": velocity}, loads=[], contacts=[])
     data["solver"].update({"dt": 1e-3, "t_end": 0.5})
     data["output"] = {"vtk": True, "every": 50}
-    h, bad = _solved(ctx, data)
+    h, bad = solved(ctx, data)
     if bad:
         return bad
     drift = np.abs(h["kinetic"] - h["kinetic"][0]).max() / h["kinetic"][0]
@@ -154,19 +131,9 @@ def _spin(ctx):
 def _restart(ctx):
     data = _block(2, initial={"velocity": [2.0, 0.0]})
     data["contacts"][0]["friction"] = 0.3
-    data["solver"]["t_end"] = 0.3
-    first, bad = _solved(ctx, data, out="first")
+    bad, worst = restart_parts(ctx, data, 0.3, 0.8)
     if bad:
         return bad
-    data["solver"]["t_end"] = 0.8
-    whole, bad = _solved(ctx, data, out="whole")
-    if bad:
-        return bad
-    continued, bad = _solved(ctx, data, "--restart", ctx.folder / "first", out="continued")
-    if bad:
-        return bad
-    n = continued["t"].size
-    worst = max(np.abs(whole[k][-n:] - continued[k]).max() for k in continued)
     return ok() if worst <= 1e-12 else wrong(f"the continued run parts from the whole one by {worst:.3g}")
 
 
@@ -178,7 +145,7 @@ def _refusal(change: dict, *needles: str):
                 data["contacts"][0][key.split(".", 1)[1]] = value
             else:
                 data[key] = value
-        r, out = _run(ctx, data)
+        r, out = run_case(ctx, data)
         verdict = ctx.refused(r, *needles)
         if verdict.kind == "ok" and out.exists():
             return wrong(f"refused, yet {out} was written")
