@@ -613,7 +613,8 @@ def test_the_friction_solver_calls_its_compiled_sweeps_without_a_type_search(mon
     W = np.array([[2.0, 0.3, 0.1, 0.0], [0.3, 2.0, 0.0, 0.1], [0.1, 0.0, 1.0, 0.2], [0.0, 0.1, 0.2, 1.0]])
     problem = FrictionProblem(W, np.array([0, 1]), np.array([0.3, 0.3]))
     q = np.array([-1.0, -0.5, 0.4, -0.2])
-    problem.solve(q, np.array([True, True]))   # (the first call may compile, or load from the cache)
+    for scale in (1.0, 2.0, 0.5):   # (the first calls of each kernel may compile, or load from the cache)
+        problem.solve(scale * q, np.array([True, True]))
     searches = []
     original = dispatcher.Dispatcher._compile_for_args
     monkeypatch.setattr(dispatcher.Dispatcher, "_compile_for_args",
