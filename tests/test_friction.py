@@ -611,16 +611,18 @@ def test_the_friction_solver_calls_its_compiled_sweeps_without_a_type_search(mon
     from fem_impact.nonsmooth.friction import FrictionProblem
 
     W = np.array([[2.0, 0.3, 0.1, 0.0], [0.3, 2.0, 0.0, 0.1], [0.1, 0.0, 1.0, 0.2], [0.0, 0.1, 0.2, 1.0]])
-    problem = FrictionProblem(W, np.array([0, 1]), np.array([0.3, 0.3]))
     q = np.array([-1.0, -0.5, 0.4, -0.2])
-    for scale in (1.0, 2.0, 0.5):   # (the first calls of each kernel may compile, or load from the cache)
-        problem.solve(scale * q, np.array([True, True]))
+
+    def solves():   # (a new problem each time: the same calls, in the same order)
+        problem = FrictionProblem(W, np.array([0, 1]), np.array([0.3, 0.3]))
+        return [problem.solve(scale * q, np.array([True, True])).converged for scale in (1.0, 2.0, 0.5)]
+
+    solves()   # (the first calls of each kernel may compile, or load from the cache)
     searches = []
     original = dispatcher.Dispatcher._compile_for_args
     monkeypatch.setattr(dispatcher.Dispatcher, "_compile_for_args",
                         lambda self, *a, **k: searches.append(self.py_func.__name__) or original(self, *a, **k))
-    for scale in (1.0, 2.0, 0.5):
-        assert problem.solve(scale * q, np.array([True, True])).converged
+    assert all(solves())
     assert searches == []
 
 
