@@ -24,7 +24,8 @@ def tutorial(name: str, tmp_path, monkeypatch):
 
 def test_every_tutorial_script_is_tested_and_shown_on_a_page():
     scripts = {p.stem for p in TUTORIALS.glob("*.py")}
-    assert scripts == {"impacting_bar", "vibroconverter", "vibrodrive", "convergence_study", "response_sweep"}
+    assert scripts == {"impacting_bar", "vibroconverter", "vibrodrive", "convergence_study", "response_sweep",
+                       "shaken_table"}
     pages = "\n".join(p.read_text() for p in TUTORIALS.glob("*.md"))
     for name in scripts:
         assert f"literalinclude:: {name}.py" in pages.replace("{literalinclude} ", "literalinclude:: "), name
@@ -83,3 +84,15 @@ def test_response_sweep(values, periods, shooting, tmp_path, monkeypatch):
         (mark,) = out["study"]["bifurcations"]
         assert mark["kind"] == "period_doubling" and mark["between"] == [0.66, 0.6645]
         assert 4 * mark["parameters.f"] == pytest.approx(2.6533477, abs=0.005)
+
+
+@pytest.mark.parametrize("t_end, gammas, conveyor", [(0.2, (1.3, 1.55), 5),
+                                                     pytest.param(0.4, (1.3, 1.5, 1.55), 10, marks=pytest.mark.slow)])
+def test_shaken_table(t_end, gammas, conveyor, tmp_path, monkeypatch):
+    out = tutorial("shaken_table", tmp_path, monkeypatch).main(tmp_path / "out", t_end, gammas, conveyor)
+    assert abs(out["phase"] - 0.5) * 360 <= 0.5                       # the orbit's impact at T/2
+    assert out["periods"] == {g: (2 if g > 1.527 else 1) for g in gammas}
+    if len(gammas) == 3:   # (the doubling between 1.5 and 1.55: at the closed form's Gamma, 1.526824)
+        (mark,) = out["marks"]
+        assert mark["parameters.Gamma"] == pytest.approx(1.526824, rel=1e-3)
+    assert out["speeds"][-1] == pytest.approx(0.04838, rel=0.01)       # the stick-slip theory's
