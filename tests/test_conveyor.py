@@ -87,6 +87,7 @@ def test_the_stick_slip_theory_settles(theory):
     assert theory[-1] == pytest.approx(0.04838, rel=1e-3) and abs(theory[-1] - theory[-3]) <= 1e-6
 
 
+@pytest.mark.slow   # (the default tier: docs/tutorials/shaken_table.py's rigid part, against the same figure)
 def test_a_rigid_part_is_conveyed_at_the_theorys_speed(tmp_path, theory):
     case = fi.load_case(CASES / "vibratory_conveyor.yaml", ["bodies={bar: {model: rigid}}", "solver.dt=1.25e-4",
                                                             "solver.t_end=0.5", "output.vtk=false"])
