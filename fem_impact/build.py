@@ -111,6 +111,8 @@ def rigid_system(case: Case, model: Model, cons: Constraints) -> System:
         (case.solver.method != "moreau_jean", ("solver", "method"), "rigid bodies take moreau_jean (the default)"),
         (getattr(case.solver, "theta", 0.5) != 0.5, ("solver", "theta"), "rigid bodies take theta = 1/2"),
         (case.damping.alpha or case.damping.beta, ("damping",), "a rigid body has no damping of its own"),
+        (getattr(case.solver, "mass", None) == "redistributed", ("solver", "mass"),
+         "a rigid body keeps its mass on every node (mass: consistent or lumped)"),
         (case.mesh.hypothesis == "axisymmetric", ("mesh", "hypothesis"),
          "a rigid body is not a solid of revolution here (plane_stress, plane_strain or 3D)"),
         (any(not (e.is_constant and e.at_time(0.0) == 0.0) for item in case.initial.displacement for e in item.value),

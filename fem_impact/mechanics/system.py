@@ -183,9 +183,10 @@ class Operators:
         rows.algebra = self.algebra
         return rows
 
-    def project(self, local: np.ndarray) -> np.ndarray:
-        """``P x`` (or ``P X`` for a block of columns) from owned entries: one global sum."""
-        return self.algebra.allsum(np.ascontiguousarray(self._P @ local))
+    def project(self, local) -> np.ndarray:
+        """``P x`` (or ``P X`` for a block of columns, dense or sparse) from owned entries: one global sum."""
+        product = self._P @ local
+        return self.algebra.allsum(np.ascontiguousarray(product.toarray() if sparse.issparse(product) else product))
 
     def project_many(self, *arrays: np.ndarray) -> list[np.ndarray]:
         """``P x`` for several vectors with a single reduction."""

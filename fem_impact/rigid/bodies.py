@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 
 from ..errors import ModelInputError
 from ..fem.model import Model
@@ -150,22 +151,18 @@ class NodalMap:
         out[:] = 0.0
         out[self.on] = v[np.arange(self.on.size), self.c]
 
-    def columns(self, rotations: np.ndarray) -> np.ndarray:
-        """``B`` (n_local x nb * size): the nodal velocity of each unit generalized velocity (a body's
-        translation along an axis, its spin about an axis), the rotations now."""
+    def columns(self, rotations: np.ndarray) -> sparse.csr_matrix:
+        """``B`` (n_local x nb * size, sparse: a dof moves with its body's translation along its own axis
+        and with its spins): the nodal velocity of each unit generalized velocity, the rotations now."""
         bodies = self.bodies
         dim, size, nb = bodies.dim, bodies.size, len(bodies.names)
-        B = np.zeros((self.bodies.body.size, nb * size))
         arms = self._arms(rotations)
-        rows = self.on
-        for a in range(dim):   # translations
-            mine = self.c == a
-            B[rows[mine], self.b[mine] * size + a] = 1.0
-        axes = [np.array([0.0, 0.0, 1.0])] if dim == 2 else list(np.eye(3))
-        for r, axis in enumerate(axes):   # spins: e_r x (R X)
-            if dim == 2:
-                field = np.column_stack([-arms[:, 1], arms[:, 0]])
-            else:
-                field = np.cross(axis, arms)
-            B[rows, self.b * size + dim + r] = field[np.arange(rows.size), self.c]
-        return B
+        rows, at = self.on, np.arange(self.on.size)
+        if dim == 2:   # e_z x (R X): (-a_y, a_x)
+            spin = np.column_stack([-arms[:, 1], arms[:, 0]])[at, self.c][:, None]
+        else:          # e_r x (R X), r = x, y, z
+            spin = np.stack([np.cross(axis, arms)[at, self.c] for axis in np.eye(3)], axis=1)
+        cols = np.column_stack([self.b * size + self.c, self.b[:, None] * size + dim + np.arange(spin.shape[1])])
+        data = np.column_stack([np.ones(rows.size), spin])
+        return sparse.csr_matrix((data.ravel(), (np.repeat(rows, cols.shape[1]), cols.ravel())),
+                                 shape=(self.bodies.body.size, nb * size))

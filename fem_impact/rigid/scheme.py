@@ -67,6 +67,9 @@ class RigidMoreauJean:
         self._r_prev = None
         self.friction_residual, self.friction_sweeps, self.friction_retries = 0.0, 0, 0
         self._rows = ops.with_tangents() if ops.pt else ops
+        # (constant over the run: the inverse inertia in the body frame; the previous step's V)
+        self._inverse_inertia = (1.0 / bodies.inertia if dim == 2 else np.linalg.inv(bodies.inertia))
+        self._V_prev = new()
 
     # The centres (nb x dim) and rotations (nb x dim x dim), kept flat (a checkpoint's arrays are).
     @property
@@ -104,10 +107,10 @@ class RigidMoreauJean:
             s = k * size
             inv[s:s + dim, s:s + dim] = np.eye(dim) / b.mass[k]
             if dim == 2:
-                inv[s + 2, s + 2] = 1.0 / b.inertia[k]
+                inv[s + 2, s + 2] = self._inverse_inertia[k]
             else:
                 R = self.rot[k]
-                inv[s + 3:s + 6, s + 3:s + 6] = R @ np.linalg.inv(b.inertia[k]) @ R.T
+                inv[s + 3:s + 6, s + 3:s + 6] = R @ self._inverse_inertia[k] @ R.T
         return inv
 
     def _global(self, nu: np.ndarray) -> np.ndarray:
@@ -189,17 +192,20 @@ class RigidMoreauJean:
         H_all = self._rows.project(self._B) if p else None   # rows x generalized velocities (global axes)
         inv = self._inverse_mass()
         impulse_all = np.zeros(p + pt)
-        nu1 = None
+        nu1, settled = None, dim == 2
         for _ in range(GYRO_ITERATIONS if dim == 3 else 1):
             free = self._free(nu0, F, nu1)
             if p:
                 impulse_all = self._impulses(st, H_all, inv, free, nu0, t1)
             change = (inv @ (H_all.T @ impulse_all)) if p and np.count_nonzero(impulse_all) else 0.0
             new = self._from_global(self._global(free) - change)
-            if nu1 is not None and np.abs(new - nu1).max() <= 1e-15 * max(np.abs(new).max(), 1e-300):
-                nu1 = new
-                break
+            moved = np.inf if nu1 is None else np.abs(new - nu1).max() / max(np.abs(new).max(), 1e-300)
             nu1 = new
+            if moved <= 1e-15:
+                settled = True
+                break
+        if not settled:
+            self._check_settled(nu0, nu1, t1)
         # positions from the mean velocity (g_mid: it in global axes at the step's start, as B and H take it)
         numid = 0.5 * (nu0 + nu1)
         g_mid = self._global(numid)
@@ -210,10 +216,10 @@ class RigidMoreauJean:
             self.rot = np.array([rotation_2d(a) for a in self.angle])
         else:
             self.rot = np.array([self.rot[k] @ cayley(h * wm[k]) for k in range(nb)])
-        V_prev = self.V.copy()
+        np.copyto(self._V_prev, self.V)
         self.nu = nu1
         self._nodal()
-        np.subtract(self.V, V_prev, out=self.A)
+        np.subtract(self.V, self._V_prev, out=self.A)
         self.A *= 1.0 / h
         # the energy budget: the loads' work h F . nu_m (global axes), the impulses' on the rows' mean velocity
         energy = st.energy.copy()
@@ -263,12 +269,13 @@ class RigidMoreauJean:
             return np.concatenate([v, w], axis=1).ravel()
         torque = np.einsum("bji,bj->bi", self.rot, F[:, 3:])   # body frame
         w = np.empty_like(w0)
+        self._mid_spins = np.empty_like(w0)   # (the mid-step spins the gyroscopic term is taken at)
         for k in range(len(b.names)):
             J = b.inertia[k]
             if nu1 is None:   # the free flight: Euler's equations by fixed point at their own midpoint
                 w1 = w0[k].copy()
                 for _ in range(GYRO_ITERATIONS):
-                    wm = 0.5 * (w0[k] + w1)
+                    wm = self._mid_spins[k] = 0.5 * (w0[k] + w1)
                     nxt = w0[k] + np.linalg.solve(J, h * torque[k] - h * np.cross(wm, J @ wm))
                     if np.abs(nxt - w1).max() <= 1e-16 * max(np.abs(nxt).max(), 1e-300):
                         w1 = nxt
@@ -276,9 +283,26 @@ class RigidMoreauJean:
                     w1 = nxt
                 w[k] = w1
             else:
-                wm = 0.5 * (w0[k] + self._split(nu1)[1][k])
+                wm = self._mid_spins[k] = 0.5 * (w0[k] + self._split(nu1)[1][k])
                 w[k] = w0[k] + np.linalg.solve(J, h * torque[k] - h * np.cross(wm, J @ wm))
         return np.concatenate([v, w], axis=1).ravel()
+
+    def _check_settled(self, nu0: np.ndarray, nu1: np.ndarray, t1: float) -> None:
+        """A 3D step whose spins did not settle (the impulses' active set may alternate between rounds): the
+        gyroscopic term taken at the last round's mid-step spin does the work ``h W_m . (W_u x J0 W_u)``,
+        which the budget does not book; below 1e-10 of the kinetic energy it is round-off, above it the
+        step is refused rather than answered."""
+        b, h = self.bodies, self.dt
+        w_m = 0.5 * (self._split(nu0)[1] + self._split(nu1)[1])
+        used = self._mid_spins
+        work = abs(h * float(np.einsum("bi,bi->", w_m, np.cross(used, np.einsum("bij,bj->bi", b.inertia, used)))))
+        scale = max(self._kinetic(nu0), self._kinetic(nu1), 1e-300)
+        if work > 1e-10 * scale:
+            from ..errors import SimulationError
+
+            raise SimulationError(f"the rigid bodies' step at t = {t1:.6g} did not settle: the spins and the impulses "
+                                  f"still change after {GYRO_ITERATIONS} rounds (the gyroscopic term would do "
+                                  f"{work / scale:.3g} of the kinetic energy in work); a smaller solver.dt will")
 
     def _from_global(self, g: np.ndarray) -> np.ndarray:
         """Generalized velocities with global spins back to the state's (3D: body-frame spins)."""

@@ -162,5 +162,6 @@ for _name, _change, _needles in (
         ("an elastic stop", {"contacts.stiffness": 1e6}, ("contacts", "Newton")),
         ("a pair contact", {"contacts.type": "pair", "contacts.nodes": ["bottom", "top"]}, ("contacts", "obstacles")),
         ("an initial displacement", {"initial": {"displacement": [0.001, 0.0]}}, ("initial.displacement",)),
+        ("mass redistributed", {"solver": {"mass": "redistributed", "dt": 0.002, "t_end": 0.1}}, ("solver.mass",)),
 ):
     probe("rigid-bodies", f"refused: {_name}")(_refusal(_change, *_needles))
