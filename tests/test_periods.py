@@ -93,6 +93,10 @@ def test_a_restart_continues_the_periods(tmp_path):
     assert added["period"].tolist() == list(range(8, 11))   # (0.14 to 0.20: the 7th period was seen in part)
     for name in whole:
         assert added[name] == pytest.approx(whole[name][7:], rel=1e-10, abs=1e-14), name
+    # another period on restart: the saved periods are not continued with it; they start again from the restart
+    other = table(fi.run(longer.with_changes({"output.period": 0.04}), tmp_path / "other",
+                         restart=first.outdir).outdir / "periods.csv")
+    assert other["period"].tolist() == [5] and other["t"].tolist() == pytest.approx([0.2])
 
 
 @pytest.mark.parametrize("value, message", [("0", "positive"), ("-1/f", "positive"), ("'1/q'", "q"),

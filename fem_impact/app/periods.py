@@ -34,7 +34,8 @@ class PeriodLog:
     ``save`` writes the completed ones with the impacts of ``impacts`` (an ``ImpactLog``)."""
 
     # (a restart continues the period under way from where the checkpoint left it)
-    __checkpoint__ = ("rows", "_t", "_p", "_cum", "_integral", "_start", "_impulse", "_k", "_partial", "_count")
+    __checkpoint__ = ("period", "rows", "_t", "_p", "_cum", "_integral", "_start", "_impulse", "_k", "_partial",
+                      "_count")
 
     def __init__(self, period: float, contacts: list, momenta, impacts=None):
         self.period, self.contacts, self.momenta, self.impacts = period, contacts, momenta, impacts

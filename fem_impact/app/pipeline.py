@@ -285,7 +285,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     if restart is not None:
         try:
             trees = checkpoint.read_parts(saved, comm, built, dof_keys)
-            if periods is not None and "periods" not in trees:   # (output.period new on restart: from here on)
+            # (output.period new, or another, on restart: periods from here on, not mixed with the saved ones)
+            if periods is not None and (trees.get("periods") or {}).get("period") != periods.period:
                 del parts["periods"]
             integrator.start(system.U0, system.V0, 0.0)   # (allocates what the state then overwrites)
             checkpoint.restore_parts(parts, trees, saved, comm)

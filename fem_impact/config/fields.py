@@ -139,8 +139,9 @@ def expression(variables: tuple[str, ...]):
             return parse_expression(value, variables, (info.context or {}).get("parameters", {}))
         except ExpressionError as exc:
             raise _Invalid((), str(exc)) from None
+    what = f"an expression in {', '.join(variables)}" if variables else "an expression of the parameters"
     return Annotated[Any, PlainValidator(convert), WithJsonSchema(
-        {"type": ["number", "string"], "description": f"a number or an expression in {', '.join(variables)}"})]
+        {"type": ["number", "string"], "description": f"a number or {what}"})]
 
 
 # --- sections --------------------------------------------------------------------------------

@@ -387,22 +387,12 @@ def _unique_names(contacts: list[Contact]) -> list[Contact]:
 _Contact = Annotated[Any, PlainValidator(_contact), WithJsonSchema({"type": "object"})]
 
 
-def _period(value, info: ValidationInfo) -> float:
-    from ..expressions import ExpressionError, parse_expression
-
-    if value is None:
-        return None
-    if not isinstance(value, str):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise _Invalid((), f"expected a number or an expression of the parameters, got {_show(value)}")
-        value = _number(value)
-    try:
-        period = parse_expression(value, (), (info.context or {}).get("parameters", {})).evaluate()
-    except ExpressionError as exc:
-        raise _Invalid((), str(exc)) from None
-    if not (math.isfinite(period) and period > 0.0):
-        raise _Invalid((), f"must be a positive, finite time, got {period!r} (from {_show(value)})")
-    return float(period)
+def _positive_time(period) -> float:
+    """A drive's period (a constant expression): its value in seconds, > 0 and finite."""
+    value = period.evaluate()
+    if not (math.isfinite(value) and value > 0.0):
+        raise _Invalid((), f"must be a positive, finite time, got {value!r} (from {_show(period.source)})")
+    return float(value)
 
 
 class OutputSection(Section):
@@ -415,7 +405,7 @@ class OutputSection(Section):
     format: choice("vtu", "xdmf") = Field("vtu", description="the fields' files: vtu (results.pvd, ASCII) or xdmf "
                                                              "(results.xdmf + .h5, binary)")
     checkpoint_every: Integer = key("-", "steps between checkpoints (0: at the end only)", 0, ge=0, le=2**53)
-    period: Annotated[Any, PlainValidator(_period), WithJsonSchema({"type": ["number", "string"]})] = key(
+    period: Annotated[expression(()), AfterValidator(_positive_time)] = key(
         "s", "the drive's period (a number or an expression of the parameters, e.g. 1/f): impacts.csv gains the "
              "impacts' phase, and periods.csv a row per period", None)
 
