@@ -137,6 +137,10 @@ def _bar(case: Case) -> _Bar:
         raise _refuse(case, "has no damping: set damping.alpha and damping.beta to 0")
     if case.loads:
         raise _refuse(case, "has no loads: remove 'loads'")
+    if any(model == "rigid" for model in case.bodies.values()):
+        raise _refuse(case, "is the elastic bar: remove 'bodies' (or make it elastic)")
+    if any(c.motion is not None for c in case.contacts):
+        raise _refuse(case, "has fixed obstacles: remove the contacts' 'motion'")
     height, width = mesh.bar_dimensions()
     section = {1: mat.area, 2: height * mat.area, 3: height * width}[dim]
     if dim == 2 and mesh.hypothesis == "axisymmetric":   # the strip turned about x: a cylinder of radius height

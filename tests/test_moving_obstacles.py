@@ -251,3 +251,12 @@ def test_a_restitution_on_an_elastic_body_at_a_long_step_is_explained_once(tmp_p
     assert out.stderr.count("the restitution acts on the contact's nodes alone") == (1 if says else 0), out.stderr
     if says:
         assert "contacts[0] (wall, e = 0.5)" in out.stderr and "cases/bouncing_ball.yaml" in out.stderr
+
+
+@pytest.mark.parametrize("change", ["contacts.0.motion=['0.5*t']", "bodies={bar: {model: rigid}}"])
+def test_an_exact_reference_refuses_a_scene_it_does_not_describe(change):
+    """B2's fixed wall and elastic bar: a study would otherwise measure a moving wall or a rigid bar against it."""
+    with pytest.raises(fi.CaseError, match="reference"):
+        from fem_impact.references import from_case
+
+        from_case(load_case(CASES / "impacting_bar.yaml", [change]))

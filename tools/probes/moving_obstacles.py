@@ -232,3 +232,38 @@ def _response(ctx):
         if periods != {1.3: 1, 1.55: 2}:
             verdicts.append(f"--flight {flight}: periods {periods}, expected 1 at 1.3 and 2 at 1.55")
     return wrong("; ".join(verdicts)) if verdicts else ok()
+
+
+@probe("moving-obstacles", "a reference (B2) refuses a moving wall: no study measures it against the fixed one")
+def _reference(ctx):
+    data = _rod(1, "moreau_jean")
+    data["reference"] = "b2"
+    data["initial"] = {"velocity": [-1.0]}
+    case = ctx.folder / "rod.yaml"
+    import yaml
+
+    case.write_text(yaml.safe_dump(data, sort_keys=False))
+    r = ctx.run("study", "convergence", case, "--vary", "mesh.cells=20,40", "-q", "-o", ctx.folder / "study")
+    return ctx.refused(r, "reference", "motion")
+
+
+@probe("moving-obstacles", "restart under another output.period: the periods start again, not mixed")
+def _period_changed(ctx):
+    data = _rod(1, "moreau_jean")
+    data["output"]["period"] = 0.5
+    data["solver"]["t_end"] = 1.3
+    _, bad = solved(ctx, data, out="first")
+    if bad:
+        return bad
+    data["solver"]["t_end"] = 2.6
+    data["output"]["period"] = 0.4
+    r, out = run_case(ctx, data, "--restart", ctx.folder / "first", out="continued")
+    bad = ctx.succeeded(r)
+    if bad:
+        return bad
+    import csv
+
+    with open(out / "periods.csv", newline="") as f:
+        ends = [float(row["t"]) for row in csv.DictReader(f)]
+    want = [2.0, 2.4]   # (from 1.3: [1.2, 1.6) seen in part, then [1.6, 2.0), [2.0, 2.4))
+    return ok() if [round(t, 9) for t in ends] == want else wrong(f"periods ending at {ends}, expected {want}")
