@@ -67,7 +67,10 @@ class System:
     V0: object
     summary: dict                # keys of the run's summary: the reduced model's modes, ...
     reduced: ReducedModel | None = None   # the reduced model (method: modal), else None
-    rigid: object | None = None  # the rigid bodies (fem_impact.rigid.bodies.RigidBodies) of a rigid scene, else None
+    rigid: object | None = None  # the rigid bodies (fem_impact.rigid.bodies.RigidBodies) of a scene with some, else None
+    # a scene mixing rigid and elastic bodies: the elastic bodies' operators (the rigid bodies' dofs held,
+    # P on the elastic dofs alone), else None
+    elastic: Operators | None = None
 
 
 def build_system(case: Case, comm: MPI.Comm | None = None, *, check_initial: bool = False,
@@ -92,8 +95,9 @@ def build_system(case: Case, comm: MPI.Comm | None = None, *, check_initial: boo
 
 
 def rigid_system(case: Case, model: Model, cons: Constraints) -> System:
-    """A scene of rigid bodies: every body of the mesh rigid, in large rotations (fem_impact/rigid/). What
-    it does not take yet is refused, naming the key."""
+    """A scene with rigid bodies (fem_impact/rigid/): those of ``bodies`` with ``model: rigid`` in large
+    rotations, the others elastic beside them (the mixed scene's step, rigid/mixed.py). What it does not
+    take yet is refused, naming the key."""
     from .errors import ModelInputError
     from .rigid.bodies import rigid_bodies
 
@@ -102,24 +106,24 @@ def rigid_system(case: Case, model: Model, cons: Constraints) -> System:
     if unknown:
         raise ModelInputError(("bodies", unknown[0]), f"no body {unknown[0]} in the mesh (its bodies: "
                                                       f"{', '.join(names)})")
-    elastic = [name for name in names if case.bodies.get(name, "elastic") != "rigid"]
-    if elastic:
-        raise ModelInputError(("bodies", elastic[0]), f"body {elastic[0]} is elastic beside rigid ones: a scene "
-                                                      "mixes them not yet; make every body rigid, or none")
+    rigid = [name for name in names if case.bodies.get(name, "elastic") == "rigid"]
+    mixed = len(rigid) < len(names)
     refusals = [
-        (case.supports, ("supports",), "a rigid body takes no supports (hold it by contacts, or move an obstacle)"),
+        (case.supports and not mixed, ("supports",),
+         "a rigid body takes no supports (hold it by contacts, or move an obstacle)"),
+        (model.motion is not None, ("supports",), "a scene with rigid bodies takes fixed supports only, for now"),
         (case.solver.method != "moreau_jean", ("solver", "method"), "rigid bodies take moreau_jean (the default)"),
         (getattr(case.solver, "theta", 0.5) != 0.5, ("solver", "theta"), "rigid bodies take theta = 1/2"),
-        (case.damping.alpha or case.damping.beta, ("damping",), "a rigid body has no damping of its own"),
+        ((case.damping.alpha or case.damping.beta) and not mixed, ("damping",),
+         "a rigid body has no damping of its own"),
         (getattr(case.solver, "mass", None) == "redistributed", ("solver", "mass"),
          "a rigid body keeps its mass on every node (mass: consistent or lumped)"),
         (case.mesh.hypothesis == "axisymmetric", ("mesh", "hypothesis"),
          "a rigid body is not a solid of revolution here (plane_stress, plane_strain or 3D)"),
         (any(not (e.is_constant and e.at_time(0.0) == 0.0) for item in case.initial.displacement for e in item.value),
-         ("initial", "displacement"), "a rigid body starts where its mesh is (no initial displacement)"),
-        (case.initial.source is not None, ("initial", "from"), "a rigid scene does not start from a saved run yet"),
-        (any(c.type != "obstacle" for c in case.contacts), ("contacts",),
-         "rigid bodies meet obstacles only, for now (no pair contacts)"),
+         ("initial", "displacement"), "a scene with rigid bodies starts where its mesh is (no initial displacement)"),
+        (case.initial.source is not None, ("initial", "from"), "a scene with rigid bodies does not start from a "
+                                                                "saved run yet"),
         (any(c.stiffness is not None or c.law not in ("newton",) for c in case.contacts), ("contacts",),
          "rigid bodies take Newton's law (restitution) and friction, for now"),
     ]
@@ -127,12 +131,84 @@ def rigid_system(case: Case, model: Model, cons: Constraints) -> System:
         if refused:
             raise ModelInputError(key, message)
     system = full_system(case, model, cons)
-    system.rigid = rigid_bodies(model, names, ("bodies",))
+    system.rigid = bodies = rigid_bodies(model, rigid, ("bodies",))
+    _refuse_pairs_within_a_body(case, model, cons, bodies)
+    if mixed:
+        system.elastic = elastic_operators(model, cons, bodies)
     system.summary["rigid_bodies"] = {name: {"mass": float(m), "centre": [float(x) for x in c],
-                                             "inertia": (float(j) if system.rigid.dim == 2 else j.tolist())}
-                                      for name, m, c, j in zip(names, system.rigid.mass, system.rigid.centre,
-                                                               system.rigid.inertia)}
+                                             "inertia": (float(j) if bodies.dim == 2 else j.tolist())}
+                                      for name, m, c, j in zip(rigid, bodies.mass, bodies.centre, bodies.inertia)}
     return system
+
+
+def _refuse_pairs_within_a_body(case: Case, model: Model, cons: Constraints, bodies) -> None:
+    """A pair contact between two node groups of one rigid body constrains nothing that can change."""
+    import numpy as np
+    from mpi4py import MPI
+    from scipy import sparse
+
+    from .errors import ModelInputError
+
+    P = sparse.coo_matrix(cons.P_local)
+    owner = bodies.body[P.row]
+    lo, hi = np.full(cons.p, len(bodies.names), dtype=np.int64), np.full(cons.p, -1, dtype=np.int64)
+    np.minimum.at(lo, P.col, owner)
+    np.maximum.at(hi, P.col, owner)
+    model.comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
+    model.comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
+    for rows in cons.contacts:
+        i = rows.index
+        if case.contacts[i].type == "pair" and np.any((lo[rows.rows] == hi[rows.rows]) & (hi[rows.rows] >= 0)):
+            body = bodies.names[int(hi[rows.rows].max())]
+            raise ModelInputError(("contacts", i, "nodes"), f"both node groups of the pair are on the rigid body "
+                                                            f"{body}: a pair within one rigid body never moves")
+
+
+def elastic_operators(model: Model, cons: Constraints, bodies) -> Operators:
+    """The elastic bodies of a mixed scene: the model with the rigid bodies' dofs held (unit mass, no
+    stiffness, no load there) and the contact rows on the elastic dofs alone."""
+    import numpy as np
+    from scipy import sparse
+
+    from .errors import ModelInputError
+    from .mechanics.system import Operators
+
+    on = np.flatnonzero(bodies.body >= 0)
+    if model.comm.allreduce(int(np.intersect1d(on, model.fixed).size)):
+        raise ModelInputError(("supports",), "a support holds a rigid body's node (hold a rigid body by contacts, "
+                                             "or move an obstacle)")
+    rows = (on + model.first_node * model.bs).astype(np.int32)
+    held = []
+    for matrix, diagonal in ((model.M, 1.0), (model.K, 0.0), (model.C, 0.0)):
+        if matrix is not None:
+            matrix = matrix.copy()
+            matrix.zeroRowsColumns(rows, diag=diagonal)
+        held.append(matrix)
+    keep = np.ones(model.U0.getLocalSize())
+    keep[on] = 0.0
+    keep = sparse.diags(keep)
+    tangents = keep @ sparse.csr_matrix(cons.tangent_local) if cons.pt else None
+    return Operators(*held, HeldLoad(model.load, on), keep @ sparse.csr_matrix(cons.P_local), cons.d0,
+                     cons.restitution, stop_compliance=cons.compliance,
+                     friction=cons.friction if cons.pt else None, tangents=tangents, tangent_of=cons.tangent_of,
+                     laws=cons.laws, relations=cons.relations)
+
+
+class HeldLoad:
+    """A load R(t) without its entries on held dofs (the rigid bodies' in a mixed scene's elastic part:
+    the rigid bodies take theirs as a resultant and a moment)."""
+
+    def __init__(self, load, held):
+        self.load, self.held = load, held
+
+    @property
+    def time_dependent(self) -> bool:
+        return self.load.time_dependent
+
+    def evaluate(self, t: float, out):
+        self.load.evaluate(t, out)
+        out[self.held] = 0.0
+        return out
 
 
 def full_system(case: Case, model: Model, cons: Constraints) -> System:
@@ -170,11 +246,15 @@ def reduced_operators(red: ReducedModel, cons: Constraints) -> Operators:
                      **friction)
 
 
-def make_integrator(case: Case, operators: Operators, rigid=None):
+def make_integrator(case: Case, operators: Operators, rigid=None, elastic: Operators | None = None):
     """The time integrator of ``solver.method`` (the reduced model: of its ``solver.scheme``; ``rigid``, a
-    system's rigid bodies: Moreau-Jean on them)."""
+    system's rigid bodies: Moreau-Jean on them, with ``elastic``, the elastic bodies beside them, if any)."""
     from .integrators import integrator_class, scheme_of
 
+    if rigid is not None and elastic is not None:
+        from .rigid.mixed import MixedMoreauJean
+
+        return MixedMoreauJean(operators, elastic, rigid, case.solver.dt)
     if rigid is not None:
         from .rigid.scheme import RigidMoreauJean
 

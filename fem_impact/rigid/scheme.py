@@ -181,22 +181,48 @@ class RigidMoreauJean:
         return False
 
     def step(self) -> StepState:
-        ops, st, h, b = self.ops, self.state, self.dt, self.bodies
-        t1 = self.t0 + (st.step + 1) * h
-        dim, size, nb = b.dim, self.size, len(b.names)
-        nu0 = self.nu
+        st = self.state
+        t1 = self.t0 + (st.step + 1) * self.dt
+        step = self.prepare(st)
+        nu1, impulse_all = self.settle(st, step, t1)
+        energy = st.energy.copy()
+        self.advance(st, step, nu1, impulse_all, t1, energy)
+        ops, p, pt = self.ops, self.ops.p, self.ops.pt
+        normal, tangent = impulse_all[:p], impulse_all[p:]
+        pu, pv = (ops.project_many(self.U, self.V) if p else (np.zeros(0), np.zeros(0)))
+        self.state = StepState(step=st.step + 1, t=t1, U=self.U, V=self.V, A=self.A, gap=ops.gap0(t1) - pu,
+                               force=normal / self.dt, impulse=normal, energy=energy, normal_displacement=pu,
+                               normal_velocity=pv)
+        if pt:
+            self.state.tangential = tangent / self.dt
+            self.state.tangential_velocity = self._rows.project_many(self.V)[0][p:]
+        self.state.bodies = self._body_values()
+        return self.state
+
+    # -- a step in three parts (a mixed scene's step puts the elastic bodies' between them: mixed.py) ---
+    def prepare(self, st: StepState) -> tuple:
+        """What the step reads at its start: the loads' generalized force (global axes, at mid-step),
+        the rows' ``H = P B`` ([P; P_T] with friction) and the inverse generalized mass."""
         self._B = self.map.columns(self.rot)   # B at the step's start (its rotations)
-        force = self._loads(st.t + 0.5 * h)    # global axes
-        F = force.reshape(nb, size)
-        p, pt = ops.p, ops.pt
-        H_all = self._rows.project(self._B) if p else None   # rows x generalized velocities (global axes)
-        inv = self._inverse_mass()
-        impulse_all = np.zeros(p + pt)
+        force = self._loads(st.t + 0.5 * self.dt)
+        H_all = self._rows.project(self._B) if self.ops.p else None   # rows x generalized velocities
+        return force, H_all, self._inverse_mass()
+
+    def settle(self, st: StepState, step: tuple, t1: float, elastic=None) -> tuple[np.ndarray, np.ndarray]:
+        """The new generalized velocities and the step's impulses (normal rows, then tangent rows).
+        ``elastic``: the elastic bodies' share of the rows (``ElasticShare``: their velocities at the
+        step's start and without impulses, and their Delassus matrix), in a mixed scene."""
+        b, dim = self.bodies, self.bodies.dim
+        force, H_all, inv = step
+        F = force.reshape(len(b.names), self.size)
+        p = self.ops.p
+        nu0 = self.nu
+        impulse_all = np.zeros(p + self.ops.pt)
         nu1, settled = None, dim == 2
         for _ in range(GYRO_ITERATIONS if dim == 3 else 1):
             free = self._free(nu0, F, nu1)
             if p:
-                impulse_all = self._impulses(st, H_all, inv, free, nu0, t1)
+                impulse_all = self._impulses(st, H_all, inv, free, nu0, t1, elastic)
             change = (inv @ (H_all.T @ impulse_all)) if p and np.count_nonzero(impulse_all) else 0.0
             new = self._from_global(self._global(free) - change)
             moved = np.inf if nu1 is None else np.abs(new - nu1).max() / max(np.abs(new).max(), 1e-300)
@@ -206,6 +232,18 @@ class RigidMoreauJean:
                 break
         if not settled:
             self._check_settled(nu0, nu1, t1)
+        return nu1, impulse_all
+
+    def advance(self, st: StepState, step: tuple, nu1: np.ndarray, impulse_all: np.ndarray, t1: float,
+                energy, obstacles: bool = True) -> None:
+        """The bodies moved to t1 with ``nu1`` (positions from the mean velocity), their nodes' U, V, A,
+        and the step's energy terms booked in ``energy``: the loads' work ``h F . nu_m``, the impulses'
+        on the rows' mean velocity (the rigid bodies' share of it in a mixed scene, ``obstacles``
+        False: the elastic part books the obstacles' work)."""
+        ops, h, b = self.ops, self.dt, self.bodies
+        dim, nb = b.dim, len(b.names)
+        force, H_all, _ = step
+        nu0 = self.nu
         # positions from the mean velocity (g_mid: it in global axes at the step's start, as B and H take it)
         numid = 0.5 * (nu0 + nu1)
         g_mid = self._global(numid)
@@ -221,13 +259,12 @@ class RigidMoreauJean:
         self._nodal()
         np.subtract(self.V, self._V_prev, out=self.A)
         self.A *= 1.0 / h
-        # the energy budget: the loads' work h F . nu_m (global axes), the impulses' on the rows' mean velocity
-        energy = st.energy.copy()
         energy.external_work += h * float(force @ g_mid)
+        p, pt = ops.p, ops.pt
         normal, tangent = impulse_all[:p], impulse_all[p:]
         if p:
             rates = H_all @ g_mid
-            moved = ops.obstacle_moved(st.t, t1)
+            moved = ops.obstacle_moved(st.t, t1) if obstacles else None
             obstacle = None if moved is None else moved / h
             for column, work in ops.laws.work(normal, rates[:p] - (0.0 if obstacle is None else obstacle)).items():
                 energy.add_loss(column, work)
@@ -235,21 +272,12 @@ class RigidMoreauJean:
                 energy.external_work -= float(normal @ obstacle)
             if pt:
                 slide = rates[p:]
-                if ops.moving:
+                if ops.moving and obstacles:
                     along = 0.5 * (ops.obstacle_tangent_velocity(st.t) + ops.obstacle_tangent_velocity(t1))
                     energy.external_work -= float(tangent @ along)
                     slide = slide - along
                 energy.friction_loss += float(tangent @ slide)
         energy.kinetic = self._kinetic(self.nu)
-        pu, pv = (ops.project_many(self.U, self.V) if p else (np.zeros(0), np.zeros(0)))
-        self.state = StepState(step=st.step + 1, t=t1, U=self.U, V=self.V, A=self.A, gap=ops.gap0(t1) - pu,
-                               force=normal / h, impulse=normal, energy=energy, normal_displacement=pu,
-                               normal_velocity=pv)
-        if pt:
-            self.state.tangential = tangent / h
-            self.state.tangential_velocity = self._rows.project_many(self.V)[0][p:]
-        self.state.bodies = self._body_values()
-        return self.state
 
     def _body_values(self) -> np.ndarray:
         """Per body: centre, velocity, then 2D angle and its rate, 3D the spin in global axes."""
@@ -314,12 +342,15 @@ class RigidMoreauJean:
         return blocks.ravel()
 
     def _impulses(self, st: StepState, H: np.ndarray, inv: np.ndarray, free: np.ndarray, nu0: np.ndarray,
-                  t1: float) -> np.ndarray:
+                  t1: float, elastic=None) -> np.ndarray:
         """The step's impulses (normal, then tangent rows): Newton's law at the velocity level on the rows
-        whose gap, predicted to mid-step, is closed; Coulomb's cone on their tangent rows."""
+        whose gap, predicted to mid-step, is closed; Coulomb's cone on their tangent rows. ``elastic``:
+        the elastic bodies' share of the rows' velocities and of W (a mixed scene)."""
         ops, h, p, pt = self.ops, self.dt, self.ops.p, self.ops.pt
         g_free, g0 = self._global(free), self._global(nu0)
         rates_free, rates0 = H @ g_free, H @ g0
+        if elastic is not None:
+            rates_free, rates0 = rates_free + elastic.free, rates0 + elastic.start
         rel0 = ops.relative(rates0[:p], st.t)
         e = np.where(rel0 >= 0.0, ops.restitution, 1.0)
         q = -ops.relative(rates_free[:p], t1) - e * rel0
@@ -328,6 +359,8 @@ class RigidMoreauJean:
         if not np.count_nonzero(active):
             return out
         W = H @ inv @ H.T
+        if elastic is not None:
+            W = W + elastic.W
         if not pt:
             a = np.flatnonzero(active)
             out[a] = solve_lcp(W[np.ix_(a, a)], q[a])[0]

@@ -160,7 +160,8 @@ for _name, _change, _needles in (
         ("supports", {"supports": [{"nodes": "top", "fix": ["x"]}]}, ("supports",)),
         ("damping", {"damping": {"alpha": 1.0}}, ("damping",)),
         ("an elastic stop", {"contacts.stiffness": 1e6}, ("contacts", "Newton")),
-        ("a pair contact", {"contacts.type": "pair", "contacts.nodes": ["bottom", "top"]}, ("contacts", "obstacles")),
+        ("a pair within one rigid body", {"contacts.type": "pair", "contacts.nodes": ["bottom", "top"]},
+         ("contacts", "one rigid body")),
         ("an initial displacement", {"initial": {"displacement": [0.001, 0.0]}}, ("initial.displacement",)),
         ("mass redistributed", {"solver": {"mass": "redistributed", "dt": 0.002, "t_end": 0.1}}, ("solver.mass",)),
 ):

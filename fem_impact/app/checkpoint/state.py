@@ -176,9 +176,10 @@ def restore(obj, state: dict) -> None:
 
     def build(value, path):
         if isinstance(value, np.ndarray):
-            # Into the object's own array where it has one: an integrator's vectors are known to its
-            # algebra by identity (PETSc vectors over them), and swapped in pairs by reference.
-            existing = getattr(obj, path, None) if "." not in path else None
+            # Into the object's own array where it has one (its own or a part's: an attribute of objects
+            # with state all the way): an integrator's vectors are known to its algebra by identity
+            # (PETSc vectors over them), and swapped in pairs by reference.
+            existing = _own_array(obj, path)
             if isinstance(existing, np.ndarray) and existing.shape == value.shape and \
                     existing.dtype == value.dtype and id(existing) not in written:
                 np.copyto(existing, value)
@@ -205,14 +206,17 @@ def restore(obj, state: dict) -> None:
             return ("object", {k: build(v, f"{path}.{k}") for k, v in value[1].items()})
         raise ValueError(f"unknown entry {kind!r}")
 
+    def put(target, name, value):
+        if isinstance(value, tuple) and value and value[0] == "object":
+            part = getattr(target, name)
+            for k, v in value[1].items():
+                put(part, k, v)
+        else:
+            setattr(target, name, value)
+
     built = {name: build(state[name], name) for name in obj.__checkpoint__ if name in state}
     for name, value in built.items():
-        if isinstance(value, tuple) and value and value[0] == "object":
-            target = getattr(obj, name)
-            for k, v in value[1].items():
-                setattr(target, k, v)
-        else:
-            setattr(obj, name, value)
+        put(obj, name, value)
     # Links: a path "a.b.c" names an attribute, a dataclass field or a sequence's item.
     for path, source in pending:
         try:
@@ -222,6 +226,16 @@ def restore(obj, state: dict) -> None:
         if not isinstance(target, np.ndarray):
             raise ValueError(f"{path}: a link to {source}, which is not an array")
         _set_path(obj, path, target)
+
+
+def _own_array(obj, path: str):
+    """The array at ``path`` ("U", "part.U") where every step before it is an object with state, else None."""
+    *parts, last = path.split(".")
+    for part in parts:
+        obj = getattr(obj, part, None)
+        if not hasattr(obj, "__checkpoint__"):
+            return None
+    return getattr(obj, last, None)
 
 
 def _get_path(obj, path: str):
