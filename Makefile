@@ -60,7 +60,7 @@ docs: setup
 	@echo "the site: $(DOCS_BUILD)/html/index.html"
 
 # The pictures of the README and the pages: the default case's contact force and energy budget; the
-# vibrodrive's history, frequency sweep (about a minute) and a strike.
+# vibrodrive's history, frequency sweep (about a minute) and a strike; the rigid hammer's force on its rod.
 VIBRODRIVE_FREQUENCIES := 16000,16500,17000,17168.8,17600,18000,18500
 figures: setup
 	$(VENV)/bin/fem-impact run $(CASE) -q
@@ -73,6 +73,8 @@ figures: setup
 	    --set solver.t_end=6.4e-4 --set output.every=5
 	$(VENV)/bin/fem-impact animate results/vibrodrive-launch --time 5.51e-4 --scale 300 --size 1024x576 \
 	    -o docs/vibrodrive.png
+	$(VENV)/bin/fem-impact run cases/hammer_rod.yaml -q --set solver.t_end=1.2e-4 --set output.vtk=false
+	$(PY) tests/test_mixed.py results/hammer_rod --plot docs/hammer_rod.png
 
 # The speed-accuracy charts and stability maps of B2a and the free vibroconverter, redrawn into
 # docs/ by the study commands (about 5 minutes on 2 cores; completed levels are reused).

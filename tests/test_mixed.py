@@ -8,6 +8,7 @@ losses are >= 0, E <= E0 + W_ext.
 from __future__ import annotations
 
 import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -170,3 +171,46 @@ def test_a_rigid_block_slides_on_an_elastic_slab_and_stops_where_coulomb_says(tm
     friction = h["friction_loss"]
     assert np.diff(friction).min() >= -1e-6 * scale and friction[-1] == pytest.approx(scale, rel=0.01)
     check_budget({k: v for k, v in h.items() if k != "friction_loss"}, scale)
+
+
+def plot(outdir: Path, png: Path) -> Path:
+    """The hammer's contact force against Z v0 exp(-Z t / M), and the hammer's speed, from a run of
+    cases/hammer_rod.yaml (its history.csv)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from fem_impact.app.plots import history_columns
+
+    h = history_columns(outdir)
+    s = (h["t"] - T0) * 1e6
+    exact = np.where(s >= 0.0, Z * V0 * np.exp(-Z * np.maximum(s, 0.0) * 1e-6 / M), 0.0)
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    top.plot(s, h["strike.force"], lw=1.0, label="fem-impact (a step's force)")
+    top.plot(s[s <= RETURN * 1e6], exact[s <= RETURN * 1e6], "k--", lw=1.0, label="Z v0 exp(-Z t / M) until 2 L / c")
+    top.axvline(RETURN * 1e6, color="grey", lw=0.5)
+    top.set_ylabel("contact force (N)")
+    top.legend()
+    bottom.plot(s, h["hammer.vx"], lw=1.0)
+    bottom.set_ylabel("hammer speed (m/s)")
+    bottom.set_xlabel("time from the contact (us)")
+    fig.suptitle("A rigid hammer strikes an elastic rod (cases/hammer_rod.yaml)")
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+    return png
+
+
+def main(argv=None) -> None:
+    import argparse
+
+    parser = argparse.ArgumentParser(description="The figure of a hammer_rod run.")
+    parser.add_argument("outdir", type=Path, help="a run's output folder (history.csv)")
+    parser.add_argument("--plot", type=Path, metavar="PNG", required=True, help="where to draw the force")
+    args = parser.parse_args(argv)
+    print(f"wrote {plot(args.outdir, args.plot)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -454,7 +454,7 @@ class BodySection(Section):
 
     model: choice("elastic", "rigid") = Field("elastic", description=(
         "elastic: the finite-element model (the default); rigid: its rigid motion in large rotations, mass, "
-        "centre and inertia from its mesh and material (every body of a scene rigid, for now)"))
+        "centre and inertia from its mesh and material (beside elastic bodies or not)"))
 
 
 class CaseFile(Section):
