@@ -139,10 +139,13 @@ class FrictionProblem:
     SINGLE_TARGET = 1e-7  # the first float32 round's (above its round-off floor)
 
     def __init__(self, W: np.ndarray, tangent_of: np.ndarray, mu: np.ndarray, overwrite: bool = False,
-                 roundoff: np.ndarray | None = None):
+                 roundoff: np.ndarray | None = None, newton_first: bool = True):
         """``roundoff``: s per unknown (W's order), the round-off bound of W's entries ``|dW_ij| <= s_i s_j``
         (``Operators.delassus``); by default that of an entry computed to a few ulps of its size,
-        ``sqrt(64 EPS W_ii)``."""
+        ``sqrt(64 EPS W_ii)``. ``newton_first``: a small problem starts with Newton's method (False: with
+        the sweeps, for a W of low rank by construction, a rigid body's rows: Newton's J is singular there
+        and stalls short of round-off, where the sweeps settle the rows' velocities)."""
+        self.newton_first = newton_first
         _kernels()   # (fails here, and clearly, without Numba)
         self.p, self.mu = mu.size, np.asarray(mu, dtype=float)
         self.blocks = [np.array([i] + [self.p + k for k in np.flatnonzero(tangent_of == i)])
@@ -247,24 +250,35 @@ class FrictionProblem:
             sweep(target, self.NEWTON_AFTER, True)
             if residual <= self.TOLERANCE:
                 break
-        after = self.NEWTON_AFTER_SMALL if idx.size <= self.SMALL else self.NEWTON_AFTER
+        small = 1 < idx.size <= self.SMALL
+        after = self.NEWTON_AFTER_SMALL if small else self.NEWTON_AFTER
+
+        def newton_step() -> bool:
+            """Newton's method from r; kept where it lowers the residual. Whether it reached the tolerance."""
+            nonlocal residual, worst, exact
+            ra_n = self._newton(self.dense(idx), q[idx], r[idx], rows, self._where(rows))
+            trial = np.zeros(n)
+            trial[idx] = ra_n
+            y_n = self.product(trial) + q
+            res_n, worst_n = cone.residual(trial, y_n, q, rows, self.start, self.sizes, self.mu, self.rho)
+            if res_n < residual:
+                r[:], y[:], residual, worst, exact = trial, y_n, res_n, worst_n, True
+            return residual <= self.TOLERANCE
+
+        # A small problem (a block's rows on its floor, coupled through the block): Newton's method first,
+        # from the warm start (a few dense steps, where the sweeps crawl); the sweeps if it falls short.
+        if small and self.newton_first and not split and newton_step():
+            sweeps = 0
         while sweeps < self.MAX_SWEEPS and residual > self.TOLERANCE:
             sweep(self.TOLERANCE, min(after, self.MAX_SWEEPS - sweeps), False)
             if residual <= self.TOLERANCE or sweeps >= self.MAX_SWEEPS:
                 break
             if 1 < idx.size <= self.NEWTON_SIZE:
                 # Gauss-Seidel crawls where the rows are strongly coupled (a stiff body on many rows at a
-                # large step: W nearly singular): Newton's method from where it got to.
+                # large step: W nearly singular): Newton's method from where it got to (a retry).
                 newton += 1
-                ra_n = self._newton(self.dense(idx), q[idx], r[idx], rows, self._where(rows))
-                trial = np.zeros(n)
-                trial[idx] = ra_n
-                y_n = self.product(trial) + q
-                res_n, worst_n = cone.residual(trial, y_n, q, rows, self.start, self.sizes, self.mu, self.rho)
-                if res_n < residual:
-                    r[:], y[:], residual, worst, exact = trial, y_n, res_n, worst_n, True
-                    if residual <= self.TOLERANCE:
-                        break
+                if newton_step():
+                    break
         if not exact:   # y exactly (the sweeps updated it row by row): the residual the solution is judged by
             y = self.product(r) + q
             residual, worst = cone.residual(r, y, q, rows, self.start, self.sizes, self.mu, self.rho)
@@ -317,6 +331,12 @@ class FrictionProblem:
             return cone.alart_curnier(W, np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(r, dtype=float),
                                       starts, sizes, rho, mu, jacobian)
 
+        # Once |F| is far below what the caller's residual accepts (F is that residual's per-row numerator:
+        # the tolerance times the data's size), only full steps are tried, down to round-off: no line
+        # search halving twenty times in round-off at the end.
+        near = 1e-3 * self.TOLERANCE * max(float(np.abs(r).max(initial=0.0)),
+                                           float(np.abs(np.repeat(rho, sizes) * q).max(initial=0.0)), 1e-300)
+        trial_jacobian = r.size <= 4 * self.SMALL   # (a trial's Jacobian, kept when the step is taken: small J only)
         F, J = evaluate(r)
         size = float(F.dot(F))
         for _ in range(iterations):
@@ -324,15 +344,16 @@ class FrictionProblem:
                 break
             d = self._newton_direction(J, F)
             step = 1.0
-            while step > 1e-6:
+            shortest = 1.0 if np.abs(F).max() <= near else 1e-6
+            while step >= shortest:
                 trial = r + step * d
-                F_trial, _ = evaluate(trial, jacobian=False)
+                F_trial, J_trial = evaluate(trial, jacobian=trial_jacobian)
                 if F_trial.dot(F_trial) < size:
                     break
                 step *= 0.5
             else:
                 break
             r = trial
-            F, J = evaluate(r)
+            F, J = (F_trial, J_trial) if trial_jacobian else evaluate(r)
             size = float(F.dot(F))
         return r

@@ -367,7 +367,7 @@ class RigidMoreauJean:
             return out
         q_t = -ops.relative_tangent(rates_free[p:], t1)
         # (W changes as the bodies turn: the problem is built each step, warm-started from the last impulses)
-        self.friction = FrictionProblem(W.copy(), ops.tangent_of, ops.friction)
+        self.friction = FrictionProblem(W.copy(), ops.tangent_of, ops.friction, newton_first=elastic is not None)
         sol = self.friction.solve(np.concatenate([q, q_t]), active, guess=self._r_prev)
         self.friction_residual = max(self.friction_residual, sol.residual)
         self.friction_sweeps = max(self.friction_sweeps, sol.sweeps)

@@ -203,13 +203,13 @@ def restore(obj, state: dict) -> None:
         if kind == "dict":
             return {k: build(v, f"{path}.{k}") for k, v in value[1].items()}
         if kind == "object":
-            return ("object", {k: build(v, f"{path}.{k}") for k, v in value[1].items()})
+            return _Part({k: build(v, f"{path}.{k}") for k, v in value[1].items()})
         raise ValueError(f"unknown entry {kind!r}")
 
     def put(target, name, value):
-        if isinstance(value, tuple) and value and value[0] == "object":
+        if isinstance(value, _Part):   # a part's state: into the part the case built, attribute by attribute
             part = getattr(target, name)
-            for k, v in value[1].items():
+            for k, v in value.items():
                 put(part, k, v)
         else:
             setattr(target, name, value)
@@ -226,6 +226,10 @@ def restore(obj, state: dict) -> None:
         if not isinstance(target, np.ndarray):
             raise ValueError(f"{path}: a link to {source}, which is not an array")
         _set_path(obj, path, target)
+
+
+class _Part(dict):
+    """A part's restored attributes (restore: set into the part itself, not in its place)."""
 
 
 def _own_array(obj, path: str):
