@@ -46,6 +46,7 @@ test-all: setup
 benchmark: setup
 	$(PY) benchmarks/full_model.py
 	$(PY) benchmarks/reduced_model.py
+	$(PY) benchmarks/small_friction.py
 	$(PY) benchmarks/contact_scale.py --sizes 2 4 8
 
 clean:

@@ -35,3 +35,12 @@ def test_scaling_runs_at_a_small_size_with_equal_histories():
     diff, e1, _, e2, gap1, _, gap2 = plate[0][10:]
     assert float(diff) <= 1e-9 and float(e1) <= 1.0 + 1e-12 and float(e2) <= 1.0 + 1e-12
     assert float(gap1) <= 1e-9 and float(gap2) <= 1e-9
+
+
+@pytest.mark.slow
+def test_small_friction_runs_quickly():
+    """benchmarks/small_friction.py --quick: both scenes, with and without friction, a line each."""
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "small_friction.py"), "--quick"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert [line.split(":")[0] for line in proc.stdout.splitlines()] == ["block", "conveyor"]

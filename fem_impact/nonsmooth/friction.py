@@ -33,7 +33,6 @@ the size of the data, ``max(|r|_inf, max_i rho_i |q_i|_inf)``: dimensionless, 0 
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -291,16 +290,13 @@ class FrictionProblem:
     def _newton_direction(J: np.ndarray, F: np.ndarray) -> np.ndarray:
         """``J d = -F`` by LU; by least squares where J is singular to working precision (W may be:
         many impulses give the same velocities) and small enough for it."""
-        from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
+        from scipy.linalg.lapack import dgetrf, dgetrs
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", LinAlgWarning)
-            try:
-                d = lu_solve(lu_factor(J, check_finite=False), -F, check_finite=False)
-                if np.isfinite(d).all():
-                    return d
-            except (LinAlgWarning, ValueError, np.linalg.LinAlgError):
-                pass
+        lu, piv, info = dgetrf(J)   # (LAPACK itself: info > 0 where U has an exact zero on its diagonal)
+        if info == 0:
+            d, info = dgetrs(lu, piv, -F)
+            if info == 0 and np.isfinite(d).all():
+                return d
         if F.size > FrictionProblem.LEAST_SQUARES_SIZE:
             return np.zeros_like(F)
         return np.linalg.lstsq(J, -F, rcond=None)[0]
@@ -327,9 +323,10 @@ class FrictionProblem:
         sizes = np.array([s.stop - s.start for s in where], dtype=np.int64)
         rho, mu = np.asarray(self.rho[rows], dtype=float), np.asarray(self.mu[rows], dtype=float)
 
+        q = np.ascontiguousarray(q, dtype=float)
+
         def evaluate(r, jacobian=True):
-            return cone.alart_curnier(W, np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(r, dtype=float),
-                                      starts, sizes, rho, mu, jacobian)
+            return cone.alart_curnier(W, q, np.ascontiguousarray(r, dtype=float), starts, sizes, rho, mu, jacobian)
 
         # Once |F| is far below what the caller's residual accepts (F is that residual's per-row numerator:
         # the tolerance times the data's size), only full steps are tried, down to round-off: no line
@@ -340,7 +337,7 @@ class FrictionProblem:
         F, J = evaluate(r)
         size = float(F.dot(F))
         for _ in range(iterations):
-            if size == 0.0:
+            if size == 0.0 or np.abs(F).max() <= 1e-3 * near:   # (round-off: 1e-16 of the data's size)
                 break
             d = self._newton_direction(J, F)
             step = 1.0
