@@ -4,8 +4,10 @@ A process started alone is one MPI process: Open MPI need not start a daemon nor
 transports for it (most of a tiny run's start). Shared memory stays among its transports: an mpirun started
 from such a process (a test, a script) passes these settings on to its ranks, which must reach each other. Isolated processes all take job family 0, so they would
 share one session folder, and one process's MPI_Finalize could remove it while another's MPI_Init creates
-its own inside: each gets a base folder of its own, removed at exit. A user's own settings win; mpirun's
-ranks keep theirs (they may span machines).
+its own inside: each gets a base folder of its own, removed at exit. hwloc's OpenGL component is left out:
+at every start it connects to the X displays it finds (:0, :1, ...), and an X server that shuts down during
+that query ends the run ("X connection to :0 broken"); fem-impact places no work on graphics cards. A user's
+own settings win; mpirun's ranks keep theirs (they may span machines).
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ import os
 import shutil
 import tempfile
 
-SERIAL_MPI = {"OMPI_MCA_ess_singleton_isolated": "1", "OMPI_MCA_pml": "ob1", "OMPI_MCA_btl": "self,vader"}
+SERIAL_MPI = {"OMPI_MCA_ess_singleton_isolated": "1", "OMPI_MCA_pml": "ob1", "OMPI_MCA_btl": "self,vader",
+              "HWLOC_COMPONENTS": "-gl"}
 SESSION_BASE = "FEM_IMPACT_MPI_SESSION_BASE"   # the session folder's base fem-impact chose (not the user)
 _LAUNCHED = ("OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK", "PMI_SIZE")
 _OWN: list[str] = []
