@@ -92,3 +92,83 @@ def test_lumped_mass_impact_loss_is_one_over_two_n(tmp_path):
                              f"solver.dt={0.5 / n}", "solver.t_end=2.5", "output.vtk=false")
         loss = (h["impact_loss"][-1] + h["contact_loss"][-1]) / 0.5
         assert loss == pytest.approx(1 / (2 * n), rel=0.02)
+
+
+# --- tractions: a force per unit area, integrated over a node group's boundary faces --------------------
+
+def _traction_model(dim: int, traction, cells: int = 4, elements: str = "hex"):
+    import fem_impact as fi
+    from fem_impact.build import finite_element_model
+
+    mesh = {"shape": "bar", "dim": dim, "length": 1.0, "cells": cells, "elements": elements}
+    if dim > 1:
+        mesh["height"] = 0.5
+    if dim == 3:
+        mesh["width"] = 0.25
+    material = {"E": 200.0, "rho": 1.0, "nu": 0.0 if dim == 1 else 0.3, **({"area": 0.1} if dim < 3 else {})}
+    case = fi.Case.from_dict({"name": "traction", "mesh": mesh, "material": material,
+                              "loads": [{"nodes": "right", "traction": traction}], "solver": {"dt": 0.01, "t_end": 0.01}})
+    return finite_element_model(case, MPI.COMM_SELF)
+
+
+@pytest.mark.parametrize("dim, area", [(1, 0.1), (2, 0.5 * 0.1), (3, 0.5 * 0.25)])
+def test_a_traction_gives_the_force_of_its_area_shared_as_the_elements_share_it(dim, area):
+    """2 Pa along x on the bar's right end: a total of 2 x its area (1D: the section; 2D: height x thickness),
+    on the end's nodes alone; in 2D the end's two edges give their nodes 1/4, 1/2, 1/4 of it."""
+    model = _traction_model(dim, [2.0] + [0.0] * (dim - 1))
+    R = np.zeros(model.U0.getLocalSize())
+    model.load.evaluate(0.0, R)
+    fx = R.reshape(-1, dim)[:, 0]
+    assert fx.sum() == pytest.approx(2.0 * area, rel=1e-12)
+    assert np.abs(R.reshape(-1, dim)[:, 1:]).max(initial=0.0) == 0.0
+    x = model.node_coords[:model.n_owned_nodes, 0]
+    assert np.all(fx[~np.isclose(x, 1.0)] == 0.0)
+    if dim == 2:
+        y = model.node_coords[:model.n_owned_nodes, 1]
+        end = np.isclose(x, 1.0)
+        assert fx[end][np.argsort(y[end])] == pytest.approx(2.0 * area * np.array([0.25, 0.5, 0.25]), rel=1e-12)
+
+
+@pytest.mark.parametrize("dim, elements", [(2, "hex"), (2, "simplex"), (3, "hex"), (3, "simplex")])
+def test_a_uniform_traction_gives_the_uniform_stress_at_every_node(dim, elements):
+    """The patch test of the load: a bar held by symmetry on its left end (x) and at one corner (the rest of
+    the rigid motion), pulled by t on its right end, is in uniform stress sigma_xx = t: every node's static
+    displacement is the linear field u_x = t x / E, u_y = -nu t y / E (3D and plane stress alike, u_z too)
+    to round-off, on quadrilaterals and triangles, hexahedra and tetrahedra."""
+    from petsc4py import PETSc
+
+    t, E, nu = 3.0, 200.0, 0.3
+    model = _traction_model(dim, [t, 0.0] + [0.0] * (dim - 2), cells=6, elements=elements)
+    x = model.node_coords[:model.n_owned_nodes, :dim]
+    held = [k * dim for k in np.flatnonzero(np.isclose(x[:, 0], 0.0))]   # x on the left end
+    corner = np.flatnonzero(np.all(np.isclose(x, 0.0), axis=1))[0]
+    held += [corner * dim + c for c in range(1, dim)]                     # the corner's other components
+    if dim == 3:   # the left end's edge along z through the corner: y held (no spin about x)
+        edge = np.flatnonzero(np.isclose(x[:, 0], 0.0) & np.isclose(x[:, 1], 0.0))
+        held += [k * dim + 1 for k in edge]
+    K = model.K.copy()
+    K.zeroRowsColumns(np.array(held, dtype=np.int32), diag=1.0)
+    R = model.M.createVecRight()
+    model.load.evaluate(0.0, R.array)
+    R.array[held] = 0.0
+    U = R.duplicate()
+    ksp = PETSc.KSP().create(MPI.COMM_SELF)
+    ksp.setOperators(K)
+    ksp.setType("preonly")
+    ksp.getPC().setType("lu")
+    ksp.solve(R, U)
+    exact = np.zeros_like(x)
+    exact[:, 0] = t * x[:, 0] / E
+    for c in range(1, dim):
+        exact[:, c] = -nu * t * x[:, c] / E
+    assert U.array.reshape(-1, dim) == pytest.approx(exact, abs=1e-12 * t / E)
+
+
+def test_a_traction_and_a_force_on_one_load_are_refused(tmp_path):
+    import fem_impact as fi
+    from fem_impact.errors import CaseError
+
+    with pytest.raises(CaseError, match=r"loads\[0\]\.traction.*not both"):
+        fi.Case.from_dict({"name": "t", "mesh": {"shape": "bar"}, "material": {"E": 1.0, "rho": 1.0},
+                           "loads": [{"nodes": "right", "force": [1.0], "traction": [1.0]}],
+                           "solver": {"dt": 0.01, "t_end": 0.01}})

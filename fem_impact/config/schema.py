@@ -204,23 +204,34 @@ class SupportSection(Section):
 
 
 class LoadSection(Section):
-    """An item of ``loads``: a force on a node group, or an acceleration of a body (gravity)."""
+    """An item of ``loads``: a force or a traction on a node group, or an acceleration of a body (gravity)."""
 
-    nodes: Name = Field(None, description="the node group the force acts on (shared equally by its nodes)")
+    nodes: Name = Field(None, description="the node group the force or the traction acts on")
     body: Name = Field(None, description="the body accelerated: all, or a cell group of the mesh file")
-    force: vector(expression(TIME)) = key("N", "total force on the node group (expressions in t)")
+    force: vector(expression(TIME)) = key("N", "total force on the node group, shared equally by its nodes "
+                                               "(expressions in t)")
+    traction: vector(expression(TIME)) = key("Pa", "force per unit area on the boundary faces (2D: edges, times "
+                                                   "the thickness) whose nodes are all in the group, integrated "
+                                                   "into consistent nodal forces (expressions in t)")
     acceleration: vector(expression(TIME)) = key("m/s^2", "body acceleration (expressions in t)")
 
     @model_validator(mode="after")
     def _one_kind(self):
         if (self.nodes is None) == (self.body is None):
-            raise _Invalid((), "give either 'nodes' (with 'force') or 'body' (with 'acceleration')")
-        on, wanted, other = (("nodes", "force", "acceleration") if self.nodes is not None
-                             else ("body", "acceleration", "force"))
-        if getattr(self, other) is not None:
-            raise _Invalid((other,), f"not allowed with '{on}' (use '{wanted}')")
-        if getattr(self, wanted) is None:
-            raise _Invalid((wanted,), f"missing required key (a load on '{on}' needs '{wanted}')")
+            raise _Invalid((), "give either 'nodes' (with 'force' or 'traction') or 'body' (with 'acceleration')")
+        if self.nodes is not None:
+            if self.acceleration is not None:
+                raise _Invalid(("acceleration",), "not allowed with 'nodes' (use 'force' or 'traction')")
+            if self.force is not None and self.traction is not None:
+                raise _Invalid(("traction",), "give 'force' (a total) or 'traction' (per unit area), not both")
+            if self.force is None and self.traction is None:
+                raise _Invalid(("force",), "missing required key (a load on 'nodes' needs 'force' or 'traction')")
+            return self
+        for other in ("force", "traction"):
+            if getattr(self, other) is not None:
+                raise _Invalid((other,), "not allowed with 'body' (use 'acceleration')")
+        if self.acceleration is None:
+            raise _Invalid(("acceleration",), "missing required key (a load on 'body' needs 'acceleration')")
         return self
 
     def spec(self) -> Load:

@@ -192,9 +192,41 @@ def assemble_vector(form) -> PETSc.Vec:
     return b
 
 
+def assemble_scalar(form) -> float:
+    """This rank's part of a scalar form's value (the caller sums over the ranks)."""
+    return float(fem.assemble_scalar(fem.form(form)))
+
+
 def body_measure(msh: Mesh, cell_tags):
     """Cell measure that can be restricted to a body with ``dx(tag)``."""
     return ufl.Measure("dx", domain=msh, subdomain_data=cell_tags)
+
+
+def boundary_facet_measure(msh: Mesh, vertices: np.ndarray, cell_tags, bodies: dict[str, int]):
+    """The boundary facets (edges in 2D, faces in 3D, end points in 1D) whose vertices are all in
+    ``vertices`` (local indices), tagged by the body of the cell they bound (its cell tag; 1 where the mesh
+    has one body): ``(ds, {body: tag})``, ``ds(tag)`` integrating over that body's facets."""
+    tdim = msh.topology.dim
+    fdim = tdim - 1
+    msh.topology.create_connectivity(fdim, 0)
+    msh.topology.create_connectivity(fdim, tdim)
+    outside = mesh.exterior_facet_indices(msh.topology)
+    f2v, f2c = msh.topology.connectivity(fdim, 0), msh.topology.connectivity(fdim, tdim)
+    inside = np.zeros(msh.topology.index_map(0).size_local + msh.topology.index_map(0).num_ghosts, dtype=bool)
+    inside[vertices] = True
+    facets = np.array([f for f in outside if inside[f2v.links(f)].all()], dtype=np.int32)
+    if cell_tags is None:
+        tags = {name: 1 for name in bodies}
+        values = np.ones(facets.size, dtype=np.int32)
+    else:
+        tag_of_cell = np.zeros(msh.topology.index_map(tdim).size_local + msh.topology.index_map(tdim).num_ghosts,
+                               dtype=np.int32)
+        tag_of_cell[cell_tags.indices] = cell_tags.values
+        tags = dict(bodies)
+        values = np.array([tag_of_cell[f2c.links(f)[0]] for f in facets], dtype=np.int32)
+    order = np.argsort(facets)
+    marked = mesh.meshtags(msh, fdim, facets[order], values[order])
+    return ufl.Measure("ds", domain=msh, subdomain_data=marked), tags
 
 
 def function(V, name: str):

@@ -426,7 +426,27 @@ def _loads(spec, meshdata, V, bs, materials, dim, dxm, fixed, hypothesis, motion
 
     w = ufl.TestFunction(V)
     for i, load in enumerate(spec.loads):
-        if load.nodes is not None:
+        if load.traction is not None:
+            key = ("loads", i, "traction")
+            if load.nodes not in meshdata.node_groups:
+                node_set(meshdata, V, load.nodes, ("loads", i, "nodes"))   # (its error: no such group)
+            ds, tags = dx.boundary_facet_measure(meshdata.mesh, meshdata.node_groups[load.nodes],
+                                                 meshdata.cell_tags, meshdata.bodies)
+            area = meshdata.comm.allreduce(sum(dx.assemble_scalar(1.0 * _section(materials[body], dim, hypothesis,
+                                                                                 meshdata.mesh) * ds(tag))
+                                               for body, tag in tags.items()))
+            if not area > 0.0:
+                raise ModelInputError(("loads", i, "nodes"), f"node group '{load.nodes}' holds no boundary "
+                                                             f"{'edge' if dim == 2 else 'face' if dim == 3 else 'end'} "
+                                                             "of the mesh: a traction acts on one")
+            for comp, expr in enumerate(pad_vector(load.traction, dim, key, "traction")):
+                if _is_zero(expr):
+                    continue
+                unit = ufl.as_vector([1.0 if j == comp else 0.0 for j in range(dim)])
+                form = sum(_section(materials[body], dim, hypothesis, meshdata.mesh) * ufl.inner(unit, w) * ds(tag)
+                           for body, tag in tags.items())
+                add(expr, dx.assemble_vector(form), key)
+        elif load.nodes is not None:
             key = ("loads", i, "force")
             nodes = node_set(meshdata, V, load.nodes, ("loads", i, "nodes"))
             owned = nodes.local_node[nodes.local_node >= 0]

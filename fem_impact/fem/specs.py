@@ -79,6 +79,7 @@ class Load:
     body: str | None = None
     force: list[Expression] | None = None
     acceleration: list[Expression] | None = None
+    traction: list[Expression] | None = None
 
 
 @dataclass

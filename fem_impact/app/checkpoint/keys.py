@@ -45,7 +45,8 @@ def load_keys(case) -> dict:
     from the checkpoint's time on (a parameter the model uses too is also in ``model_keys``)."""
     out: dict = {}
     _flatten(case.resolved()["loads"], "loads", out)
-    expressions = [e for load in case.loads for e in [*(load.force or ()), *(load.acceleration or ())]]
+    expressions = [e for load in case.loads
+                   for e in [*(load.force or ()), *(load.acceleration or ()), *(load.traction or ())]]
     for name in _parameters_of(case, expressions):
         out[f"parameters.{name}"] = case.parameters[name]
     return out
