@@ -147,7 +147,7 @@ def test_paraview_reads_the_series(runs, tmp_path):
 @needs_pvpython
 @pytest.mark.skipif(XVFB is None, reason="Xvfb not found (Debian package `xvfb`): Debian's ParaView renders "
                                          "through X, so view.py needs a (virtual) display")
-@pytest.mark.parametrize("dim", [1, 2])
+@pytest.mark.parametrize("dim", [1, pytest.param(2, marks=pytest.mark.slow)])   # (2D: 12 s, the same script)
 def test_view_script_renders_a_screenshot(runs, tmp_path, dim):
     from PIL import Image
 

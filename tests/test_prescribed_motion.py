@@ -92,6 +92,7 @@ def impulse_per_period(h, f=2.7, periods=8):
     return np.bincount(k, weights=h["stop.impulse"][1:], minlength=periods)[:periods]
 
 
+@pytest.mark.slow   # (20 s: the reduced model's moving supports stay in the default tier through tests/test_restart.py)
 def test_a_base_excited_cantilever_hits_its_stop_alike_in_the_full_and_the_reduced_model():
     """The clamp shaken at 2.7 Hz (first bending mode 2.80 Hz) by 20 um; the tip on an elastic stop
     0.1 mm away. The reduced model (10 fixed-base modes and the static correction, which holds the

@@ -51,6 +51,7 @@ def test_shooting_finds_the_period_one_orbit_and_its_multipliers():
         assert orbit.stable and orbit.residual <= 1e-10
 
 
+@pytest.mark.slow   # (16 s: the shaken table's event-driven sweep finds a period doubling in the default tier)
 def test_an_up_sweep_finds_period_one_then_period_two_past_the_period_doubling(tmp_path):
     """Event-driven levels: the settled section has period 1 below the period doubling and 2 above;
     the period-1 points give the closed-form impact speed; the shooting's multiplier crosses -1 at

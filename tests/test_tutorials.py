@@ -86,8 +86,9 @@ def test_response_sweep(values, periods, shooting, tmp_path, monkeypatch):
         assert 4 * mark["parameters.f"] == pytest.approx(2.6533477, abs=0.005)
 
 
-@pytest.mark.parametrize("t_end, gammas, conveyor", [(0.2, (1.3, 1.55), 5),
-                                                     pytest.param(0.4, (1.3, 1.5, 1.55), 10, marks=pytest.mark.slow)])
+@pytest.mark.slow   # (9 s: its pieces, the ball's phase and periods, the sweep and the rigid part, are tested in
+                   # tests/test_moving_obstacles.py, test_periods.py and test_rigid.py in the default tier)
+@pytest.mark.parametrize("t_end, gammas, conveyor", [(0.2, (1.3, 1.55), 5), (0.4, (1.3, 1.5, 1.55), 10)])
 def test_shaken_table(t_end, gammas, conveyor, tmp_path, monkeypatch):
     out = tutorial("shaken_table", tmp_path, monkeypatch).main(tmp_path / "out", t_end, gammas, conveyor)
     assert abs(out["phase"] - 0.5) * 360 <= 0.5                       # the orbit's impact at T/2
