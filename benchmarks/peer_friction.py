@@ -1,6 +1,10 @@
 """fem-impact's frictional contact solver against Siconos' fc3d solvers on the same problems.
 
     .venv/bin/python benchmarks/peer_friction.py [--sizes 2 4 8] [--steps 3 4 5 6] [--mu 0.3]
+                                                 [--small block conveyor] [--small-steps 200 1000 2000 2900]
+
+The small models (benchmarks/small_friction.py's 2D block and conveyor part, their own mu) go to
+Siconos' fc2d solvers (NSGS, CPG, LEMKE) the same way.
 
 Siconos 4.4 is a peer to compare against, never a dependency: Debian's package, installed with
 ``apt-get install -y python3-siconos`` (as root), runs in a separate /usr/bin/python3 process
@@ -47,41 +51,51 @@ PEER_PYTHON = "/usr/bin/python3"
 # Siconos solver: iteration cap (NSGS: fem-impact's MAX_SWEEPS; Newton steps are dense and few; ADMM at
 # 1681 rows: 20000 iterations, 5 to 12 min a problem, still 2e-6, so capped lower).
 SOLVERS = {"NSGS": 2000, "NSN_AC": 200, "NSN_FB": 200, "ADMM": 5000}
+# Siconos' fc2d solvers (2D problems: the small models): Gauss-Seidel, conjugate projected gradient, Lemke's
+# method on the LCP of the faceted cone (its enumeration solver, 2^n cases, did not end in 10 minutes on the
+# block's 27 unknowns)
+SOLVERS_2D = {"NSGS": 2000, "CPG": 2000, "LEMKE": 2000}
 
 PEER = r'''
 import json, sys, time
 import numpy as np
 import siconos.numerics as sn
 d = np.load(sys.argv[1]); solvers = json.loads(sys.argv[2]); tol = float(sys.argv[3]); out = {}
+dim = int(d["dim"]) if "dim" in d else 3
+prefix, driver = ("SICONOS_FRICTION_2D_", sn.fc2d_driver) if dim == 2 else ("SICONOS_FRICTION_3D_", sn.fc3d_driver)
 for j in range(int(d["count"])):
     W, q, mu = d[f"W{int(d['w_of'][j])}"], d[f"q{j}"], d[f"mu{j}"]
-    fcp = sn.FrictionContactProblem(3, W, q, mu)
-    error = lambda r: sn.fc3d_compute_error(fcp, r, W @ r + q, tol, sn.SolverOptions(sn.SICONOS_FRICTION_3D_NSGS),
-                                            np.linalg.norm(q))[1]
-    out[f"ferr_warm{j}"], out[f"ferr_zero{j}"] = error(d[f"r_warm{j}"]), error(d[f"r_zero{j}"])
+    fcp = sn.FrictionContactProblem(dim, W, q, mu)
+    if dim == 3:   # (Siconos' Python API has no fc2d error: in 2D each solver's own final error is shown)
+        error = lambda r: sn.fc3d_compute_error(fcp, r, W @ r + q, tol, sn.SolverOptions(sn.SICONOS_FRICTION_3D_NSGS),
+                                                np.linalg.norm(q))[1]
+        out[f"ferr_warm{j}"], out[f"ferr_zero{j}"] = error(d[f"r_warm{j}"]), error(d[f"r_zero{j}"])
+    else:
+        out[f"ferr_warm{j}"] = out[f"ferr_zero{j}"] = float("nan")
     for name, cap in solvers.items():
-        options = sn.SolverOptions(getattr(sn, "SICONOS_FRICTION_3D_" + name))
+        options = sn.SolverOptions(getattr(sn, prefix + name))
         options.dparam[sn.SICONOS_DPARAM_TOL], options.iparam[sn.SICONOS_IPARAM_MAX_ITER] = tol, cap
         r, u = np.zeros(q.size), np.zeros(q.size)
         t0 = time.perf_counter()
-        info = sn.fc3d_driver(fcp, r, u, options)
+        info = driver(fcp, r, u, options)
         out[f"t_{name}{j}"] = time.perf_counter() - t0
         out[f"r_{name}{j}"], out[f"info_{name}{j}"] = r, info
-        out[f"it_{name}{j}"], out[f"err_{name}{j}"] = options.iparam[sn.SICONOS_IPARAM_ITER_DONE], error(r)
+        out[f"it_{name}{j}"] = options.iparam[sn.SICONOS_IPARAM_ITER_DONE]
+        out[f"err_{name}{j}"] = error(r) if dim == 3 else options.dparam[sn.SICONOS_DPARAM_RESIDU]
 np.savez(sys.argv[4], **out)
 '''
 
 
-def export(cells: int, mu: float, steps: list[int], out: Path) -> None:
-    """Run the plate (contact_scale.measure) with FrictionProblem.solve recorded on ``steps``; save to ``out``."""
+def export(run, dim: int, steps: list[int], out: Path) -> None:
+    """``run()`` (a run through the pipeline) with FrictionProblem.solve recorded on ``steps``; save to ``out``."""
     from fem_impact.app import pipeline
     from fem_impact.nonsmooth.friction import FrictionProblem
 
     init, solve, make = FrictionProblem.__init__, FrictionProblem.solve, pipeline.make_integrator
     step, data, blocks = [0], {}, {}
 
-    def counting_make(case, ops):   # the step number, for choosing which solves to keep
-        integrator = make(case, ops)
+    def counting_make(case, *args):   # the step number, for choosing which solves to keep
+        integrator = make(case, *args)
         plain = integrator.step
 
         def counted():
@@ -106,8 +120,8 @@ def export(cells: int, mu: float, steps: list[int], out: Path) -> None:
         W, tangent_of, mus = self._peer_args
         p, rows = mus.size, np.flatnonzero(active)
         tangents = [p + np.flatnonzero(tangent_of == i) for i in rows]
-        assert all(t.size == 2 for t in tangents), "every closed row takes two tangent rows (3D, mu > 0)"
-        order = np.concatenate([np.r_[i, t] for i, t in zip(rows, tangents, strict=True)])   # contact-major [N, T1, T2]
+        assert all(t.size == dim - 1 for t in tangents), f"every closed row takes {dim - 1} tangent rows (mu > 0)"
+        order = np.concatenate([np.r_[i, t] for i, t in zip(rows, tangents, strict=True)])   # contact-major [N, T...]
         key = (id(self), order.tobytes())
         if key not in blocks:   # W is the same over the steps while the closed rows are: saved once
             blocks[key] = len(blocks)
@@ -124,16 +138,27 @@ def export(cells: int, mu: float, steps: list[int], out: Path) -> None:
 
     FrictionProblem.__init__, FrictionProblem.solve = keeping_init, recording_solve
     pipeline.make_integrator = counting_make
-    contact_scale.measure(cells, "each", max(steps) + 1, "moreau_jean", mu)
-    np.savez(out, count=len(data.get("step", [])), **{k: np.asarray(v) for k, v in data.items()})
+    run()
+    np.savez(out, count=len(data.get("step", [])), dim=dim, **{k: np.asarray(v) for k, v in data.items()})
 
 
-def fem_residual(W: np.ndarray, q: np.ndarray, mu: np.ndarray, r: np.ndarray) -> float:
+def small_scene(name: str, steps: list[int]):
+    """The small models of benchmarks/small_friction.py (2D), run to the last of ``steps``."""
+    import fem_impact as fi
+    import small_friction
+
+    case = (fi.load_case(small_friction.ROOT / "cases" / "sliding_block.yaml", small_friction.BLOCK)
+            if name == "block" else small_friction.conveyor(3.0))
+    case = case.with_changes({"solver.t_end": (max(steps) + 1) * case.solver.dt})
+    return lambda: fi.run(case)
+
+
+def fem_residual(W: np.ndarray, q: np.ndarray, mu: np.ndarray, r: np.ndarray, dim: int = 3) -> float:
     """fem-impact's residual (friction.py's module docstring), implemented here from that formula:
     per contact |r - proj_K(r - rho (y + mu |y_T| e_N))|, rho = 1 / W_NN, y = W r + q, the largest
     over the contacts divided by max(|r|_inf, max_i rho_i |q_i|_inf)."""
-    y, rho = (W @ r + q).reshape(-1, 3), 1.0 / np.diag(W)[0::3]
-    rc, qc = r.reshape(-1, 3), q.reshape(-1, 3)
+    y, rho = (W @ r + q).reshape(-1, dim), 1.0 / np.diag(W)[0::dim]
+    rc, qc = r.reshape(-1, dim), q.reshape(-1, dim)
     shifted = y[:, 0] + mu * np.linalg.norm(y[:, 1:], axis=1)
     zn, zt = rc[:, 0] - rho * shifted, rc[:, 1:] - rho[:, None] * y[:, 1:]
     nt = np.linalg.norm(zt, axis=1)
@@ -145,15 +170,18 @@ def fem_residual(W: np.ndarray, q: np.ndarray, mu: np.ndarray, r: np.ndarray) ->
     return float(row.max() / max(size, np.finfo(float).tiny))
 
 
-def compare(cells: int, args, tmp: Path) -> list[dict]:
-    """Export one size in a child process, run the peer on it; the table's rows."""
+def compare(cells, args, tmp: Path) -> list[dict]:
+    """Export one problem family in a child process (a plate size, or a small scene's name), run the peer on
+    it; the table's rows."""
     problems, peer = tmp / f"problems{cells}.npz", tmp / f"peer{cells}.npz"
+    steps = args.small_steps if isinstance(cells, str) else args.steps
     child = subprocess.run([sys.executable, __file__, "--export", str(cells), str(problems), "--mu", str(args.mu),
-                            "--steps", *map(str, args.steps)], capture_output=True, text=True)
+                            "--steps", *map(str, steps)], capture_output=True, text=True)
     if child.returncode:
-        sys.exit(f"peer_friction: the export at size {cells} failed (status {child.returncode}):\n"
+        sys.exit(f"peer_friction: the export of {cells} failed (status {child.returncode}):\n"
                  f"{child.stderr[-3000:]}")
-    solvers = {name: SOLVERS[name] for name in args.solvers}
+    dim = int(np.load(problems)["dim"])
+    solvers = ({name: SOLVERS[name] for name in args.solvers} if dim == 3 else dict(SOLVERS_2D))
     proc = subprocess.run([PEER_PYTHON, "-c", PEER, str(problems), json.dumps(solvers), str(TOLERANCE), str(peer)],
                           capture_output=True, text=True)
     if proc.returncode:
@@ -163,7 +191,7 @@ def compare(cells: int, args, tmp: Path) -> list[dict]:
     for j in range(int(d["count"])):
         W, q, mu = d[f"W{int(d['w_of'][j])}"], d[f"q{j}"], d[f"mu{j}"]
         for start in ("warm", "zero"):
-            mine = fem_residual(W, q, mu, d[f"r_{start}{j}"])
+            mine = fem_residual(W, q, mu, d[f"r_{start}{j}"], dim)
             if abs(mine - d[f"res_{start}"][j]) > 1e-2 * mine + 1e-14:   # this formula against friction.py's own
                 print(f"note: residual formula {mine:.3e} against fem-impact's reported {d[f'res_{start}'][j]:.3e}")
             rows.append(dict(cells=cells, rows=mu.size, step=int(d["step"][j]), solver=f"fem-impact {start}",
@@ -172,24 +200,34 @@ def compare(cells: int, args, tmp: Path) -> list[dict]:
         for name in solvers:
             rows.append(dict(cells=cells, rows=mu.size, step=int(d["step"][j]), solver=f"Siconos {name}",
                              t=float(s[f"t_{name}{j}"]), err=float(s[f"err_{name}{j}"]),
-                             res=fem_residual(W, q, mu, s[f"r_{name}{j}"]), it=int(s[f"it_{name}{j}"]),
+                             res=fem_residual(W, q, mu, s[f"r_{name}{j}"], dim), it=int(s[f"it_{name}{j}"]),
                              conv=int(s[f"info_{name}{j}"]) == 0))
     return rows
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--sizes", type=int, nargs="+", default=[2, 4],
-                        help="cells through the plate's thickness: (5 n + 1)^2 rows (default 2 4; 8: 1681 rows)")
+    parser.add_argument("--sizes", type=int, nargs="*", default=[2, 4],
+                        help="cells through the plate's thickness: (5 n + 1)^2 rows (default 2 4; 8: 1681 rows; --sizes alone: none)")
     parser.add_argument("--steps", type=int, nargs="+", default=[3, 4, 5, 6],
                         help="the steps whose problems are exported (default 3 4 5 6: all rows closed)")
     parser.add_argument("--mu", type=float, default=0.3, help="Coulomb's coefficient on every row (default 0.3)")
     parser.add_argument("--solvers", nargs="+", choices=list(SOLVERS), default=list(SOLVERS),
                         help="Siconos' fc3d solvers to run (default all: " + " ".join(SOLVERS) + ")")
-    parser.add_argument("--export", nargs=2, metavar=("CELLS", "OUT"), help=argparse.SUPPRESS)
+    parser.add_argument("--small", nargs="*", choices=["block", "conveyor"], default=["block", "conveyor"],
+                        help="the small 2D models of benchmarks/small_friction.py against Siconos' fc2d solvers "
+                             "(default both; --small alone: none)")
+    parser.add_argument("--small-steps", type=int, nargs="+", default=[200, 1000, 2000, 2900],
+                        help="their steps whose problems are exported (default 200 1000 2000 2900)")
+    parser.add_argument("--export", nargs=2, metavar=("WHAT", "OUT"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.export:
-        export(int(args.export[0]), args.mu, args.steps, Path(args.export[1]))
+        what, out = args.export
+        if what.isdigit():
+            export(lambda: contact_scale.measure(int(what), "each", max(args.steps) + 1, "moreau_jean", args.mu), 3,
+                   args.steps, Path(out))
+        else:   # (a small scene: its own mu)
+            export(small_scene(what, args.steps), 2, args.steps, Path(out))
         return
     try:
         missing = subprocess.run([PEER_PYTHON, "-c", "import siconos.numerics"], capture_output=True).returncode
@@ -200,15 +238,16 @@ def main() -> None:
         sys.exit(2)
     header = (f"{'rows':>6}{'step':>5}  {'solver':<18}{'time ms':>10}{'Siconos error':>15}{'fem-impact res':>16}"
               f"{'iters':>7}  conv")
-    print(f"mu = {args.mu}, tolerance {TOLERANCE:g}; fem-impact warm: started from the previous step's impulses "
-          "(as in the run), all others from zero")
+    print(f"mu = {args.mu} on the plates (the small scenes: their own), tolerance {TOLERANCE:g}; fem-impact warm: "
+          "started from the previous step's impulses (as in the run), all others from zero; Siconos error: "
+          "fc3d_compute_error in 3D, each fc2d solver's own final error in 2D")
     print(header + "\n" + "-" * len(header))
     table = []
     with tempfile.TemporaryDirectory() as tmp:
-        for cells in args.sizes:
+        for cells in [*args.small, *args.sizes]:
             for row in compare(cells, args, Path(tmp)):
                 table.append(row)
-                print(f"{row['rows']:>6}{row['step']:>5}  {row['solver']:<18}{1e3 * row['t']:>10.1f}{row['err']:>15.2e}"
+                print(f"{row['rows']:>6}{row['step']:>5}  {row['solver']:<18}{1e3 * row['t']:>10.3f}{row['err']:>15.2e}"
                       f"{row['res']:>16.2e}{row['it']:>7}  {'yes' if row['conv'] else 'NO'}", flush=True)
     # The goal, per problem: fem-impact's residual equal or better (both under the tolerance: equal) in less time.
     problems = sorted({(r["cells"], r["step"]) for r in table})
