@@ -102,39 +102,12 @@ def test_a_mixed_scenes_run_continues_from_its_checkpoint_exactly(tmp_path):
         assert continued[name] == pytest.approx(whole[name][-n:], rel=1e-12, abs=1e-14), name
 
 
-def slab_mesh(folder, h: float = 0.01):
-    """2D: a slab 0.6 x 0.05 (body ``slab``; node groups ``base``, y = 0, and ``top``, its middle third) under a
-    block 0.2 x 0.05 (body ``block``; node group ``bottom``) resting on it, centred, 1e-6 above (node-to-node
-    pairs: the block slides a few cells, small against its length); quadrilaterals of size h."""
-    import gmsh
-
-    gmsh.initialize(["", "-v", "0"])
-    try:
-        gmsh.model.add("slab")
-        occ = gmsh.model.occ
-        thirds = [(2, occ.addRectangle(x, 0.0, 0.0, 0.2, 0.05)) for x in (0.0, 0.2, 0.4)]
-        slab = [tag for _, tag in occ.fragment(thirds, [])[0]]
-        block = occ.addRectangle(0.2, 0.05 + 1e-6, 0.0, 0.2, 0.05)
-        occ.synchronize()
-        for surface in (*slab, block):   # (structured quadrilaterals)
-            for _, curve in gmsh.model.getBoundary([(2, surface)], oriented=False):
-                x0, y0, _, x1, y1, _ = gmsh.model.getBoundingBox(1, curve)
-                gmsh.model.mesh.setTransfiniteCurve(curve, max(1, round(max(x1 - x0, y1 - y0) / h)) + 1)
-            gmsh.model.mesh.setTransfiniteSurface(surface)
-            gmsh.model.mesh.setRecombine(2, surface)
-
-        def edge(y, x0, x1):
-            return [t for _, t in gmsh.model.getEntitiesInBoundingBox(x0 - 1e-7, y - 1e-7, -1, x1 + 1e-7, y + 1e-7, 1, 1)]
-
-        for name, dim, tags in (("slab", 2, slab), ("block", 2, [block]), ("base", 1, edge(0.0, 0.0, 0.6)),
-                                ("top", 1, edge(0.05, 0.2, 0.4)), ("bottom", 1, edge(0.05 + 1e-6, 0.2, 0.4))):
-            gmsh.model.setPhysicalName(dim, gmsh.model.addPhysicalGroup(dim, tags), name)
-        gmsh.model.mesh.generate(2)
-        path = folder / "slab.msh"
-        gmsh.write(str(path))
-    finally:
-        gmsh.finalize()
-    return path
+def slab_mesh(folder):
+    """meshes/block_on_slab.py's slab and block."""
+    spec = importlib.util.spec_from_file_location("block_on_slab", ROOT / "meshes" / "block_on_slab.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.build(folder / "slab.msh")
 
 
 def test_a_rigid_block_slides_on_an_elastic_slab_and_stops_where_coulomb_says(tmp_path):

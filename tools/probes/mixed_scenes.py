@@ -600,43 +600,13 @@ _interrupted(2)
 
 
 # -- a 2D scene: a rigid block on an elastic slab ---------------------------------------------------------
-SLAB_SCRIPT = '''
-import sys
-import gmsh
-
-h, path = 0.01, sys.argv[1]
-gmsh.initialize(["", "-v", "0"])
-gmsh.model.add("slab")
-occ = gmsh.model.occ
-thirds = [(2, occ.addRectangle(x, 0.0, 0.0, 0.2, 0.05)) for x in (0.0, 0.2, 0.4)]
-slab = [tag for _, tag in occ.fragment(thirds, [])[0]]
-block = occ.addRectangle(0.2, 0.05 + 1e-6, 0.0, 0.2, 0.05)
-occ.synchronize()
-for surface in (*slab, block):
-    for _, curve in gmsh.model.getBoundary([(2, surface)], oriented=False):
-        x0, y0, _, x1, y1, _ = gmsh.model.getBoundingBox(1, curve)
-        gmsh.model.mesh.setTransfiniteCurve(curve, max(1, round(max(x1 - x0, y1 - y0) / h)) + 1)
-    gmsh.model.mesh.setTransfiniteSurface(surface)
-    gmsh.model.mesh.setRecombine(2, surface)
-
-def edge(y, x0, x1):
-    return [t for _, t in gmsh.model.getEntitiesInBoundingBox(x0 - 1e-7, y - 1e-7, -1, x1 + 1e-7, y + 1e-7, 1, 1)]
-
-for name, dim, tags in (("slab", 2, slab), ("block", 2, [block]), ("base", 1, edge(0.0, 0.0, 0.6)),
-                        ("top", 1, edge(0.05, 0.2, 0.4)), ("bottom", 1, edge(0.05 + 1e-6, 0.2, 0.4)),
-                        ("lid", 1, edge(0.1 + 1e-6, 0.2, 0.4))):
-    gmsh.model.setPhysicalName(dim, gmsh.model.addPhysicalGroup(dim, tags), name)
-gmsh.model.mesh.generate(2)
-gmsh.write(path)
-gmsh.finalize()
-'''
 
 
 def _slab_mesh(ctx) -> Path:
-    """tests/test_mixed.py's slab (body ``slab``, node groups ``base`` and ``top``) under a block (body ``block``,
-    node groups ``bottom`` and ``lid``, its top), written once by Gmsh in a process of its own."""
+    """meshes/block_on_slab.py's slab (body ``slab``, node groups ``base`` and ``top``) under a block (body
+    ``block``, node groups ``bottom`` and ``lid``, its top), written once by Gmsh in a process of its own."""
     def build(folder):
-        r = ctx.run("-c", SLAB_SCRIPT, folder / "slab.msh", python=True)
+        r = ctx.run(str(ROOT / "meshes" / "block_on_slab.py"), "-o", folder / "slab.msh", python=True)
         if r.status != 0 or not (folder / "slab.msh").is_file():
             raise RuntimeError(f"the slab's mesh could not be made: {r.tail()}")
     return ctx.shared("mixed-slab-mesh", build) / "slab.msh"
