@@ -172,3 +172,24 @@ def test_a_traction_and_a_force_on_one_load_are_refused(tmp_path):
         fi.Case.from_dict({"name": "t", "mesh": {"shape": "bar"}, "material": {"E": 1.0, "rho": 1.0},
                            "loads": [{"nodes": "right", "force": [1.0], "traction": [1.0]}],
                            "solver": {"dt": 0.01, "t_end": 0.01}})
+
+
+def test_a_traction_in_t_and_a_parameter_runs_and_is_written_resolved(tmp_path):
+    """A traction ``p*t`` on the end of a free 2D bar: the parameter counts as used, case.resolved.yaml keeps
+    the expression, and the bar's momentum is the traction's impulse times the end's area (the trapezoidal
+    rule is exact on a linear load)."""
+    import yaml
+
+    import fem_impact as fi
+
+    data = {"name": "pulled", "parameters": {"p": 3.0},
+            "mesh": {"shape": "bar", "dim": 2, "length": 1.0, "height": 0.1, "cells": 10},
+            "material": {"E": 100.0, "rho": 1.0, "nu": 0.3, "area": 0.5},
+            "loads": [{"nodes": "right", "traction": ["p*t", 2.0]}],
+            "solver": {"dt": 0.01, "t_end": 0.5}, "output": {"vtk": False}}
+    result = fi.run(fi.Case.from_dict(data), tmp_path / "out")
+    resolved = yaml.safe_load((tmp_path / "out" / "case.resolved.yaml").read_text())
+    assert resolved["loads"][0]["traction"][0] == "p*t"
+    t, area = result.history["t"][-1], 0.1 * 0.5
+    assert result.history["bar.px"][-1] == pytest.approx(0.5 * 3.0 * t * t * area, rel=1e-9)
+    assert result.history["bar.py"][-1] == pytest.approx(2.0 * t * area, rel=1e-9)

@@ -176,7 +176,7 @@ class Case:
         data["supports"] = [{"nodes": s.nodes, "fix": "all" if s.all_components else [COMPONENTS[i] for i in s.fix],
                              **({} if s.displacement is None else {"displacement": _sources(s.displacement)})}
                             for s in self.supports]
-        data["loads"] = [{key: _sources(value) if key in ("force", "acceleration") else value
+        data["loads"] = [{key: _sources(value) if key in ("force", "acceleration", "traction") else value
                           for key, value in vars(load).items() if value is not None}
                          for load in self.loads]
         data["contacts"] = [_contact_data(c) for c in self.contacts]
@@ -199,7 +199,7 @@ class Case:
             for comp, expr in enumerate(support.displacement or ()):
                 yield ("supports", i, "displacement", comp), expr
         for i, load in enumerate(self.loads):
-            for name in ("force", "acceleration"):
+            for name in ("force", "traction", "acceleration"):
                 for comp, expr in enumerate(getattr(load, name) or ()):
                     yield ("loads", i, name, comp), expr
         for i, contact in enumerate(self.contacts):

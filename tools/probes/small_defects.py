@@ -387,7 +387,9 @@ def _script_help(ctx):
     wanted = {"vibroconverter_axi.py": ("--length", "--r-large", "--r-small", "--split", "in m", "default"),
               "vibromotor.py": ("--driver-width", "--driver-height", "--slider-length", "--slider-thickness", "in m"),
               "vibroconverter.py": ("--length", "--split", "in m"), "two_bars.py": ("--length", "--gap", "--cells"),
-              "vibrodrive.py": ("--length", "--width", "--alpha", "in m")}
+              "vibrodrive.py": ("--length", "--width", "--alpha", "in m"),
+              "hammer_rod.py": ("--length", "--side", "--hammer", "--gap", "--cells", "default 0.2 m"),
+              "block_on_slab.py": ("--cell", "default 0.01 m")}
     problems = []
     for script, needles in wanted.items():
         r = ctx.run(ROOT / "meshes" / script, "--help", python=True)
@@ -397,3 +399,46 @@ def _script_help(ctx):
         text = " ".join(r.stdout.split())
         problems += [f"{script} --help does not mention {n}" for n in needles if n not in text]
     return wrong("; ".join(problems)) if problems else ok()
+
+
+# -- tractions: a force per unit area on a node group's boundary faces -------------------------------------
+
+TRACTION_BAR = {"name": "pulled", "mesh": {"shape": "bar", "dim": 2, "length": 1.0, "height": 0.1, "cells": 10},
+                "material": {"E": 100.0, "rho": 1.0, "nu": 0.3, "area": 0.5},
+                "loads": [{"nodes": "right", "traction": ["3*t", 2.0]}],
+                "solver": {"dt": 0.01, "t_end": 0.5}, "output": {"vtk": False}}
+
+
+@probe("small-defects", "a traction on a 2D bar's end: its momentum the traction's impulse times the end's area")
+def _traction_impulse(ctx):
+    case = _write(ctx, "pulled.yaml", TRACTION_BAR)
+    r = ctx.run("run", case, "-q", "-o", ctx.folder / "out")
+    bad = ctx.succeeded(r)
+    if bad:
+        return bad
+    with open(ctx.folder / "out" / "history.csv", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    t, px, py = (float(rows[-1][k]) for k in ("t", "bar.px", "bar.py"))
+    area = 0.1 * 0.5
+    want = (1.5 * t * t * area, 2.0 * t * area)   # (the trapezoidal rule is exact on a linear load)
+    if abs(px - want[0]) > 1e-9 * want[0] or abs(py - want[1]) > 1e-9 * want[1]:
+        return wrong(f"momentum ({px:.10g}, {py:.10g}), the traction's impulse ({want[0]:.10g}, {want[1]:.10g})")
+    return ok()
+
+
+for _name, _load, _needles in (
+        ("with a force on the same load", {"nodes": "right", "traction": [1.0], "force": [1.0]},
+         ("loads[0].traction", "not both")),
+        ("on a group the mesh lacks", {"nodes": "rim", "traction": [1.0]}, ("loads[0].nodes", "rim")),
+        ("with an acceleration", {"nodes": "right", "traction": [1.0], "acceleration": [1.0]},
+         ("loads[0].acceleration",)),
+        ("not a number", {"nodes": "right", "traction": ["fast"]}, ("loads[0].traction",)),
+):
+    def _refusal(ctx, load=_load, needles=_needles):
+        case = _write(ctx, "pulled.yaml", {**TRACTION_BAR, "loads": [load]})
+        out = ctx.folder / "out"
+        verdict = ctx.refused(ctx.run("run", case, "-q", "-o", out), *needles)
+        if verdict.kind == "ok" and out.exists():
+            return wrong(f"refused, yet {out} was written")
+        return verdict
+    probe("small-defects", f"a traction {_name}: refused naming the key")(_refusal)
