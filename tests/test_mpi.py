@@ -123,7 +123,9 @@ def test_axisymmetric_binary_fields_and_impacts_agree_on_two_ranks(tmp_path):
 
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
-@pytest.mark.parametrize("method", ["moreau_jean", pytest.param("modal", marks=pytest.mark.slow)])
+@pytest.mark.slow   # (16 s: the moving supports' probe class runs them on 2 ranks too; the default tier keeps
+                   # the other full-model paths on 2 ranks)
+@pytest.mark.parametrize("method", ["moreau_jean", "modal"])
 def test_a_moving_support_agrees_on_two_ranks(tmp_path, method):
     """The base-excited cantilever (cases/base_excited_beam.yaml at 30 cells, 2 periods: its first impacts),
     the clamp on one rank only: the same history, the clamp's reactions and the fields (u includes the
