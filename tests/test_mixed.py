@@ -15,7 +15,7 @@ import pytest
 
 import fem_impact as fi
 from conftest import CASES, ROOT
-from test_rigid import check_budget
+from test_rigid import assert_continues_exactly, check_budget
 
 HAMMER_ROD = CASES / "hammer_rod.yaml"
 E, RHO, A, L = 210e9, 7800.0, 1e-4, 0.2     # the rod's (cases/hammer_rod.yaml, meshes/hammer_rod.py)
@@ -93,13 +93,7 @@ def test_the_hammers_force_converges_at_first_order_in_the_mesh(tmp_path, hammer
 
 def test_a_mixed_scenes_run_continues_from_its_checkpoint_exactly(tmp_path):
     case = fi.load_case(HAMMER_ROD, ["output.vtk=false", "solver.t_end=3e-5", "output.checkpoint_every=10"])
-    first = fi.run(case, tmp_path / "first")
-    longer = case.with_changes({"solver.t_end": 6e-5})
-    whole = fi.run(longer, tmp_path / "whole").history
-    continued = fi.run(longer, tmp_path / "continued", restart=first.outdir).history
-    n = len(continued["t"])
-    for name in whole:
-        assert continued[name] == pytest.approx(whole[name][-n:], rel=1e-12, abs=1e-14), name
+    assert_continues_exactly(case, 6e-5, tmp_path)
 
 
 def slab_mesh(folder):

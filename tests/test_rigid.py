@@ -201,16 +201,21 @@ def test_what_a_rigid_scene_does_not_take_is_refused_naming_the_key(tmp_path, ch
     assert key in out.stderr.replace("[", ".").replace("]", "") and message in out.stderr, out.stderr
 
 
-def test_a_rigid_scenes_run_continues_from_its_checkpoint_exactly(tmp_path):
-    case = fi.load_case(CASES / "sliding_block.yaml", ["bodies={bar: {model: rigid}}", "output.vtk=false",
-                                                       "solver.t_end=0.3"])
-    first = fi.run(case, tmp_path / "first")
-    longer = case.with_changes({"solver.t_end": 0.8})
-    whole = fi.run(longer, tmp_path / "whole").history
-    continued = fi.run(longer, tmp_path / "continued", restart=first.outdir).history
+def assert_continues_exactly(case, t_end: float, folder) -> None:
+    """``case`` run, then continued from its checkpoint to ``t_end``: the uninterrupted run's history to 1e-12."""
+    first = fi.run(case, folder / "first")
+    longer = case.with_changes({"solver.t_end": t_end})
+    whole = fi.run(longer, folder / "whole").history
+    continued = fi.run(longer, folder / "continued", restart=first.outdir).history
     n = len(continued["t"])
     for name in whole:
         assert continued[name] == pytest.approx(whole[name][-n:], rel=1e-12, abs=1e-14), name
+
+
+def test_a_rigid_scenes_run_continues_from_its_checkpoint_exactly(tmp_path):
+    case = fi.load_case(CASES / "sliding_block.yaml", ["bodies={bar: {model: rigid}}", "output.vtk=false",
+                                                       "solver.t_end=0.3"])
+    assert_continues_exactly(case, 0.8, tmp_path)
 
 
 def test_a_3d_step_whose_spin_does_not_settle_is_refused(monkeypatch):
