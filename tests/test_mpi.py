@@ -406,3 +406,32 @@ def test_commands_started_alone_have_session_folders_of_their_own_removed_at_exi
     own = subprocess.run([sys.executable, "-c", show], capture_output=True, text=True, check=True,
                          env={**env, "OMPI_MCA_orte_tmpdir_base": str(user)})
     assert own.stdout.split() == [str(user), "True"] and user.is_dir()
+
+
+ONE_RANK_FAILS = """
+import sys
+from mpi4py import MPI
+import fem_impact.app.cli as cli
+import fem_impact.build as build
+built = build.build_system
+def failing(*args, **kwargs):   # (a defect that strikes rank 0 alone; the pipeline takes the builder's when it runs)
+    if MPI.COMM_WORLD.rank == 0:
+        raise ValueError("a defect on rank 0 alone")
+    return built(*args, **kwargs)
+build.build_system = failing
+sys.exit(cli.main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
+def test_an_unexpected_error_on_one_rank_stops_every_rank_instead_of_hanging(tmp_path):
+    """A defect raised on one rank alone used to leave the other waiting in its next collective call: the
+    run hung. Now the rank prints its traceback and aborts the job: a nonzero status within seconds."""
+    script = tmp_path / "one_rank_fails.py"
+    script.write_text(ONE_RANK_FAILS)
+    proc = subprocess.run(["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, str(script),
+                           "run", str(CASES / "free_vibration.yaml"), "-q", "-o", str(tmp_path / "out"),
+                           "--set", "solver.t_end=0.01"],
+                          capture_output=True, text=True, env=mpirun_environment(), timeout=120)
+    assert proc.returncode != 0
+    assert "a defect on rank 0 alone" in proc.stderr and "stopped on the error above" in proc.stderr

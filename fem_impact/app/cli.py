@@ -297,8 +297,25 @@ def main(argv=None) -> int:
         from .outdir.interruption import Interrupted, received
 
         if received() is None:
+            _abort_other_ranks()
             raise
         return _interrupted(Interrupted(received()))   # (a library's import failed, interrupted)
+
+
+def _abort_other_ranks() -> None:
+    """An unexpected error (a defect) on one rank of several: its traceback, then MPI_Abort. Raised on one rank
+    alone it would leave the others waiting in their next collective call, and the run would hang instead of
+    stopping."""
+    mpi = sys.modules.get("mpi4py.MPI")
+    if mpi is None or not mpi.Is_initialized() or mpi.Is_finalized() or mpi.COMM_WORLD.size < 2:
+        return
+    import traceback
+
+    traceback.print_exc()
+    print(f"fem-impact: rank {mpi.COMM_WORLD.rank} stopped on the error above (a defect: please report it); "
+          "the other ranks are stopped with it", file=sys.stderr)
+    sys.stderr.flush()
+    mpi.COMM_WORLD.Abort(1)
 
 
 def _main(argv=None) -> int:
