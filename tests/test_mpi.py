@@ -429,9 +429,14 @@ def test_an_unexpected_error_on_one_rank_stops_every_rank_instead_of_hanging(tmp
     run hung. Now the rank prints its traceback and aborts the job: a nonzero status within seconds."""
     script = tmp_path / "one_rank_fails.py"
     script.write_text(ONE_RANK_FAILS)
+    runs = tmp_path / "runs"
+    earlier = run_cli("run", str(CASES / "free_vibration.yaml"), "-q", "-o", str(runs / "out"), "--set", "solver.t_end=0.01")
+    assert earlier.returncode == 0, earlier.stderr
+    before = {f.relative_to(runs): f.read_bytes() for f in runs.rglob("*") if f.is_file()}
     proc = subprocess.run(["mpirun", "--allow-run-as-root", "--oversubscribe", "-n", "2", sys.executable, str(script),
-                           "run", str(CASES / "free_vibration.yaml"), "-q", "-o", str(tmp_path / "out"),
+                           "run", str(CASES / "free_vibration.yaml"), "-q", "-o", str(runs / "out"),
                            "--set", "solver.t_end=0.01"],
                           capture_output=True, text=True, env=mpirun_environment(), timeout=120)
     assert proc.returncode != 0
     assert "a defect on rank 0 alone" in proc.stderr and "stopped on the error above" in proc.stderr
+    assert {f.relative_to(runs): f.read_bytes() for f in runs.rglob("*") if f.is_file()} == before   # (the earlier result)
