@@ -181,3 +181,21 @@ def main(argv=None) -> None:
 
 if __name__ == "__main__":
     main()
+
+
+def test_a_spinning_hammer_strikes_as_one_that_does_not_spin(tmp_path, hammer):
+    """The hammer spun at 300 rad/s about its own axis (x, a principal axis through its centre) and struck
+    head on, frictionless: the spin moves no face node along x and the four rows share the force equally, so
+    the strike is the one without spin step by step (the 3D step's spin iteration with the rod's share of the
+    rows) while the spin stays 300 rad/s; the balance closes, E <= E0 + W_ext."""
+    w, (cy, cz) = 300.0, (0.005, 0.005)
+    velocity = [{"body": "hammer", "value": [str(V0), f"-{w}*(z - {cz})", f"{w}*(y - {cy})"]}]
+    spun = fi.run(fi.load_case(HAMMER_ROD, ["output.vtk=false", "solver.t_end=1e-4", f"initial.velocity={velocity}"]),
+                  tmp_path / "spun").history
+    still = hammer.history
+    assert spun["hammer.wx"] == pytest.approx(w, rel=1e-10)
+    assert np.abs(spun["hammer.wy"]).max() <= 1e-9 * w and np.abs(spun["hammer.wz"]).max() <= 1e-9 * w
+    assert spun["strike.force"] == pytest.approx(still["strike.force"], rel=1e-8, abs=1e-8 * Z * V0)
+    assert spun["hammer.vx"] == pytest.approx(still["hammer.vx"], rel=1e-9, abs=1e-12)
+    J = M * (2 * 0.01 ** 2) / 12.0   # the hammer's inertia about its axis (a square section of side 1 cm)
+    check_budget(spun, 0.5 * M * V0 ** 2 + 0.5 * J * w * w)

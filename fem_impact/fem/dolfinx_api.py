@@ -214,7 +214,12 @@ def boundary_facet_measure(msh: Mesh, vertices: np.ndarray, cell_tags, bodies: d
     f2v, f2c = msh.topology.connectivity(fdim, 0), msh.topology.connectivity(fdim, tdim)
     inside = np.zeros(msh.topology.index_map(0).size_local + msh.topology.index_map(0).num_ghosts, dtype=bool)
     inside[vertices] = True
-    facets = np.array([f for f in outside if inside[f2v.links(f)].all()], dtype=np.int32)
+    # (a facet's vertices are f2v.array[offsets[f]:offsets[f + 1]]: all inside where none is outside)
+    outside = np.asarray(outside, dtype=np.int32)
+    count = np.diff(f2v.offsets)[outside]
+    where = np.repeat(f2v.offsets[outside], count) + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    missing = np.add.reduceat(~inside[f2v.array[where]], np.cumsum(count) - count) if outside.size else count
+    facets = np.sort(outside[missing == 0])
     if cell_tags is None:
         tags = {name: 1 for name in bodies}
         values = np.ones(facets.size, dtype=np.int32)
@@ -223,9 +228,8 @@ def boundary_facet_measure(msh: Mesh, vertices: np.ndarray, cell_tags, bodies: d
                                dtype=np.int32)
         tag_of_cell[cell_tags.indices] = cell_tags.values
         tags = dict(bodies)
-        values = np.array([tag_of_cell[f2c.links(f)[0]] for f in facets], dtype=np.int32)
-    order = np.argsort(facets)
-    marked = mesh.meshtags(msh, fdim, facets[order], values[order])
+        values = tag_of_cell[f2c.array[f2c.offsets[facets]]]   # (a boundary facet bounds one cell)
+    marked = mesh.meshtags(msh, fdim, facets, values.astype(np.int32))
     return ufl.Measure("ds", domain=msh, subdomain_data=marked), tags
 
 

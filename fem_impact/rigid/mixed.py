@@ -19,6 +19,7 @@ share of the rows' mean velocity, the obstacles' work booked once (by the elasti
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,12 +92,17 @@ class ElasticPart(MoreauJean):
 def combined(elastic: EnergyBudget, rigid: EnergyBudget) -> EnergyBudget:
     """The scene's budget: each term the sum of the parts'."""
     out = elastic.copy()
-    for name in ("kinetic", "strain", "external_work", "damping_loss", "impact_loss", "contact_loss", "initial",
-                 "scheme", "load_scale", "friction_loss", "numerical_loss", "roundoff"):
-        setattr(out, name, getattr(elastic, name) + getattr(rigid, name))
+    for term in dataclasses.fields(EnergyBudget):
+        if term.name != "losses":
+            setattr(out, term.name, getattr(elastic, term.name) + getattr(rigid, term.name))
     for column, value in rigid.losses.items():
         out.losses[column] = out.losses.get(column, 0.0) + value
     return out
+
+
+def _of_rigid_part(name: str) -> property:
+    """An attribute of a mixed scene's integrator that is its rigid part's."""
+    return property(lambda self: getattr(self.rigid, name), lambda self, value: setattr(self.rigid, name, value))
 
 
 class MixedMoreauJean:
@@ -124,34 +130,11 @@ class MixedMoreauJean:
         self.timings = self.elastic.timings
         self._step = self._t1 = self._found = None
 
-    # (the frictional solver's extremes over the run: the rigid part solves the scene's cone problems)
-    @property
-    def friction_residual(self) -> float:
-        return self.rigid.friction_residual
-
-    @friction_residual.setter
-    def friction_residual(self, value: float) -> None:
-        self.rigid.friction_residual = value
-
-    @property
-    def friction_sweeps(self) -> int:
-        return self.rigid.friction_sweeps
-
-    @friction_sweeps.setter
-    def friction_sweeps(self, value: int) -> None:
-        self.rigid.friction_sweeps = value
-
-    @property
-    def friction_retries(self) -> int:
-        return self.rigid.friction_retries
-
-    @friction_retries.setter
-    def friction_retries(self, value: int) -> None:
-        self.rigid.friction_retries = value
-
-    @property
-    def friction(self):
-        return self.rigid.friction
+    # (the frictional solver's extremes over the run, and its last problem: the rigid part solves the scene's)
+    friction_residual = _of_rigid_part("friction_residual")
+    friction_sweeps = _of_rigid_part("friction_sweeps")
+    friction_retries = _of_rigid_part("friction_retries")
+    friction = _of_rigid_part("friction")
 
     def start(self, U0, V0, t0: float = 0.0) -> StepState:
         """The elastic bodies from (U0, V0) on their dofs; the rigid bodies at their meshes' places with
