@@ -32,7 +32,7 @@ solver:
 
 CENTRAL = ", ".join(["method", "dt", "t_end", "mass"])
 NEWMARK = ", ".join(["method", "dt", "t_end", "mass", "beta", "gamma", "impact_correction"])
-STOP = "name, type, nodes, normal, gap, coupling, stiffness, law, friction, point, motion"
+STOP = "name, type, nodes, normal, gap, coupling, stiffness, law, friction, point, motion, surface"
 
 # (method of the file, section, ignored key, value, the key's owner as named in the message, valid keys)
 IGNORED = [

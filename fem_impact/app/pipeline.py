@@ -236,6 +236,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     from .outdir.interruption import install_signal_handlers
     from .output import BodyMomenta, HistoryWriter, ImpactLog, Progress, RunStatistics, VTKWriter
     from .periods import PeriodLog
+    from .sliding import SlidingWatch
 
     install_signal_handlers()   # again: PETSc, imported just now, installs its own (SIGHUP, SIGQUIT)
 
@@ -298,6 +299,9 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     blocks = block_stepper(case, integrator, n_steps)
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
+    for c, relation in zip(cons.contacts, cons.relations.relations):
+        if hasattr(relation, "describe"):
+            log.info("contact %s: %s", c.name, relation.describe())
 
     with out.staged() if out is not None else contextlib.nullcontext(None) as stage:
         history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
@@ -305,6 +309,9 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                                 reactions=model.motion.names if model.motion else (),
                                 numerical_loss=getattr(raw, "theta", 0.5) != 0.5, rigid=system.rigid)
         observers = [history, stats, impacts] + ([periods] if periods is not None else [])
+        sliding = SlidingWatch(cons, fields, comm)
+        if sliding:
+            observers.append(sliding)
         vtk = None
         if case.output.vtk and stage is not None:
             vtk = VTKWriter(stage, model, fields, case.output.every, n_steps, case.output.format)

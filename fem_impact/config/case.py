@@ -244,7 +244,10 @@ def _contact_data(contact: Contact) -> dict:
         data.pop("motion", None)
     else:
         data["motion"] = _sources(contact.motion)
-    return data | {"nodes": contact.nodes[0] if contact.type == "obstacle" else list(contact.nodes)}
+    for name in ("surface",) + (("normal", "gap") if contact.type == "surface" else ()):
+        if data.get(name, 0) is None:   # (a surface contact has no normal or gap, the others no surface)
+            del data[name]
+    return data | {"nodes": contact.nodes[0] if contact.type in ("obstacle", "surface") else list(contact.nodes)}
 
 
 def _sources(expressions):

@@ -31,7 +31,7 @@ __all__ = ["SECTIONS", "CaseFile", "key_rows", "validate_case"]
 SHAPES = ("bar",)
 BAR_ELEMENTS = ("simplex", "hex")   # triangles/tetrahedra, or quadrilaterals/hexahedra (2D/3D bar)
 HYPOTHESES = ("plane_stress", "plane_strain", "axisymmetric")   # 2D: the third direction (mesh.hypothesis)
-CONTACT_TYPES = ("obstacle", "pair")
+CONTACT_TYPES = ("obstacle", "pair", "surface")
 CONTACT_COUPLINGS = ("each", "mean")
 COMPONENTS = ("x", "y", "z")
 BUILT_IN_LAWS = ("newton", "elastic_stop")   # (their keys are the contact's own)
@@ -254,10 +254,12 @@ def _law_key(law: str, name: str, default=...):
 _RELATION = {   # the relation's keys of a contact, whatever its law
     "name": (CsvName, Field(description="the contact's name: its columns' prefix in history.csv")),
     "type": (choice(*CONTACT_TYPES), Field(description="obstacle: a node group against a fixed plane; pair: two "
-                                                        "node groups against each other")),
-    "nodes": (Any, Field(description="obstacle: a node group; pair: a list of two node groups")),
+                                                        "node groups against each other; surface: a node group "
+                                                        "against the boundary of another, rows found by a search")),
+    "nodes": (Any, Field(description="obstacle, surface: a node group; pair: a list of two node groups")),
     "normal": (vector(Real), key("-", "obstacle: the direction in which the nodes approach the plane; pair: from "
-                                      "the first group to the second (made unit)", ...)),
+                                      "the first group to the second (made unit); surface: none (the surface's "
+                                      "own)")),
     "gap": (Real, key("m", "the gap of every row (obstacle: default 0; pair: default each pair's distance "
                              "along the normal in the mesh)")),
     "coupling": (choice(*CONTACT_COUPLINGS), Field(default_of(Contact, "coupling"), description=(
@@ -270,6 +272,8 @@ _RELATION = {   # the relation's keys of a contact, whatever its law
     "motion": (vector(expression(TIME)), key("m", "obstacle: the plane's displacement from where gap or point put it "
                                                   "at t = 0, one expression in t per axis (default: fixed); the laws "
                                                   "act on the motion relative to it, its work is external work")),
+    "surface": (Name, Field(None, description="surface: the node group whose boundary edges (2D) or faces (3D) "
+                                              "the nodes meet; the gaps are the geometry's")),
 }
 
 
@@ -286,21 +290,43 @@ def _relation(contact: Section) -> dict:
                                        "its own distance to the plane through it), not both")
     if f["motion"] is not None and f["type"] != "obstacle":
         raise _Invalid(("motion",), "a motion is for an obstacle contact's plane (a pair moves with its bodies)")
-    if f["type"] == "obstacle":
+    if f["type"] == "surface":
+        _surface_keys(f, nodes)
+    elif f["surface"] is not None:
+        raise _Invalid(("surface",), "a surface is for a surface contact (type: surface)")
+    elif f["normal"] is None:
+        raise _Invalid(("normal",), f"required for an {f['type']} contact")
+    if f["type"] in ("obstacle", "surface"):
         if not (isinstance(nodes, list) and len(nodes) == 1):
-            raise _Invalid(("nodes",), f"an obstacle contact takes one node group, got {_show(f['nodes'])}")
-        if f["point"] is None:
+            raise _Invalid(("nodes",), f"an {f['type']} contact takes one node group, got {_show(f['nodes'])}")
+        if f["point"] is None and f["type"] == "obstacle":
             f["gap"] = 0.0 if f["gap"] is None else f["gap"]
     elif not (isinstance(nodes, list) and len(nodes) == 2):
         raise _Invalid(("nodes",), f"a pair contact takes a list of two node groups, got {_show(f['nodes'])}")
     f["nodes"] = [group if isinstance(group, str) and group else _bad_group(i, group) for i, group in enumerate(nodes)]
     if len(set(f["nodes"])) != len(f["nodes"]):
         raise _Invalid(("nodes",), "the two node groups must differ")
-    length = math.hypot(*f["normal"])
-    if length == 0.0:
-        raise _Invalid(("normal",), "must have a nonzero length")
-    f["normal"] = [component / length for component in f["normal"]]
+    if f["normal"] is not None:
+        length = math.hypot(*f["normal"])
+        if length == 0.0:
+            raise _Invalid(("normal",), "must have a nonzero length")
+        f["normal"] = [component / length for component in f["normal"]]
     return f
+
+
+def _surface_keys(f: dict, nodes) -> None:
+    """A surface contact: a node group and a surface; its normals and gaps are the geometry's."""
+    if f["surface"] is None:
+        raise _Invalid(("surface",), "required for a surface contact: the node group whose boundary the nodes meet")
+    for name, why in (("normal", "the surface's own normals"), ("gap", "the geometry's distances"),
+                      ("point", "the geometry's distances")):
+        if f[name] is not None:
+            raise _Invalid((name,), f"a surface contact takes no {name}: its rows use {why}")
+    if f["coupling"] != "each":
+        raise _Invalid(("coupling",), "a surface contact has a row per node (coupling: each)")
+    if isinstance(nodes, list) and len(nodes) == 1 and nodes[0] == f["surface"]:
+        raise _Invalid(("surface",), f"is the contact's own node group '{nodes[0]}': give the surface as another "
+                                     "group")
 
 
 def _bad_group(index, group):
@@ -339,7 +365,7 @@ def _built_in_law(contact: Section, value: dict) -> None:
 
 
 _CONTACT_ORDER = ("name", "type", "nodes", "normal", "gap", "restitution", "coupling", "stiffness", "law", "friction",
-                  "point", "motion")
+                  "point", "motion", "surface")
 _contact_keys = {**_RELATION, "restitution": _law_key("newton", "restitution"),
            "stiffness": _law_key("elastic_stop", "stiffness", None)}
 ContactSection = create_model("ContactSection", __base__=_ContactChecks, __module__=__name__,

@@ -208,18 +208,8 @@ def boundary_facet_measure(msh: Mesh, vertices: np.ndarray, cell_tags, bodies: d
     has one body): ``(ds, {body: tag})``, ``ds(tag)`` integrating over that body's facets."""
     tdim = msh.topology.dim
     fdim = tdim - 1
-    msh.topology.create_connectivity(fdim, 0)
-    msh.topology.create_connectivity(fdim, tdim)
-    outside = mesh.exterior_facet_indices(msh.topology)
-    f2v, f2c = msh.topology.connectivity(fdim, 0), msh.topology.connectivity(fdim, tdim)
-    inside = np.zeros(msh.topology.index_map(0).size_local + msh.topology.index_map(0).num_ghosts, dtype=bool)
-    inside[vertices] = True
-    # (a facet's vertices are f2v.array[offsets[f]:offsets[f + 1]]: all inside where none is outside)
-    outside = np.asarray(outside, dtype=np.int32)
-    count = np.diff(f2v.offsets)[outside]
-    where = np.repeat(f2v.offsets[outside], count) + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    missing = np.add.reduceat(~inside[f2v.array[where]], np.cumsum(count) - count) if outside.size else count
-    facets = np.sort(outside[missing == 0])
+    facets = _boundary_facets_within(msh, vertices)
+    f2c = msh.topology.connectivity(fdim, tdim)
     if cell_tags is None:
         tags = {name: 1 for name in bodies}
         values = np.ones(facets.size, dtype=np.int32)
@@ -231,6 +221,53 @@ def boundary_facet_measure(msh: Mesh, vertices: np.ndarray, cell_tags, bodies: d
         values = tag_of_cell[f2c.array[f2c.offsets[facets]]]   # (a boundary facet bounds one cell)
     marked = mesh.meshtags(msh, fdim, facets, values.astype(np.int32))
     return ufl.Measure("ds", domain=msh, subdomain_data=marked), tags
+
+
+def _boundary_facets_within(msh: Mesh, vertices: np.ndarray) -> np.ndarray:
+    """This rank's boundary facets (sorted local indices) whose vertices are all in ``vertices``."""
+    tdim = msh.topology.dim
+    fdim = tdim - 1
+    msh.topology.create_connectivity(fdim, 0)
+    msh.topology.create_connectivity(fdim, tdim)
+    outside = mesh.exterior_facet_indices(msh.topology)
+    f2v = msh.topology.connectivity(fdim, 0)
+    inside = np.zeros(msh.topology.index_map(0).size_local + msh.topology.index_map(0).num_ghosts, dtype=bool)
+    inside[vertices] = True
+    # (a facet's vertices are f2v.array[offsets[f]:offsets[f + 1]]: all inside where none is outside)
+    outside = np.asarray(outside, dtype=np.int32)
+    count = np.diff(f2v.offsets)[outside]
+    where = np.repeat(f2v.offsets[outside], count) + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    missing = np.add.reduceat(~inside[f2v.array[where]], np.cumsum(count) - count) if outside.size else count
+    return np.sort(outside[missing == 0])
+
+
+def boundary_facet_nodes(V, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The boundary facets of this rank whose vertices are all in ``vertices`` (local), as
+    ``(nodes, x, inside)``: their nodes' global numbers in the P1 space ``V`` (f x k, the reference
+    facet's vertex order: a quadrilateral's in tensor order 0 1 / 2 3), the nodes' coordinates
+    (f x k x 3) and the centre of the cell each bounds (f x 3, on the body's side of the facet)."""
+    msh = V.mesh
+    tdim = msh.topology.dim
+    fdim = tdim - 1
+    facets = _boundary_facets_within(msh, vertices)
+    msh.topology.create_connectivity(tdim, 0)
+    f2v, f2c = msh.topology.connectivity(fdim, 0), msh.topology.connectivity(fdim, tdim)
+    c2v = msh.topology.connectivity(tdim, 0)
+    cells = cell_nodes(V)
+    if c2v.array.size != cells.size:
+        raise RuntimeError("the P1 space's cells and the mesh's vertices differ; cannot find facet nodes")
+    # (P1: a cell's nodes are its vertices, in the same order)
+    node_of_vertex = np.full(msh.topology.index_map(0).size_local + msh.topology.index_map(0).num_ghosts, -1,
+                             dtype=np.int64)
+    node_of_vertex[c2v.array] = cells.reshape(-1)
+    per_facet = int(np.diff(f2v.offsets)[0]) if f2v.offsets.size > 1 else tdim
+    local = node_of_vertex[f2v.array.reshape(-1, per_facet)[facets]] if facets.size else np.zeros((0, per_facet),
+                                                                                                    dtype=np.int64)
+    nodes = V.dofmap.index_map.local_to_global(local.reshape(-1).astype(np.int32)).reshape(local.shape)
+    x = node_coordinates(V)
+    cell = f2c.array[f2c.offsets[facets]]   # (a boundary facet bounds one cell)
+    inside = x[cells[cell]].mean(axis=1) if facets.size else np.zeros((0, 3))
+    return np.asarray(nodes, dtype=np.int64), x[local], inside
 
 
 def function(V, name: str):

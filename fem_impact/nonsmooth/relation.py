@@ -79,6 +79,10 @@ class Constraints:
 def relation_of(contact: Contact, model: Model, key: tuple) -> Relation:
     """The relation object of a contact of the case file (its rows, gaps and their time dependence)."""
     dim = model.meshdata.dim
+    if contact.type == "surface":
+        from .surface import SurfaceContact
+
+        return SurfaceContact(contact.nodes[0], contact.surface, key, contact.name, contact.friction > 0.0)
     normal = np.asarray(pad_vector(contact.normal, dim, key + ("normal",), "normal"), dtype=float)
     normal /= np.linalg.norm(normal)
     tangents = tangent_basis(normal) if contact.friction > 0.0 else []
@@ -119,10 +123,11 @@ def build_constraints(specs: list[Contact], model: Model) -> Constraints:
         col = sparse.csr_matrix(rows.normal)
         t_cols = [sparse.csr_matrix(t) for t in rows.tangents]
         start = sum(len(g) for g in gaps)
-        for t, t_col in zip(relation.tangents, t_cols):
+        dirs = rows.tangent_dirs or [np.tile(t, (len(gap), 1)) for t in relation.tangents]
+        for t_dirs, t_col in zip(dirs, t_cols):
             tangent_columns.append(t_col)
             tangent_of.append(np.arange(start, start + len(gap)))
-            tangent_dirs.append(np.tile(t, (len(gap), 1)))
+            tangent_dirs.append(t_dirs)
         contacts.append(ContactRows(contact.name, i, slice(start, start + len(gap))))
         relations.append(relation)
         columns.append(col)

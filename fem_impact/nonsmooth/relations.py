@@ -29,6 +29,9 @@ class RelationRows:
     normal: sparse.spmatrix
     tangents: list
     gap: np.ndarray
+    # each tangent block's unit direction per row (r x dim), where the rows' directions differ (None:
+    # the relation's own ``tangents``, the same for every row)
+    tangent_dirs: list | None = None
 
 
 class Relation:

@@ -10,7 +10,7 @@ class Contact:
     name: str
     type: str
     nodes: list[str]
-    normal: list[float]
+    normal: list[float] | None   # obstacle, pair: unit; surface: None (the surface's own)
     gap: float | None = None
     restitution: float = 0.0
     coupling: str = "each"      # "each": a row per node (pair); "mean": one row on the group's mean
@@ -22,6 +22,7 @@ class Contact:
     # obstacle: the plane's displacement from where gap or point put it, one expression in t per axis
     # (fem_impact.expressions.Expression; None: the plane is fixed)
     motion: list | None = None
+    surface: str | None = None   # surface: the boundary group (edges in 2D, faces in 3D) the nodes meet
 
     @property
     def law_is_inferred(self) -> bool:

@@ -1,0 +1,182 @@
+"""Contact between surfaces meshed apart (``type: surface``, docs/theory.md s. 2.7): the contact patch
+test, Hertz's cylinder, the rows the search finds and what it refuses.
+
+Static answers come from Moreau-Jean with theta = 1 at a step far above the bodies' periods: each
+step is then a static solve with the contact (backward Euler damps every mode by (omega dt)^2 per
+step), the gaps held at the position level.
+
+    .venv/bin/python tests/test_surface.py OUTDIR   # the Hertz pressure against the theory: docs/hertz.png
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import fem_impact as fi
+from fem_impact.build import build_system, make_integrator, model_and_constraints
+from fem_impact.fem import dolfinx_api as dx
+from fem_impact.errors import CaseError, SimulationError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def mesh_module(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "meshes" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def static(case: fi.Case, steps: int = 5):
+    """The case's system and its state after ``steps`` backward Euler steps (its static answer)."""
+    system = build_system(case)
+    integrator = make_integrator(case, system.operators, system.rigid, system.elastic)
+    state = integrator.start(system.U0, system.V0, 0.0)
+    for _ in range(steps):
+        state = integrator.step()
+    return system, state
+
+
+QUASI_STATIC = {"method": "moreau_jean", "theta": 1.0, "dt": 0.01, "t_end": 0.05}
+
+# --- the contact patch test ----------------------------------------------------------------------
+
+P = 1e6
+STEEL = {"E": 210e9, "rho": 7800.0, "nu": 0.3, "area": 0.01}
+ALUMINIUM = {"E": 70e9, "rho": 2700.0, "nu": 0.33, "area": 0.01}
+
+
+def patch_case(mesh: Path, friction: float = 0.0) -> fi.Case:
+    """Two blocks of two materials, one on the other, meshed apart: the lower on its base (y held), both
+    held in x on their left side, a uniform pressure P on the lid."""
+    contact = {"name": "face", "type": "surface", "nodes": "upper_bottom", "surface": "lower_top"}
+    if friction:
+        contact["friction"] = friction
+    return fi.Case.from_dict({
+        "name": "patch", "mesh": {"file": str(mesh)},
+        "materials": {"lower": STEEL, "upper": ALUMINIUM},
+        "supports": [{"nodes": "base", "fix": ["y"]}, {"nodes": "left", "fix": ["x"]}],
+        "loads": [{"nodes": "lid", "traction": [0.0, -P]}],
+        "contacts": [contact], "solver": QUASI_STATIC, "output": {"vtk": False}})
+
+
+def exact_patch(x: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Plane stress under sigma_yy = -P, sigma_xx = 0: u = (nu P x / E, -P y / E) in each block, the
+    upper one carried down by the lower's shortening (it slides over it in x: no friction)."""
+    E = np.where(upper, ALUMINIUM["E"], STEEL["E"])
+    nu = np.where(upper, ALUMINIUM["nu"], STEEL["nu"])
+    h = 0.05
+    uy = np.where(upper, -P * h / STEEL["E"] - P * (x[:, 1] - h) / E, -P * x[:, 1] / E)
+    return np.column_stack([nu * P * x[:, 0] / E, uy])
+
+
+def patch_error(case: fi.Case) -> tuple[float, object, object]:
+    """The largest nodal error of the patch test relative to the largest displacement, the system, the state."""
+    system, state = static(case)
+    model = system.model
+    x = dx.node_coordinates(model.V)[: model.n_owned_nodes, :2]
+    cells, tags = dx.cell_nodes(model.V), model.meshdata.cell_tags
+    upper = np.zeros(cells.max() + 1, dtype=bool)
+    upper[cells[tags.indices[tags.values == model.meshdata.bodies["upper"]]].ravel()] = True
+    upper = upper[: model.n_owned_nodes]
+    u = np.asarray(state.U).reshape(-1, 2)[: model.n_owned_nodes]
+    exact = exact_patch(x, upper)
+    return float(np.abs(u - exact).max() / np.abs(exact).max()), system, state
+
+
+@pytest.mark.parametrize("cells, triangles", [((5, 7), False), ((4, 9), False), ((7, 5), False), ((5, 8), True)])
+def test_blocks_meshed_apart_pass_the_contact_patch_test(tmp_path, cells, triangles):
+    """Taylor and Papadopoulos' patch test on faces that do not match (5 cells against 7, ...): every
+    node's displacement is the exact linear field's to 1e-8 of the largest, the contact force is the
+    pressure's total to 1e-10, and each mortar row carries the pressure times its share of the face."""
+    mesh = mesh_module("two_blocks").build(tmp_path / "blocks.msh", *cells, triangles=triangles)
+    error, system, state = patch_error(patch_case(mesh))
+    assert error <= 1e-8
+    found = system.constraints.relations.relations[0].found
+    assert found.mortar.all() and found.r == cells[1] + 1
+    thickness = STEEL["area"]
+    assert state.force.sum() == pytest.approx(P * 0.1 * thickness, rel=1e-10)
+    assert state.force / (found.area * thickness) == pytest.approx(np.full(found.r, P), rel=1e-8)
+
+
+# --- Hertz's cylinder ------------------------------------------------------------------------------
+
+R, E, NU = 0.05, 210e9, 0.3
+E_STAR = 1.0 / (2.0 * (1.0 - NU ** 2) / E)   # 1/E* = (1 - nu1^2)/E1 + (1 - nu2^2)/E2
+F = np.pi * E_STAR * (R / 10) ** 2 / (4 * R)   # the force per unit length that gives a = R / 10
+A_HERTZ = np.sqrt(4 * F * R / (np.pi * E_STAR))
+P0_HERTZ = 2 * F / (np.pi * A_HERTZ)
+
+
+def hertz_case(mesh: Path, friction: float = 0.0, extra_loads=()) -> fi.Case:
+    """The quarter cylinder pressed on the block (meshes/hertz_cylinder.py), plane strain, steel on
+    steel: F / 2 on the half modelled, as a uniform traction on the cylinder's flat top."""
+    contact = {"name": "face", "type": "surface", "nodes": "rim", "surface": "top"}
+    if friction:
+        contact["friction"] = friction
+    return fi.Case.from_dict({
+        "name": "hertz", "mesh": {"file": str(mesh), "hypothesis": "plane_strain"},
+        "material": {"E": E, "rho": 7800.0, "nu": NU, "area": 1.0},
+        "supports": [{"nodes": "base", "fix": ["y"]}, {"nodes": "axis", "fix": ["x"]}],
+        "loads": [{"nodes": "lid", "traction": [0.0, -F / (2 * R)]}, *extra_loads],
+        "contacts": [contact], "solver": QUASI_STATIC, "output": {"vtk": False}})
+
+
+def hertz_pressure(case: fi.Case) -> tuple[np.ndarray, np.ndarray, object]:
+    """The contact pressure at the rim's mortar rows' nodes, by x, and the state."""
+    system, state = static(case)
+    found = system.constraints.relations.relations[0].found
+    rows = np.flatnonzero(found.mortar)
+    order = np.argsort(found.x[rows, 0])
+    rows = rows[order]
+    return found.x[rows, 0], state.force[rows] / found.area[rows], state
+
+
+def half_width_and_peak(x: np.ndarray, p: np.ndarray) -> tuple[float, float]:
+    """Hertz's ellipse p^2 = p0^2 (1 - x^2 / a^2) fitted to the pressure (by least squares on p^2
+    against x^2, where p is above a tenth of its largest): (a, p0)."""
+    inside = p > 0.1 * p.max()
+    slope, intercept = np.polyfit(x[inside] ** 2, p[inside] ** 2, 1)
+    return float(np.sqrt(-intercept / slope)), float(np.sqrt(intercept))
+
+
+@pytest.fixture(scope="module")
+def hertz(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("hertz")
+    build = mesh_module("hertz_cylinder").build
+    return {h: hertz_pressure(hertz_case(build(folder / f"hertz{i}.msh", h)))
+            for i, h in enumerate((R / 100, R / 200))}
+
+
+def test_a_cylinder_pressed_on_a_block_meets_hertz(hertz):
+    """Plane strain, steel on steel, a = R / 10: on two meshes (cells of R/100 and R/200 where they
+    touch) the half-width a = sqrt(4 F R / (pi E*)) and the peak pressure 2 F / (pi a) within 5 %, the
+    two meshes within 2 % of each other (converged), the contact's edge between the last node pressed
+    and the first free one within a cell, and the force on the rim F / 2 to 1e-9."""
+    found = {}
+    for h, (x, p, state) in hertz.items():
+        a, p0 = half_width_and_peak(x, p)
+        found[h] = a, p0
+        assert a == pytest.approx(A_HERTZ, rel=0.05)
+        assert p0 == pytest.approx(P0_HERTZ, rel=0.05)
+        assert p.max() == pytest.approx(P0_HERTZ, rel=0.05)
+        last, first_free = x[p > 0].max(), x[(p == 0) & (x > 0)].min()
+        assert last - h <= A_HERTZ <= first_free + h
+        assert state.force.sum() == pytest.approx(F / 2, rel=1e-9)
+        assert np.all(p >= 0.0)
+    (a1, p1), (a2, p2) = found.values()
+    assert a2 == pytest.approx(a1, rel=0.02) and p2 == pytest.approx(p1, rel=0.02)
+
+
+def test_the_pressure_follows_hertzs_ellipse_across_the_zone(hertz):
+    """On the finer mesh, p(x) = p0 sqrt(1 - x^2 / a^2) within 2 % of p0 at every node more than two
+    cells inside the edge."""
+    x, p, _ = hertz[R / 200]
+    inner = x < A_HERTZ - 2 * R / 200
+    exact = P0_HERTZ * np.sqrt(1.0 - (x[inner] / A_HERTZ) ** 2)
+    assert np.abs(p[inner] - exact).max() <= 0.02 * P0_HERTZ
