@@ -25,9 +25,11 @@ from fem_impact.fem.gmsh_utils import ScriptParser, output_option, run_script
 WIDTH, HEIGHT = 0.1, 0.05
 
 
-def build(path: Path, n: int = 5, m: int = 7, triangles: bool = False, up: int | None = None) -> Path:
+def build(path: Path, n: int = 5, m: int = 7, triangles: bool = False, up: int | None = None,
+          span: tuple[float, float] = (0.0, WIDTH)) -> Path:
     """Mesh the two blocks, ``n`` and ``m`` cells across (``up`` cells up each, default as many as
-    across) and write them to ``path``; returns ``path``."""
+    across), the upper one over x in ``span`` (default the lower one's width), and write them to
+    ``path``; returns ``path``."""
     if n < 1 or m < 1:
         raise ValueError(f"the blocks need at least one cell across, got {n} and {m}")
     path = Path(path)
@@ -36,7 +38,7 @@ def build(path: Path, n: int = 5, m: int = 7, triangles: bool = False, up: int |
         gmsh.model.add("two_blocks")
         occ = gmsh.model.occ
         lower = occ.addRectangle(0.0, 0.0, 0.0, WIDTH, HEIGHT)
-        upper = occ.addRectangle(0.0, HEIGHT, 0.0, WIDTH, HEIGHT)   # (not fragmented: meshed apart)
+        upper = occ.addRectangle(span[0], HEIGHT, 0.0, span[1] - span[0], HEIGHT)   # (not fragmented: meshed apart)
         occ.synchronize()
         for surface, cells in ((lower, n), (upper, m)):
             for _, curve in gmsh.model.getBoundary([(2, surface)], oriented=False):

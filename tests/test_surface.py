@@ -180,3 +180,95 @@ def test_the_pressure_follows_hertzs_ellipse_across_the_zone(hertz):
     inner = x < A_HERTZ - 2 * R / 200
     exact = P0_HERTZ * np.sqrt(1.0 - (x[inner] / A_HERTZ) ** 2)
     assert np.abs(p[inner] - exact).max() <= 0.02 * P0_HERTZ
+
+
+# --- what the search finds, and what it refuses ------------------------------------------------------
+
+
+def test_a_block_sliding_farther_than_its_rows_allow_stops_with_the_node_and_how_far(tmp_path):
+    """The rows are found at t = 0 (small sliding): the upper block sent along the lower one at 1 m/s
+    stops the run once a row slid a quarter of its cell (0.1 / 7 / 4 m: about 3.6 ms), naming the
+    contact, the node and the distance, and the case's folder keeps nothing half written."""
+    mesh = mesh_module("two_blocks").build(tmp_path / "blocks.msh")
+    data = {"name": "slide", "mesh": {"file": str(mesh)}, "materials": {"lower": STEEL, "upper": ALUMINIUM},
+            "supports": [{"nodes": "base", "fix": "all"}],
+            "initial": {"velocity": [{"body": "upper", "value": [1.0, 0.0]}]},
+            "contacts": [{"name": "face", "type": "surface", "nodes": "upper_bottom", "surface": "lower_top"}],
+            "solver": {"dt": 1e-5, "t_end": 0.01}, "output": {"vtk": False}}
+    with pytest.raises(SimulationError) as info:
+        fi.run(fi.Case.from_dict(data), tmp_path / "out")
+    message = str(info.value)
+    assert "contact face: the node at (" in message and "small sliding" in message
+    t = float(message.split("by t = ")[1].split(" s")[0])
+    assert t == pytest.approx(0.1 / 7 / 4 / 1.0, rel=0.05)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("change, key, words", [
+    ({"normal": [0, -1]}, "contacts[0].normal", "a surface contact takes no normal"),
+    ({"gap": 0.0}, "contacts[0].gap", "a surface contact takes no gap"),
+    ({"surface": None}, "contacts[0].surface", "required for a surface contact"),
+    ({"surface": "upper_bottom"}, "contacts[0].surface", "is the contact's own node group"),
+    ({"coupling": "mean"}, "contacts[0].coupling", "a row per node"),
+    ({"nodes": ["upper_bottom", "lid"]}, "contacts[0].nodes", "takes one node group"),
+])
+def test_a_surface_contacts_keys_are_checked_by_name(tmp_path, change, key, words):
+    mesh = mesh_module("two_blocks").build(tmp_path / "blocks.msh")
+    contact = {"name": "face", "type": "surface", "nodes": "upper_bottom", "surface": "lower_top", **change}
+    data = {"name": "bad", "mesh": {"file": str(mesh)}, "material": STEEL, "contacts": [contact],
+            "solver": {"dt": 1e-6, "t_end": 1e-5}}
+    with pytest.raises(CaseError) as info:
+        fi.Case.from_dict(data)
+    assert info.value.key == key and words in info.value.message
+
+
+@pytest.mark.parametrize("change, key, words", [
+    ({"surface": "nowhere"}, "contacts[0].surface", "no node group 'nowhere'"),
+    ({"surface": "base"}, "contacts[0].surface", "no node of 'upper_bottom' faces the surface 'base'"),
+    ({"pair": True}, "contacts[0].normal", "required for a pair contact"),
+    ({"obstacle_surface": True}, "contacts[0].surface", "a surface is for a surface contact"),
+])
+def test_a_surface_that_cannot_be_found_is_refused_by_name(tmp_path, change, key, words):
+    mesh = mesh_module("two_blocks").build(tmp_path / "blocks.msh")
+    contact = {"name": "face", "type": "surface", "nodes": "upper_bottom", "surface": "lower_top"}
+    if change.pop("pair", False):
+        contact = {"name": "face", "type": "pair", "nodes": ["upper_bottom", "lower_top"]}
+    elif change.pop("obstacle_surface", False):
+        contact = {"name": "face", "type": "obstacle", "nodes": "upper_bottom", "normal": [0, -1],
+                   "surface": "lower_top"}
+    contact.update(change)
+    data = {"name": "bad", "mesh": {"file": str(mesh)}, "material": STEEL, "contacts": [contact],
+            "solver": {"dt": 1e-6, "t_end": 1e-5}, "output": {"vtk": False}}
+    with pytest.raises(CaseError) as info:
+        fi.run(fi.Case.from_dict(data), tmp_path / "out")
+    assert info.value.key == key and words in info.value.message
+
+
+def test_a_surface_contact_needs_a_2d_or_3d_mesh(tmp_path):
+    data = {"name": "bar", "mesh": {"shape": "bar", "length": 1.0, "cells": 10}, "material": STEEL,
+            "contacts": [{"name": "face", "type": "surface", "nodes": "right", "surface": "left"}],
+            "solver": {"dt": 1e-6, "t_end": 1e-5}, "output": {"vtk": False}}
+    with pytest.raises(CaseError) as info:
+        fi.run(fi.Case.from_dict(data), tmp_path / "out")
+    assert info.value.key == "contacts[0].type" and "2D or 3D" in info.value.message
+
+
+def test_nodes_beyond_the_surfaces_end_take_no_row_and_half_covered_ones_node_to_segment_rows(tmp_path):
+    """The lower block's face (10 cells of 1 cm) as the nodes, a narrower upper block's face (x from
+    0.025 to 0.075, 5 cells) as the surface: the nodes whose two segments it covers (x = 0.04 to 0.06)
+    take mortar rows, the two whose outer segment it half covers (x = 0.03, 0.07) node-to-segment rows
+    (they project on it), the six past its ends none; every gap 0, every normal up."""
+    mesh = mesh_module("two_blocks").build(tmp_path / "blocks.msh", 10, 5, span=(0.025, 0.075))
+    data = {"name": "half", "mesh": {"file": str(mesh)}, "material": STEEL,
+            "supports": [{"nodes": "base", "fix": "all"}],
+            "contacts": [{"name": "face", "type": "surface", "nodes": "lower_top", "surface": "upper_bottom"}],
+            "solver": {"dt": 1e-6, "t_end": 1e-5}, "output": {"vtk": False}}
+    _, cons = model_and_constraints(fi.Case.from_dict(data), None)
+    relation = cons.relations.relations[0]
+    found = relation.found
+    x = found.x[:, 0]
+    assert np.allclose(x[found.mortar], [0.04, 0.05, 0.06])   # (0.03 and 0.07: a segment half covered)
+    assert np.allclose(x[~found.mortar], [0.03, 0.07])         # they project on the surface: node-to-segment
+    assert relation.unpaired == 11 - 5
+    assert found.gap == pytest.approx(np.zeros(found.r), abs=1e-15)
+    assert np.allclose(found.normal, [0.0, 1.0])   # the lower face's nodes approach the upper face upward

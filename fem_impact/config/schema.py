@@ -295,10 +295,11 @@ def _relation(contact: Section) -> dict:
     elif f["surface"] is not None:
         raise _Invalid(("surface",), "a surface is for a surface contact (type: surface)")
     elif f["normal"] is None:
-        raise _Invalid(("normal",), f"required for an {f['type']} contact")
+        raise _Invalid(("normal",), f"required for {_article(f['type'])} {f['type']} contact")
     if f["type"] in ("obstacle", "surface"):
         if not (isinstance(nodes, list) and len(nodes) == 1):
-            raise _Invalid(("nodes",), f"an {f['type']} contact takes one node group, got {_show(f['nodes'])}")
+            raise _Invalid(("nodes",), f"{_article(f['type'])} {f['type']} contact takes one node group, "
+                                       f"got {_show(f['nodes'])}")
         if f["point"] is None and f["type"] == "obstacle":
             f["gap"] = 0.0 if f["gap"] is None else f["gap"]
     elif not (isinstance(nodes, list) and len(nodes) == 2):
@@ -312,6 +313,10 @@ def _relation(contact: Section) -> dict:
             raise _Invalid(("normal",), "must have a nonzero length")
         f["normal"] = [component / length for component in f["normal"]]
     return f
+
+
+def _article(word: str) -> str:
+    return "an" if word[0] in "aeiou" else "a"
 
 
 def _surface_keys(f: dict, nodes) -> None:
