@@ -76,14 +76,60 @@ def build(path: Path, n: int = 5, m: int = 7, triangles: bool = False, up: int |
     return path
 
 
+def build_3d(path: Path, n: int = 5, m: int = 7, up: int = 3) -> Path:
+    """The two blocks as boxes 0.1 deep (z in [0, 0.1]), hexahedra, ``n`` and ``m`` cells across x and
+    z, ``up`` up: the same groups, ``left`` on x = 0 and ``back`` on z = 0 of both."""
+    if n < 1 or m < 1 or up < 1:
+        raise ValueError(f"the blocks need at least one cell each way, got {n}, {m} and {up}")
+    path = Path(path)
+    gmsh.initialize(["", "-v", "0"])
+    try:
+        gmsh.model.add("two_blocks_3d")
+        occ = gmsh.model.occ
+        lower = occ.addBox(0.0, 0.0, 0.0, WIDTH, HEIGHT, WIDTH)
+        upper = occ.addBox(0.0, HEIGHT, 0.0, WIDTH, HEIGHT, WIDTH)
+        occ.synchronize()
+        for volume, cells in ((lower, n), (upper, m)):
+            boundary = gmsh.model.getBoundary([(3, volume)], combined=False, oriented=False)
+            for _, curve in gmsh.model.getBoundary(boundary, combined=False, oriented=False):
+                x0, y0, z0, x1, y1, z1 = gmsh.model.getBoundingBox(1, abs(curve))
+                gmsh.model.mesh.setTransfiniteCurve(abs(curve), (up if y1 - y0 > 1e-6 else cells) + 1)
+            for _, face in boundary:
+                gmsh.model.mesh.setTransfiniteSurface(face)
+                gmsh.model.mesh.setRecombine(2, face)
+            gmsh.model.mesh.setTransfiniteVolume(volume)
+
+        def faces(volume, axis, value):
+            found = []
+            for _, face in gmsh.model.getBoundary([(3, volume)], combined=False, oriented=False):
+                box = gmsh.model.getBoundingBox(2, abs(face))
+                if abs(box[axis] - value) < 1e-6 and abs(box[axis + 3] - value) < 1e-6:
+                    found.append(abs(face))
+            return found
+
+        for name, dim, tags in (("lower", 3, [lower]), ("upper", 3, [upper]), ("base", 2, faces(lower, 1, 0.0)),
+                                ("lower_top", 2, faces(lower, 1, HEIGHT)), ("upper_bottom", 2, faces(upper, 1, HEIGHT)),
+                                ("lid", 2, faces(upper, 1, 2 * HEIGHT)),
+                                ("left", 2, faces(lower, 0, 0.0) + faces(upper, 0, 0.0)),
+                                ("back", 2, faces(lower, 2, 0.0) + faces(upper, 2, 0.0))):
+            gmsh.model.setPhysicalName(dim, gmsh.model.addPhysicalGroup(dim, tags), name)
+        gmsh.model.mesh.generate(3)
+        gmsh.write(str(path))
+    finally:
+        gmsh.finalize()
+    return path
+
+
 def main(argv=None) -> None:
     parser = ScriptParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--cells", type=int, default=5, help="the lower block's cells across (default 5)")
     parser.add_argument("--upper", type=int, default=7, help="the upper block's cells across (default 7)")
     parser.add_argument("--triangles", action=argparse.BooleanOptionalAction, default=False,
                         help="triangles instead of quadrilaterals")
+    parser.add_argument("--3d", dest="three_d", action="store_true", help="boxes 0.1 deep, hexahedra (3 cells up)")
     parser.add_argument("-o", "--output", type=output_option, required=True, help="the .msh file to write")
-    _, path = run_script(parser, lambda a: build(a.output, a.cells, a.upper, a.triangles), argv)
+    _, path = run_script(parser, lambda a: (build_3d(a.output, a.cells, a.upper) if a.three_d
+                                            else build(a.output, a.cells, a.upper, a.triangles)), argv)
     print(f"wrote {path}")
 
 

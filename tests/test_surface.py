@@ -104,6 +104,41 @@ def test_blocks_meshed_apart_pass_the_contact_patch_test(tmp_path, cells, triang
     assert state.force / (found.area * thickness) == pytest.approx(np.full(found.r, P), rel=1e-8)
 
 
+def patch_error_3d(mesh: Path) -> tuple[float, float]:
+    """The 3D patch test (boxes, hexahedra; held by symmetry on x = 0 and z = 0): the largest nodal error
+    relative to the largest displacement, and the contact force over the pressure's total."""
+    case = fi.Case.from_dict({
+        "name": "patch3d", "mesh": {"file": str(mesh)}, "materials": {"lower": STEEL, "upper": ALUMINIUM},
+        "supports": [{"nodes": "base", "fix": ["y"]}, {"nodes": "left", "fix": ["x"]}, {"nodes": "back", "fix": ["z"]}],
+        "loads": [{"nodes": "lid", "traction": [0.0, -P, 0.0]}],
+        "contacts": [{"name": "face", "type": "surface", "nodes": "upper_bottom", "surface": "lower_top"}],
+        "solver": QUASI_STATIC, "output": {"vtk": False}})
+    system, state = static(case)
+    model = system.model
+    x = dx.node_coordinates(model.V)[: model.n_owned_nodes]
+    cells, tags = dx.cell_nodes(model.V), model.meshdata.cell_tags
+    upper = np.zeros(cells.max() + 1, dtype=bool)
+    upper[cells[tags.indices[tags.values == model.meshdata.bodies["upper"]]].ravel()] = True
+    upper = upper[: model.n_owned_nodes]
+    exact = np.column_stack([exact_patch(x[:, :2], upper), exact_patch(x[:, 2:0:-1], upper)[:, 0]])
+    u = np.asarray(state.U).reshape(-1, 3)[: model.n_owned_nodes]
+    return float(np.abs(u - exact).max() / np.abs(exact).max()), float(state.force.sum() / (P * 0.1 * 0.1))
+
+
+def test_the_3d_patch_test_on_node_to_segment_rows_errs_by_a_few_percent_that_shrink_with_the_mesh(tmp_path):
+    """3D rows are node-to-segment (one pass): they carry the force exactly (1e-10) but not a uniform
+    pressure across faces that do not match, so the linear field is missed near the face: measured
+    6.2 %, 3.5 % and 1.4 % of the largest displacement on 3/4, 5/7 and 10/14 cells across (the
+    upper face finer); the test asserts the error falls with each refinement and ends below 2 %."""
+    build = mesh_module("two_blocks").build_3d
+    errors = []
+    for n, m in ((3, 4), (5, 7), (10, 14)):
+        error, force = patch_error_3d(build(tmp_path / f"boxes{n}.msh", n, m))
+        assert force == pytest.approx(1.0, rel=1e-10)
+        errors.append(error)
+    assert errors[0] > errors[1] > errors[2] and errors[2] < 0.02
+
+
 # --- Hertz's cylinder ------------------------------------------------------------------------------
 
 R, E, NU = 0.05, 210e9, 0.3
