@@ -440,3 +440,20 @@ def test_an_unexpected_error_on_one_rank_stops_every_rank_instead_of_hanging(tmp
     assert proc.returncode != 0
     assert "a defect on rank 0 alone" in proc.stderr and "stopped on the error above" in proc.stderr
     assert {f.relative_to(runs): f.read_bytes() for f in runs.rglob("*") if f.is_file()} == before   # (the earlier result)
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
+def test_a_surface_contact_agrees_on_two_ranks(tmp_path):
+    """Rows found by a search on the facets of every rank (docs/theory.md s. 2.7), mortar rows whose
+    surface nodes another rank owns: the patch test's upper block dropped while sliding, with friction,
+    has the same history."""
+    overrides = ["solver.theta=0.5", "solver.dt=1e-6", "solver.t_end=2e-4", "contacts.0.friction=0.3", "loads=[]",
+                 "initial.velocity=[{body: upper, value: [0.5, -1.0]}]"]
+    sets = [arg for change in overrides + ["output.vtk=false"] for arg in ("--set", change)]
+    run_serial_and_two_ranks(str(CASES / "contact_patch.yaml"), tmp_path, sets)
+    a, b = read_history(tmp_path / "serial"), read_history(tmp_path / "mpi")
+    assert a["face_force"].max() > 0.0
+    # (the pressed face's gap is round-off, 2e-15 m: compared to 1e-8 of the blocks' displacement, 1e-6 m)
+    assert np.abs(a["face_gap"] - b["face_gap"]).max() <= 1e-8 * 1e-6
+    assert_same_history(a[[n for n in a.dtype.names if n != "face_gap"]], b[[n for n in b.dtype.names
+                                                                             if n != "face_gap"]], 1e-10)
