@@ -76,6 +76,7 @@ figures: setup
 	    -o docs/vibrodrive.png
 	$(VENV)/bin/fem-impact run cases/hammer_rod.yaml -q --set solver.t_end=1.2e-4 --set output.vtk=false
 	$(PY) tests/test_mixed.py results/hammer_rod --plot docs/hammer_rod.png
+	$(PY) tests/test_surface.py --plot docs/hertz_cylinder.png
 
 # The speed-accuracy charts and stability maps of B2a and the free vibroconverter, redrawn into
 # docs/ by the study commands (about 5 minutes on 2 cores; completed levels are reused).

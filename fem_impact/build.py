@@ -47,8 +47,14 @@ def finite_element_model(case: Case, comm: MPI.Comm | None = None) -> Model:
 
 def model_and_constraints(case: Case, comm: MPI.Comm | None = None) -> tuple[Model, Constraints]:
     """The finite-element model and the case's contact constraints on it."""
+    from .errors import ModelInputError
     from .nonsmooth.relation import build_constraints
 
+    for i, contact in enumerate(case.contacts):
+        if contact.type == "surface" and case.mesh.hypothesis == "axisymmetric":
+            raise ModelInputError(("contacts", i, "type"), "a surface contact on an axisymmetric model is not built "
+                                                           "yet (its mortar integrals would need the circle's weight "
+                                                           "2 pi r): use a pair or an obstacle")
     model = finite_element_model(case, comm)
     return model, build_constraints(case.contacts, model)
 

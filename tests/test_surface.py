@@ -5,7 +5,7 @@ Static answers come from Moreau-Jean with theta = 1 at a step far above the bodi
 step is then a static solve with the contact (backward Euler damps every mode by (omega dt)^2 per
 step), the gaps held at the position level.
 
-    .venv/bin/python tests/test_surface.py OUTDIR   # the Hertz pressure against the theory: docs/hertz.png
+    .venv/bin/python tests/test_surface.py --plot docs/hertz_cylinder.png   # the pressure against Hertz's
 """
 
 from __future__ import annotations
@@ -288,6 +288,18 @@ def test_a_surface_contact_needs_a_2d_or_3d_mesh(tmp_path):
     assert info.value.key == "contacts[0].type" and "2D or 3D" in info.value.message
 
 
+def test_a_surface_contact_on_an_axisymmetric_model_is_refused(tmp_path):
+    mesh = mesh_module("two_blocks").build(tmp_path / "blocks.msh")
+    data = {"name": "axi", "mesh": {"file": str(mesh), "hypothesis": "axisymmetric"},
+            "material": {"E": 210e9, "rho": 7800.0, "nu": 0.3},
+            "contacts": [{"name": "face", "type": "surface", "nodes": "upper_bottom", "surface": "lower_top"}],
+            "solver": {"dt": 1e-6, "t_end": 1e-5}, "output": {"vtk": False}}
+    with pytest.raises(CaseError) as info:
+        fi.run(fi.Case.from_dict(data), tmp_path / "out")
+    assert info.value.key == "contacts[0].type" and "axisymmetric" in info.value.message
+    assert not (tmp_path / "out").exists()
+
+
 def test_nodes_beyond_the_surfaces_end_take_no_row_and_half_covered_ones_node_to_segment_rows(tmp_path):
     """The lower block's face (10 cells of 1 cm) as the nodes, a narrower upper block's face (x from
     0.025 to 0.075, 5 cells) as the surface: the nodes whose two segments it covers (x = 0.04 to 0.06)
@@ -307,3 +319,43 @@ def test_nodes_beyond_the_surfaces_end_take_no_row_and_half_covered_ones_node_to
     assert relation.unpaired == 11 - 5
     assert found.gap == pytest.approx(np.zeros(found.r), abs=1e-15)
     assert np.allclose(found.normal, [0.0, 1.0])   # the lower face's nodes approach the upper face upward
+
+
+def plot(png: Path, folder: Path) -> Path:
+    """The contact pressure of Hertz's cylinder on three meshes against Hertz's ellipse."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    build = mesh_module("hertz_cylinder").build
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    xs = np.linspace(0.0, A_HERTZ, 200)
+    ax.plot(xs / A_HERTZ, np.sqrt(1.0 - (xs / A_HERTZ) ** 2), "k-", lw=1.0, label="Hertz: p0 sqrt(1 - x^2/a^2)")
+    for h, marker in ((R / 50, "s"), (R / 100, "^"), (R / 200, "o")):
+        x, p, _ = hertz_pressure(hertz_case(build(folder / f"hertz_{R / h:.0f}.msh", h)))
+        near = x < 1.6 * A_HERTZ
+        ax.plot(x[near] / A_HERTZ, p[near] / P0_HERTZ, marker, ms=4, mfc="none", label=f"mortar rows, cells R/{R / h:.0f}")
+    ax.set_xlabel("x / a (a: Hertz's half-width)")
+    ax.set_ylabel("contact pressure / p0")
+    ax.set_title("A steel cylinder pressed on a steel block, plane strain, meshed apart (type: surface)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+    return png
+
+
+def main(argv=None) -> None:
+    import argparse
+    import tempfile
+
+    parser = argparse.ArgumentParser(description="The figure of Hertz's cylinder (type: surface).")
+    parser.add_argument("--plot", type=Path, metavar="PNG", required=True, help="where to draw the pressure")
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory() as folder:
+        print(f"wrote {plot(args.plot, Path(folder))}")
+
+
+if __name__ == "__main__":
+    main()
