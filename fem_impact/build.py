@@ -219,6 +219,8 @@ class HeldLoad:
 
 def full_system(case: Case, model: Model, cons: Constraints) -> System:
     """The finite-element system itself (the full methods: moreau_jean, newmark, central_difference)."""
+    import numpy as np
+
     from .fem.fields import StateFields
     from .mechanics.system import Operators
 
@@ -226,6 +228,9 @@ def full_system(case: Case, model: Model, cons: Constraints) -> System:
                     massless=model.massless, stop_compliance=cons.compliance,
                     friction=cons.friction if cons.pt else None, tangents=cons.tangent_local,
                     tangent_of=cons.tangent_of, laws=cons.laws, relations=cons.relations)
+    reach = [r.reach_dofs for r in cons.relations.relations if getattr(r, "reach_dofs", None) is not None]
+    if reach:   # (a surface contact's rows, found again as its bodies slide, may touch any of its nodes)
+        ops.reach = np.unique(np.concatenate(reach))
     return System(model, cons, None, ops, StateFields(cons), model.U0, model.V0, {"modes": None})
 
 

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import json
-import re
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -34,14 +34,14 @@ def run_serial_and_two_ranks(case: str, folder, overrides) -> None:
     assert parallel.returncode == 0, parallel.stderr
 
 
-def assert_same_history(a, b, tol: float) -> None:
+def assert_same_history(a, b, tol: float, on_energy=()) -> None:
     """Column by column to ``tol`` of its scale: an energy term on the energy's (the balance residual is
     round-off itself), a component of a vector (a probe's u or v, a body's momentum) on the vector's
     largest component (the plate's transverse motion is round-off about zero)."""
     assert a.dtype.names == b.dtype.names and a.shape == b.shape
     energy_scale = max(a["kinetic"].max() + a["strain"].max(), 1e-300)
     energy_terms = ("energy_error", "contact_loss", "impact_loss", "damping_loss", "external_work", "friction_loss",
-                    "scheme_energy")
+                    "scheme_energy", *on_energy)
     for name in a.dtype.names:
         scale = energy_scale if name in energy_terms else max(np.abs(a[name]).max(), 1e-300)
         if name[-3:-1] in ("_u", "_v", "_p") and name[-1] in "xyz":
@@ -443,17 +443,31 @@ def test_an_unexpected_error_on_one_rank_stops_every_rank_instead_of_hanging(tmp
 
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
-def test_a_surface_contact_agrees_on_two_ranks(tmp_path):
+@pytest.mark.parametrize("overrides", [
+    ["solver.dt=1e-6", "solver.t_end=2e-4", "initial.velocity=[{body: upper, value: [0.5, -1.0]}]"],
+    # sliding 12 mm without friction (a stiff block on 8 rows with friction has impulses that are not unique
+    # beyond the solver's tolerance: round-off chooses): its rows found again three times on every rank
+    ["solver.dt=2e-5", "solver.t_end=0.012", "initial.velocity=[{body: upper, value: [1.0, 0.0]}]",
+     "loads=[{body: upper, acceleration: [0.0, -9.81]}]", "contacts.0.friction=0.0"],
+], ids=["dropped while sliding", "slid over three searches"])
+def test_a_surface_contact_agrees_on_two_ranks(tmp_path, overrides):
     """Rows found by a search on the facets of every rank (docs/theory.md s. 2.7), mortar rows whose
-    surface nodes another rank owns: the patch test's upper block dropped while sliding, with friction,
-    has the same history."""
-    overrides = ["solver.theta=0.5", "solver.dt=1e-6", "solver.t_end=2e-4", "contacts.0.friction=0.3", "loads=[]",
-                 "initial.velocity=[{body: upper, value: [0.5, -1.0]}]"]
+    surface nodes another rank owns, found again as the block slides: the patch test's upper block
+    with friction has the same history."""
+    overrides = ["solver.theta=0.5", "contacts.0.friction=0.3", "loads=[]", "supports=[{nodes: base, fix: all}]"] + overrides
     sets = [arg for change in overrides + ["output.vtk=false"] for arg in ("--set", change)]
     run_serial_and_two_ranks(str(CASES / "contact_patch.yaml"), tmp_path, sets)
     a, b = read_history(tmp_path / "serial"), read_history(tmp_path / "mpi")
     assert a["face_force"].max() > 0.0
     # (the pressed face's gap is round-off, 2e-15 m: compared to 1e-8 of the blocks' displacement, 1e-6 m)
     assert np.abs(a["face_gap"] - b["face_gap"]).max() <= 1e-8 * 1e-6
-    assert_same_history(a[[n for n in a.dtype.names if n != "face_gap"]], b[[n for n in b.dtype.names
-                                                                             if n != "face_gap"]], 1e-10)
+    # A block translated by 12 mm on a steel model carries K U's round-off of its translation, about 1e-7 of
+    # its forces (summary energy_roundoff): measured 5e-8 of a momentum, 9e-9 of the force, between the runs.
+    # Its strain energy (2e-9 J, the block resting on the strip) is of that round-off: compared on the energy's.
+    slid = "contacts.0.friction=0.0" in overrides
+    keep = [n for n in a.dtype.names if n != "face_gap"]
+    assert_same_history(a[keep], b[keep], 1e-6 if slid else 1e-10, on_energy=("strain",) if slid else ())
+    if slid:
+        searches = [json.loads((tmp_path / run / "summary.json").read_text())["surface_searches"]
+                    for run in ("serial", "mpi")]
+        assert searches[0] == searches[1] == 3

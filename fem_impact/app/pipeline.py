@@ -265,6 +265,11 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         parts["periods"] = periods
     if model.motion is not None:
         parts["motion"] = integrator
+    # surface contacts: rows found again as their bodies slide (Moreau-Jean, full model), else watched
+    sliding = SlidingWatch(cons, fields, comm, raw if model.motion is None and system.rigid is None else None,
+                           model.fixed)
+    if sliding.searching:
+        parts["sliding"] = sliding
     model_keys = checkpoint.model_keys(case)
     # What the model built is, beyond the case's keys: its dofs, and the count of modes the reduced model kept.
     built = {"dofs": model.dofs, "modes": system.summary["modes"]}
@@ -291,6 +296,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                 del parts["periods"]
             integrator.start(system.U0, system.V0, 0.0)   # (allocates what the state then overwrites)
             checkpoint.restore_parts(parts, trees, saved, comm)
+            if "sliding" in parts:   # (the rows the run had at its checkpoint)
+                sliding.restored(raw.state)
         except checkpoint.Damaged as err:
             raise CaseError(f"--restart {err.file}", None, None, err.message) from None
         t0 = saved.t
@@ -308,10 +315,10 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                                 scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name,
                                 reactions=model.motion.names if model.motion else (),
                                 numerical_loss=getattr(raw, "theta", 0.5) != 0.5, rigid=system.rigid)
-        observers = [history, stats, impacts] + ([periods] if periods is not None else [])
-        sliding = SlidingWatch(cons, fields, comm)
-        if sliding:
-            observers.append(sliding)
+        # (the sliding watch first: a step whose rows it finds again is written with them, as a restart
+        # from that step's checkpoint writes it again)
+        observers = ([sliding] if sliding else []) + [history, stats, impacts] + ([periods] if periods is not None
+                                                                                  else [])
         vtk = None
         if case.output.vtk and stage is not None:
             vtk = VTKWriter(stage, model, fields, case.output.every, n_steps, case.output.format)
@@ -386,6 +393,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "fem_impact_version": __version__,
             "restarted_from": restarted,
         }
+        if sliding:   # surface contacts: how often their rows were found again as the bodies slid
+            summary["surface_searches"] = sliding.searches
         if getattr(integrator, "friction", None) is not None:   # (keys added only where friction is)
             summary.update(friction_loss=final.energy.friction_loss,
                            max_friction_residual=integrator.friction_residual,

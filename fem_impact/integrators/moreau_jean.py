@@ -162,6 +162,28 @@ class MoreauJean(ContactScheme):
         self._stick_D = self._stick_H = None   # P_T M^-1 P_T^T and M^-1 P_T^T, built on the first stick
         self.friction_residual, self.friction_sweeps, self.friction_retries = 0.0, 0, 0
 
+    takes_new_rows = True
+
+    def replace_rows(self, P_local, d0: np.ndarray, tangents=None) -> None:
+        """New rows between two steps (ContactScheme.replace_rows): the one-step problem on the new W,
+        the frictional problem on the new rows (its warm start and figures kept: the rows are the same
+        nodes'), and the state's projections on the new rows (the state itself does not change)."""
+        super().replace_rows(P_local, d0, tangents)
+        ops, static = self.ops, self.ops.static
+        self.lcp = OneStepProblem(self.W, ops.laws, self.dt, compliance_scale=self.theta * self.dt * self.dt,
+                                  row_scale=self.theta * self.dt,
+                                  static=static.compliance if static is not None else None)
+        if self.friction is not None:
+            kept = (self.r_prev, self.friction_residual, self.friction_sweeps, self.friction_retries)
+            self._build_friction()
+            self.r_prev, self.friction_residual, self.friction_sweeps, self.friction_retries = kept
+        st = self.state
+        pu, pv = ops.project_many(self.U, self.V)
+        self._pu_dyn = pu
+        st.normal_displacement, st.normal_velocity, st.gap = pu, pv, ops.gap0(st.t) - pu
+        if self.friction is not None:
+            st.tangential_velocity = self.rows.project_many(self.V)[0][ops.p:]
+
     @classmethod
     def from_solver(cls, ops: Operators, solver) -> MoreauJean:
         """From the case file's ``solver`` section."""

@@ -90,6 +90,22 @@ class ContactScheme:
         self.t0 = 0.0
         self.state: StepState | None = None
 
+    # Whether the scheme takes new rows between steps (replace_rows: a surface contact searched again
+    # as its bodies slide); the others keep the rows of t = 0.
+    takes_new_rows = False
+
+    def replace_rows(self, P_local, d0: np.ndarray, tangents=None) -> None:
+        """New rows of the same count between two steps: the operators' rows and what the scheme built
+        on them (W, G, the condensed factor's rows, Carnot's operators, rebuilt on use)."""
+        ops = self.ops
+        ops.replace_rows(P_local, d0, tangents)
+        clock = time.perf_counter()
+        self.W, self.G = ops.delassus(self.solve_S, diagonal=self.diagonal_delassus)
+        self.timings["W again"] = self.timings.get("W again", 0.0) + time.perf_counter() - clock
+        self._condensed = self._condensed_rows()
+        self._D = self._H = self._carnot = None
+        self._abs_d0 = np.abs(ops.d0)
+
     # -- operators of Carnot's correction, built on first use ------------------------------
     def _build_mass_operators(self) -> None:
         clock = time.perf_counter()

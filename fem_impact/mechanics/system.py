@@ -91,10 +91,25 @@ class Operators:
     # The rows' relations (a ``Relations``: their obstacles' positions ``d(t)`` and rates), or None:
     # every obstacle fixed at ``d0``.
     relations: object | None = None
+    # Owned dofs that new rows may touch beyond the present ones (a surface contact's nodes and
+    # surface, searched again as they slide): kept out of a condensed factorization with the rest.
+    reach: np.ndarray | None = None
 
     def __post_init__(self):
         self.algebra = PETScAlgebra(self.K) if isinstance(self.K, PETSc.Mat) else DenseAlgebra(self.K)
         self.comm: MPI.Comm = self.algebra.comm
+        self._index_rows()
+
+    def replace_rows(self, P_local, d0: np.ndarray, tangents=None) -> None:
+        """New rows of the same count (a surface contact's search as its bodies slide): ``P_local``,
+        the gaps ``d0`` (written into the array the relations share) and the tangent rows."""
+        self.P_local = P_local
+        self.d0[:] = d0
+        if tangents is not None:
+            self.tangents = tangents
+        self._index_rows()
+
+    def _index_rows(self) -> None:
         self.P_local = sparse.csr_matrix(self.P_local)
         self._P = self.P_local.T.tocsr()  # owned columns of P
         # P on the owned dofs it touches (a few per row; every coordinate of a replicated small
@@ -334,6 +349,8 @@ class Operators:
         rows = self.with_tangents() if self.pt else self
         if self.comm.size > 1 or rows.p < INVERSE_ENTRIES_FROM or rows._keeps_columns():
             return None
+        if self.reach is not None:
+            return np.union1d(rows._P.indices, self.reach)
         return np.unique(rows._P.indices)
 
     def _diagonal_delassus(self, solve) -> tuple[sparse.csr_matrix, DiagonalColumns] | None:

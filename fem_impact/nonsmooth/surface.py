@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
+from mpi4py import MPI
 from scipy.spatial import cKDTree
 
 from ..errors import ModelInputError
@@ -32,6 +33,7 @@ from ..fem.model import Model
 from .relations import Relation, RelationRows
 
 SLIDING_LIMIT = 0.25   # the share of a cell a row may slide before its partners would change
+FAR = 10.0             # the gap of a node that faces no facet, in the model's size: it never closes
 FACING = -0.5          # cosine of the angle between two facets' outward normals, at most: they face each other
 CANDIDATES = 8         # facets tried per node or segment (the nearest by centre)
 
@@ -78,6 +80,13 @@ def gather_surface(model: Model, group: str, key: tuple) -> Surface:
     return Surface(nodes, x, normal, size)
 
 
+def _moved(surface: Surface, x: np.ndarray) -> Surface:
+    """The surface with its facets' nodes at ``x``: normals and sizes there, outward as before."""
+    normal, size = _facet_normals(x)
+    normal *= np.where(np.einsum("ij,ij->i", normal, surface.normal) < 0.0, -1.0, 1.0)[:, None]
+    return Surface(surface.nodes, x, normal, size)
+
+
 def _facet_normals(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit normals (either side) at the facets' centres and their sizes."""
     if x.shape[2] == 2:
@@ -109,6 +118,7 @@ class SurfaceRows:
     node: np.ndarray      # each row's node (global number)
     x: np.ndarray         # and its coordinates (r x dim)
     area: np.ndarray      # a mortar row's D_j (its node's share of the face: force / area is the pressure); nan
+    paired: np.ndarray    # whether the node faces a facet (else its row is the node's alone, far from anything)
 
     @property
     def r(self) -> int:
@@ -336,8 +346,11 @@ def _mortar_rows(node, x, slave: Surface, master: Surface):
 
 
 def _assemble(parts: list[dict], node: np.ndarray, x: np.ndarray) -> SurfaceRows:
-    """The rows of the parts in the order of the group's nodes."""
-    index, normal, gap, size, mortar, area = [], [], [], [], [], []
+    """A row for every node of the group, in its order: the parts' rows, and for a node that faces no
+    facet a row on the node alone (``paired`` False; its gap is set far by the relation)."""
+    n, dim = x.shape
+    normal, gap, size = np.zeros((n, dim)), np.full(n, np.inf), np.full(n, np.inf)
+    mortar, area, paired = np.zeros(n, dtype=bool), np.full(n, np.nan), np.zeros(n, dtype=bool)
     e_row, e_node, e_weight = [], [], []
     for part in parts:
         if "flat_nodes" in part:     # mortar: entries (row's node index, surface node, weight)
@@ -351,24 +364,16 @@ def _assemble(parts: list[dict], node: np.ndarray, x: np.ndarray) -> SurfaceRows
             e_row.append(np.repeat(rows, m))
             e_node.append(part["nodes"].reshape(-1))
             e_weight.append(-part["weights"].reshape(-1))
-        index.append(rows)
-        normal.append(part["normal"])
-        gap.append(part["gap"])
-        size.append(part["size"])
-        mortar.append(part["mortar"])
-        area.append(part.get("area", np.full(len(rows), np.nan)))
-    index = np.concatenate(index)
-    order = np.argsort(index, kind="stable")
-    index = index[order]
-    row_of = np.full(node.size, -1)
-    row_of[index] = np.arange(index.size)
-    e_row = np.concatenate(e_row)
-    e_row = np.concatenate([row_of[e_row], np.arange(index.size)])
-    e_node = np.concatenate(e_node + [node[index]])
-    e_weight = np.concatenate(e_weight + [np.ones(index.size)])
-    return SurfaceRows(e_row, e_node, e_weight, np.concatenate(normal)[order], np.concatenate(gap)[order],
-                       np.concatenate(size)[order], np.concatenate(mortar)[order], node[index], x[index],
-                       np.concatenate(area)[order])
+        normal[rows], gap[rows], size[rows], mortar[rows] = part["normal"], part["gap"], part["size"], part["mortar"]
+        area[rows] = part.get("area", np.nan)
+        paired[rows] = True
+    if paired.any():   # (a node alone: the mean direction of the others, which it never reaches)
+        mean = normal[paired].sum(axis=0)
+        normal[~paired] = mean / max(np.linalg.norm(mean), 1e-300)
+    e_row = np.concatenate(e_row + [np.arange(n)])
+    e_node = np.concatenate(e_node + [node])
+    e_weight = np.concatenate(e_weight + [np.ones(n)])
+    return SurfaceRows(e_row, e_node, e_weight, normal, gap, size, mortar, node, x, area, paired)
 
 
 def surface_rows(node: np.ndarray, x: np.ndarray, slave: Surface | None, master: Surface) -> SurfaceRows:
@@ -417,28 +422,63 @@ class SurfaceContact(Relation):
             slave = None   # (a group of nodes with no edge between them: node-to-segment rows)
         x = nodes.coords[:, :dim]
         found = surface_rows(nodes.global_node, x, slave, master)
-        if found.r == 0:
+        if not found.paired.any():
             raise ModelInputError(self.key + ("surface",), f"no node of '{self.group}' faces the surface "
                                                            f"'{self.surface}' (none projects on a facet of it whose "
                                                            "outward normal is against the node's side)")
         found.gap[np.abs(found.gap) <= 1e-12 * model.meshdata.extent] = 0.0
-        self.found, self.unpaired = found, len(nodes) - found.r
+        self.far = FAR * model.meshdata.extent
+        found.gap[~found.paired] = self.far
+        self.found, self.unpaired = found, int(np.count_nonzero(~found.paired))
         n_owned, first = dx.owned_nodes(model.V)
-        n_local = model.U0.getLocalSize()
-        normal_col = _columns(found, found.normal, n_owned, first, bs, n_local)
+        self._layout = (n_owned, first, bs, model.U0.getLocalSize())
+        self._geometry = (nodes.global_node, x, slave, master)
+        # the nodes a search reads: the group's and the surfaces', in global numbers, and where their
+        # owned dofs are on this rank
+        parts = [nodes.global_node, master.nodes.ravel()] + ([slave.nodes.ravel()] if slave is not None else [])
+        self.reach_nodes = np.unique(np.concatenate(parts))
+        local = self.reach_nodes - first
+        self._owned = np.flatnonzero((local >= 0) & (local < n_owned))
+        self.reach_dofs = (local[self._owned][:, None] * bs + np.arange(dim)).ravel()
+        return self._done(self._rows_of(found))
+
+    def _rows_of(self, found: SurfaceRows) -> RelationRows:
+        """The columns of P^T (and of P_T^T with friction) of ``found``, and the sliding watch's."""
+        layout = self._layout
+        normal_col = _columns(found, found.normal, *layout)
         tangents = tangent_directions(found.normal)
-        t_cols = [_columns(found, t, n_owned, first, bs, n_local) for t in tangents] if self.with_friction else []
-        # the relative tangential displacement of each row, watched for sliding (SlidingWatch)
-        self.sliding = sparse.hstack([_columns(found, t, n_owned, first, bs, n_local) for t in tangents]).tocsr()
+        columns = [_columns(found, t, *layout) for t in tangents]
+        # the relative tangential displacement of each row, watched for sliding (app/sliding.py)
+        self.sliding = sparse.hstack(columns).tocsr()
         self.sliding_limit = np.tile(SLIDING_LIMIT * found.size, len(tangents))
-        rows = RelationRows(normal_col, t_cols, found.gap)
+        rows = RelationRows(normal_col, columns if self.with_friction else [], found.gap)
         rows.tangent_dirs = tangents if self.with_friction else None
-        return self._done(rows)
+        return rows
+
+    def displacement(self, U: np.ndarray, comm) -> np.ndarray:
+        """The displacement (len(reach_nodes) x dim, every rank) of the nodes a search reads, from the
+        owned entries ``U`` of the full model's displacement."""
+        dim = self._geometry[1].shape[1]
+        out = np.zeros((self.reach_nodes.size, dim))
+        out[self._owned] = U[self.reach_dofs].reshape(-1, dim)
+        return comm.allreduce(out, op=MPI.SUM) if comm.size > 1 else out
+
+    def search(self, u: np.ndarray) -> tuple[SurfaceRows, RelationRows]:
+        """The rows found on the geometry displaced by ``u`` (``displacement``): the mesh's coordinates
+        plus u for the group's nodes and the surfaces' facets, their normals and sizes there (the
+        facets' outward sides kept). Gaps: the distances there (a node alone: far)."""
+        node, x, slave, master = self._geometry
+        at = lambda g: u[np.searchsorted(self.reach_nodes, g)]   # noqa: E731
+        moved = lambda f: None if f is None else _moved(f, f.x + at(f.nodes))   # noqa: E731
+        found = surface_rows(node, x + at(node), moved(slave), moved(master))
+        found.gap[~found.paired] = self.far
+        self.found, self.unpaired = found, int(np.count_nonzero(~found.paired))
+        return found, self._rows_of(found)
 
     def describe(self) -> str:
         f = self.found
-        kind = f"{int(f.mortar.sum())} mortar, {int((~f.mortar).sum())} node-to-segment" if f.x.shape[1] == 2 \
-            else f"{f.r} node-to-segment"
+        nts = int(np.count_nonzero(f.paired & ~f.mortar))
+        kind = f"{int(f.mortar.sum())} mortar, {nts} node-to-segment" if f.x.shape[1] == 2 else f"{nts} node-to-segment"
         alone = f", {self.unpaired} node(s) of '{self.group}' facing no facet" if self.unpaired else ""
         return f"{f.r} rows ({kind}{alone})"
 
