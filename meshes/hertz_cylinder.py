@@ -17,6 +17,7 @@ away from it.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import gmsh
@@ -26,9 +27,11 @@ from fem_impact.fem.gmsh_utils import ScriptParser, length_option, output_option
 R = 0.05
 
 
-def build(path: Path, h: float = R / 200, zone: float = R / 5) -> Path:
+def build(path: Path, h: float = R / 200, zone: float = R / 5, whole: bool = False) -> Path:
     """Mesh the quarter cylinder and the block with cells of size ``h`` (m) near the contact and write
-    them to ``path``; returns ``path``."""
+    them to ``path``; returns ``path``. ``whole``: the half cylinder (x in [-R, R]) on the block [-2R,
+    2R] x [-2R, 0], no symmetry (a tangential load), its ``rim`` the arc within 30 degrees of the
+    bottom, ``side`` the rest of it, and no ``axis``."""
     if not 0.0 < h <= R / 10:
         raise ValueError(f"h must be in (0, {R / 10:g}] m, got {h:g}")
     path = Path(path)
@@ -39,18 +42,29 @@ def build(path: Path, h: float = R / 200, zone: float = R / 5) -> Path:
         centre = geo.addPoint(0.0, R, 0.0)
         bottom = geo.addPoint(0.0, 0.0, 0.0)
         side = geo.addPoint(R, R, 0.0)
-        arc = geo.addCircleArc(bottom, centre, side)
-        lid = geo.addLine(side, centre)
-        axis_c = geo.addLine(centre, bottom)
-        cylinder = geo.addPlaneSurface([geo.addCurveLoop([arc, lid, axis_c])])
-        b0, b1, b2, b3 = (geo.addPoint(x, y, 0.0) for x, y in ((0.0, 0.0), (2 * R, 0.0), (2 * R, -2 * R),
-                                                                  (0.0, -2 * R)))
+        if whole:
+            c, s_ = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
+            left, rim_l, rim_r = (geo.addPoint(x, y, 0.0) for x, y in ((-R, R), (-R * s_, R - R * c),
+                                                                         (R * s_, R - R * c)))
+            arcs = [geo.addCircleArc(p, centre, q) for p, q in ((left, rim_l), (rim_l, bottom), (bottom, rim_r),
+                                                                 (rim_r, side))]
+            lid = geo.addLine(side, left)
+            cylinder = geo.addPlaneSurface([geo.addCurveLoop([*arcs, lid])])
+            x0 = -2 * R
+        else:
+            arc = geo.addCircleArc(bottom, centre, side)
+            lid = geo.addLine(side, centre)
+            axis_c = geo.addLine(centre, bottom)
+            cylinder = geo.addPlaneSurface([geo.addCurveLoop([arc, lid, axis_c])])
+            x0 = 0.0
+        b0, b1, b2, b3 = (geo.addPoint(x, y, 0.0) for x, y in ((x0, 0.0), (2 * R, 0.0), (2 * R, -2 * R),
+                                                                  (x0, -2 * R)))
         top, right, base, axis_b = (geo.addLine(p, q) for p, q in ((b0, b1), (b1, b2), (b2, b3), (b3, b0)))
         block = geo.addPlaneSurface([geo.addCurveLoop([top, right, base, axis_b])])
         geo.synchronize()
         field = gmsh.model.mesh.field
         distance = field.add("Distance")
-        field.setNumbers(distance, "PointsList", [bottom, b0])
+        field.setNumbers(distance, "PointsList", [bottom] + ([] if whole else [b0]))
         threshold = field.add("Threshold")
         field.setNumber(threshold, "InField", distance)
         field.setNumber(threshold, "SizeMin", h)
@@ -60,9 +74,12 @@ def build(path: Path, h: float = R / 200, zone: float = R / 5) -> Path:
         field.setAsBackgroundMesh(threshold)
         for option in ("Mesh.MeshSizeExtendFromBoundary", "Mesh.MeshSizeFromPoints", "Mesh.MeshSizeFromCurvature"):
             gmsh.option.setNumber(option, 0)
-        for name, dim, tags in (("cylinder", 2, [cylinder]), ("block", 2, [block]), ("rim", 1, [arc]),
-                                ("lid", 1, [lid]), ("axis", 1, [axis_c, axis_b]), ("top", 1, [top]),
-                                ("base", 1, [base])):
+        if whole:
+            groups = (("rim", 1, arcs[1:3]), ("side", 1, [arcs[0], arcs[3]]))
+        else:
+            groups = (("rim", 1, [arc]), ("axis", 1, [axis_c, axis_b]))
+        for name, dim, tags in (("cylinder", 2, [cylinder]), ("block", 2, [block]), *groups,
+                                ("lid", 1, [lid]), ("top", 1, [top]), ("base", 1, [base])):
             gmsh.model.setPhysicalName(dim, gmsh.model.addPhysicalGroup(dim, tags), name)
         gmsh.model.mesh.generate(2)
         gmsh.write(str(path))
