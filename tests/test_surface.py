@@ -343,6 +343,8 @@ def test_a_sliding_run_continues_from_its_checkpoint_exactly(strip, tmp_path):
     ({"surface": "upper_bottom"}, "contacts[0].surface", "is the contact's own node group"),
     ({"coupling": "mean"}, "contacts[0].coupling", "a row per node"),
     ({"nodes": ["upper_bottom", "lid"]}, "contacts[0].nodes", "takes one node group"),
+    ({"point": [0, 0.05]}, "contacts[0].point", "a surface contact takes no point"),
+    ({"motion": ["t", "0"]}, "contacts[0].motion", "a surface contact takes no motion"),
 ])
 def test_a_surface_contacts_keys_are_checked_by_name(tmp_path, change, key, words):
     mesh = mesh_module("two_blocks").build(tmp_path / "blocks.msh")

@@ -281,6 +281,8 @@ def _relation(contact: Section) -> dict:
     """The relation's keys of a contact: node groups per type, the gap of an obstacle, a unit normal."""
     f = {name: getattr(contact, name) for name in _RELATION if name != "law"}
     nodes = [f["nodes"]] if isinstance(f["nodes"], str) else f["nodes"]
+    if f["type"] == "surface":   # (its own words for what it does not take: point, motion, normal, gap)
+        _surface_keys(f, nodes)
     if f["point"] is not None:
         if f["type"] != "obstacle":
             raise _Invalid(("point",), "a point of the obstacle's plane is for an obstacle contact "
@@ -290,11 +292,9 @@ def _relation(contact: Section) -> dict:
                                        "its own distance to the plane through it), not both")
     if f["motion"] is not None and f["type"] != "obstacle":
         raise _Invalid(("motion",), "a motion is for an obstacle contact's plane (a pair moves with its bodies)")
-    if f["type"] == "surface":
-        _surface_keys(f, nodes)
-    elif f["surface"] is not None:
+    if f["type"] != "surface" and f["surface"] is not None:
         raise _Invalid(("surface",), "a surface is for a surface contact (type: surface)")
-    elif f["normal"] is None:
+    elif f["type"] != "surface" and f["normal"] is None:
         raise _Invalid(("normal",), f"required for {_article(f['type'])} {f['type']} contact")
     if f["type"] in ("obstacle", "surface"):
         if not (isinstance(nodes, list) and len(nodes) == 1):
@@ -323,10 +323,12 @@ def _surface_keys(f: dict, nodes) -> None:
     """A surface contact: a node group and a surface; its normals and gaps are the geometry's."""
     if f["surface"] is None:
         raise _Invalid(("surface",), "required for a surface contact: the node group whose boundary the nodes meet")
-    for name, why in (("normal", "the surface's own normals"), ("gap", "the geometry's distances"),
-                      ("point", "the geometry's distances")):
+    for name, why in (("normal", "its rows use the surface's own normals"), ("gap", "its rows use the geometry's "
+                                                                                   "distances"),
+                      ("point", "its rows use the geometry's distances"),
+                      ("motion", "its rows move with the bodies")):
         if f[name] is not None:
-            raise _Invalid((name,), f"a surface contact takes no {name}: its rows use {why}")
+            raise _Invalid((name,), f"a surface contact takes no {name}: {why}")
     if f["coupling"] != "each":
         raise _Invalid(("coupling",), "a surface contact has a row per node (coupling: each)")
     if isinstance(nodes, list) and len(nodes) == 1 and nodes[0] == f["surface"]:
