@@ -49,13 +49,13 @@ class SlidingWatch:
         for c, relation in self.surfaces:
             T = relation.sliding
             dofs = np.unique(T.nonzero()[0])
-            self.parts.append((c, relation, dofs, T[dofs]))
+            self.parts.append((c, relation, dofs, T[dofs].T.tocsr()))   # (T^T on the dofs it reads)
 
     def write(self, state) -> None:
         over = False
         for c, relation, dofs, T in self.parts:
             u, _ = self.fields.at(state, dofs)
-            slid = allsum(self.comm, np.asarray(T.T @ u).ravel()) - self.origin[c.name]
+            slid = allsum(self.comm, T @ u) - self.origin[c.name]
             share = np.abs(slid) / relation.sliding_limit
             worst = int(np.argmax(share)) if share.size else 0
             if not share.size or share[worst] <= 1.0:

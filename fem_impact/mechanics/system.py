@@ -28,6 +28,7 @@ KEEP_COLUMNS = 1 << 22   # entries (N x p, 32 MB): up to this size S^-1 P^T is s
 # contact rows: from these on (serial MUMPS), W from selected entries of A^-1, or from the inverse of A's
 # Schur complement on the rows' dofs where A is factorized keeping them out (linalg/condensed.py)
 INVERSE_ENTRIES_FROM = 64
+REACH_BLOCK_BYTES = 2 ** 30   # the inverse's block kept for rows found again (a 3D face of 1681 nodes a side: 0.8 GB)
 RHS_BLOCK = 256      # right-hand sides per multi-RHS solve (fewer on large models: N x block <= RHS_ENTRIES)
 RHS_ENTRIES = 1 << 25
 
@@ -308,9 +309,11 @@ class Operators:
         # (a CondensedFactor) or selected entries of the inverse.
         dofs = np.unique(self._P.indices)
         if p >= INVERSE_ENTRIES_FROM and hasattr(solve, "inverse_block"):
-            block = solve.inverse_block(dofs)
+            block, where = self._inverse_block(solve, dofs)
             if block is not None:
                 Pd = sparse.csr_matrix(self._P[:, dofs])   # (a few entries a row: two products of p m nnz)
+                if where is not None:   # (the block kept for rows found again: P on its dofs, the block shared)
+                    Pd = sparse.csr_matrix((Pd.data, where[Pd.indices], Pd.indptr), shape=(p, block.shape[0]))
                 scale = None
                 if norm is not None:   # (serial: the entries' bound needs no sum over ranks)
                     diag = np.abs(np.diagonal(block))
@@ -318,7 +321,7 @@ class Operators:
                     scale = np.sqrt(eps * condition) * (abs(Pd) @ np.sqrt(diag))
                 finish = (lambda W: (W, SolvedColumns(self, solve))) if norm is None else \
                     (lambda W: (W, SolvedColumns(self, solve), scale))
-                if Pd.shape[0] == Pd.shape[1] and np.all(np.diff(Pd.indptr) == 1) and \
+                if where is None and Pd.shape[0] == Pd.shape[1] and np.all(np.diff(Pd.indptr) == 1) and \
                         np.unique(Pd.indices).size == Pd.shape[1]:
                     # One dof a row, each dof once (normals and tangents along axes): W is the block
                     # permuted and signed, in its own memory (no second copy of the largest array).
@@ -336,6 +339,26 @@ class Operators:
             if norm is not None:
                 sizes[j0:j1] = np.einsum("ij,ij->j", X, X)
         return found(W, SolvedColumns(self, solve))
+
+    def _inverse_block(self, solve, dofs: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """``(block, where)``: ``(A^-1)[dofs][:, dofs]`` as a new array (``where`` None), or, where new rows
+        may come (``reach``: a surface contact found again as its bodies slide), the block on every dof
+        they may touch, kept with the factor and shared (read only), ``where`` the positions of
+        ``dofs`` in it: the rows found again take W from it by two sparse products, without the factor
+        (its memory bounded by ``REACH_BLOCK_BYTES``)."""
+        kept = getattr(solve, "_reach_block", None)
+        if kept is not None:
+            where = np.minimum(np.searchsorted(kept[0], dofs), kept[0].size - 1)
+            if np.array_equal(kept[0][where], dofs):
+                return kept[1], where
+        if self.reach is not None:
+            every = np.union1d(dofs, self.reach)
+            if 8 * every.size ** 2 <= REACH_BLOCK_BYTES:
+                block = solve.inverse_block(every)
+                if block is not None:
+                    solve._reach_block = (every, block)
+                    return block, np.searchsorted(every, dofs)
+        return solve.inverse_block(dofs), None
 
     def _keeps_columns(self) -> bool:
         """Whether ``delassus`` stores ``A^-1 P^T`` (few rows, or a small replicated system)."""
