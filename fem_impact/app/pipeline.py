@@ -393,8 +393,9 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "fem_impact_version": __version__,
             "restarted_from": restarted,
         }
-        if sliding:   # surface contacts: how often their rows were found again as the bodies slid
+        if sliding:   # surface contacts: how often their rows were found again as the bodies slid, in what time
             summary["surface_searches"] = sliding.searches
+            summary["surface_search_s"] = [round(s, 6) for s in sliding.seconds]
         if getattr(integrator, "friction", None) is not None:   # (keys added only where friction is)
             summary.update(friction_loss=final.energy.friction_loss,
                            max_friction_residual=integrator.friction_residual,

@@ -6,6 +6,8 @@ instead of going on with partners the node no longer faces."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from scipy import sparse
 
@@ -30,6 +32,7 @@ class SlidingWatch:
         self.fixed = fixed
         self.origin = {c.name: np.zeros(r.sliding.shape[1]) for c, r in self.surfaces}
         self.searches = 0
+        self.seconds: list[float] = []   # each search's wall time (the first builds what the others reuse)
         self._blocks()
         # per surface contact: the displacement its rows were last found at, the rows' origin, their gaps
         sizes = [r.reach_nodes.size * r._geometry[1].shape[1] + r.sliding.shape[1] + (c.rows.stop - c.rows.start)
@@ -73,7 +76,9 @@ class SlidingWatch:
                 "the rows found at t = 0 (small sliding; rows found again as the bodies slide take "
                 "method: moreau_jean on the full model, docs/limitations.md)")
         if over:
+            clock = time.perf_counter()
             self._search(state)
+            self.seconds.append(time.perf_counter() - clock)
 
     def write_block(self, block) -> None:
         """A block's last step (between contacts the rows slide little: checked where the block ends)."""

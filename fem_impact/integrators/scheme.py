@@ -103,7 +103,10 @@ class ContactScheme:
         self.W, self.G = ops.delassus(self.solve_S, diagonal=self.diagonal_delassus)
         self.timings["W again"] = self.timings.get("W again", 0.0) + time.perf_counter() - clock
         self._condensed = self._condensed_rows()
+        built = self._D is not None
         self._D = self._H = self._carnot = None
+        if built:   # (again now, where a search is timed, not at the next impact)
+            self._build_mass_operators()
         self._abs_d0 = np.abs(ops.d0)
 
     # -- operators of Carnot's correction, built on first use ------------------------------

@@ -95,6 +95,7 @@ class Operators:
     # Owned dofs that new rows may touch beyond the present ones (a surface contact's nodes and
     # surface, searched again as they slide): kept out of a condensed factorization with the rest.
     reach: np.ndarray | None = None
+    searched: bool = False   # (whether new rows came: the block on ``reach`` is kept from then on)
 
     def __post_init__(self):
         self.algebra = PETScAlgebra(self.K) if isinstance(self.K, PETSc.Mat) else DenseAlgebra(self.K)
@@ -108,6 +109,7 @@ class Operators:
         self.d0[:] = d0
         if tangents is not None:
             self.tangents = tangents
+        self.searched = True
         self._index_rows()
 
     def _index_rows(self) -> None:
@@ -351,7 +353,7 @@ class Operators:
             where = np.minimum(np.searchsorted(kept[0], dofs), kept[0].size - 1)
             if np.array_equal(kept[0][where], dofs):
                 return kept[1], where
-        if self.reach is not None:
+        if self.reach is not None and self.searched:   # (from the first search on: a run that never slides pays nothing)
             every = np.union1d(dofs, self.reach)
             if 8 * every.size ** 2 <= REACH_BLOCK_BYTES:
                 block = solve.inverse_block(every)
@@ -372,8 +374,6 @@ class Operators:
         rows = self.with_tangents() if self.pt else self
         if self.comm.size > 1 or rows.p < INVERSE_ENTRIES_FROM or rows._keeps_columns():
             return None
-        if self.reach is not None:
-            return np.union1d(rows._P.indices, self.reach)
         return np.unique(rows._P.indices)
 
     def _diagonal_delassus(self, solve) -> tuple[sparse.csr_matrix, DiagonalColumns] | None:

@@ -492,4 +492,6 @@ def _columns(found: SurfaceRows, direction: np.ndarray, n_owned: int, first: int
     rows = found.entry_row[owned]
     dofs = (local[owned][:, None] * bs + np.arange(dim)).ravel()
     values = (found.entry_weight[owned][:, None] * direction[rows]).ravel()
-    return sparse.csr_matrix((values, (dofs, np.repeat(rows, dim))), shape=(n_local, found.r))
+    columns = sparse.csr_matrix((values, (dofs, np.repeat(rows, dim))), shape=(n_local, found.r))
+    columns.eliminate_zeros()   # (a normal along an axis touches one dof a node: W from the fewest)
+    return columns
