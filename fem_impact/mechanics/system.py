@@ -93,7 +93,7 @@ class Operators:
     # every obstacle fixed at ``d0``.
     relations: object | None = None
     # Owned dofs that new rows may touch beyond the present ones (a surface contact's nodes and
-    # surface, searched again as they slide): kept out of a condensed factorization with the rest.
+    # surface, searched again as they slide): the inverse's blocks W and D come from (_inverse_block).
     reach: np.ndarray | None = None
     searched: bool = False   # (whether new rows came: the block on ``reach`` is kept from then on)
 
