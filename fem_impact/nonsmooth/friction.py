@@ -186,6 +186,7 @@ class FrictionProblem:
         else:
             self.upper, self.lower = W, np.zeros((0, 0), dtype=np.float32)
         self._last = None   # (r, W r) of the last solution, in row order: the next warm start's y
+        self.closing = None   # (the closed rows, the LU factor of their W_NN) of the last close_normal
         self._layout = (None, None)   # (the active rows, the sweeps' blocks of them: cone.blocks_of)
 
     def product(self, x: np.ndarray) -> np.ndarray:
@@ -196,6 +197,12 @@ class FrictionProblem:
         if self.lower.size:
             cone.add_product(y, self.lower, x)
         return y
+
+    def multiply(self, x: np.ndarray) -> np.ndarray:
+        """``W x`` with ``x`` and the result in the caller's order (normal rows first, then tangents)."""
+        out = np.empty(x.size)
+        out[self.order] = self.product(np.ascontiguousarray(np.asarray(x, dtype=float)[self.order]))
+        return out
 
     def dense(self, idx: np.ndarray) -> np.ndarray:
         """``W[idx][:, idx]`` in float64."""
@@ -285,6 +292,75 @@ class FrictionProblem:
         out_r, out_y = np.empty(n), np.empty(n)
         out_r[self.order], out_y[self.order] = r, y
         return FrictionSolution(out_r, out_y, residual, sweeps, residual <= self.TOLERANCE, worst, newton)
+
+    def close_normal(self, sol: FrictionSolution, q: np.ndarray, active: np.ndarray, passes: int = 4
+                     ) -> FrictionSolution:
+        """The normal part of a solution brought to round-off: ``y_N = 0`` on its closed rows exactly.
+
+        A solve stops at the tolerance of the natural map (1e-10 of the data): where ``y_N`` is a gap
+        (the position level) the gaps would be closed to that, not to round-off. With each row's state
+        kept (closed or open, stick or slip, the slip's direction), the normal impulses of the closed
+        rows then solve ``W_NN dr_N = -y_N`` (a dense LU on those rows), and the slip rows' tangential
+        impulses follow them (``|r_T| = mu r_N``, the same direction); their change moves ``y_N`` again
+        by a fraction of the change (the rows' normal-tangent coupling times mu), so a few passes reach
+        round-off. Rows the tolerance left slightly inside (``r = 0``, ``y_N < 0``) join the closed
+        rows, slipping against their tangential velocity. Should a normal impulse turn negative, the
+        solution is returned as it was (it is within the tolerance anyway).
+        """
+        from scipy.linalg import lu_factor, lu_solve
+
+        p = self.p
+        r, y = sol.r.copy(), sol.y.copy()
+        tangents = [b[1:] for b in self.blocks]
+        factored, rows = None, None
+        self.closing = None
+        for _ in range(passes):
+            scale = max(float(np.abs(q[:p][active]).max(initial=0.0)), 1e-300)
+            closed = active & ((r[:p] > 0.0) | (y[:p] < 0.0))
+            if not np.count_nonzero(closed) or np.abs(y[:p][closed]).max() <= 4.0 * EPS * scale:
+                break
+            c = np.flatnonzero(closed)
+            if factored is None or not np.array_equal(c, rows):
+                rows, factored = c, lu_factor(self.dense(self.start[c]), check_finite=False)
+            new = r[c] + lu_solve(factored, -y[c], check_finite=False)
+            if np.any(new < 0.0):
+                return sol
+            for i, r_n in zip(c, new):
+                t = tangents[i]
+                if not t.size or self.mu[i] == 0.0:
+                    r[i] = r_n
+                    continue
+                size = float(np.sqrt(np.sum(r[t] ** 2)))
+                if r[i] == 0.0:   # (a row joining: it slips against its tangential velocity)
+                    speed = float(np.sqrt(np.sum(y[t] ** 2)))
+                    r[t] = -self.mu[i] * r_n * y[t] / speed if speed > 0.0 else 0.0
+                elif size >= (1.0 - 1e-9) * self.mu[i] * r[i]:   # slip: |r_T| = mu r_N, its direction kept
+                    r[t] *= self.mu[i] * r_n / size
+                r[i] = r_n
+            y = self.multiply(r) + q
+        cone = _kernels()
+        rows_all = np.flatnonzero(active).astype(np.int64)
+        ro, yo, qo = r[self.order], y[self.order], np.ascontiguousarray(q[self.order])
+        residual, worst = cone.residual(ro, yo, qo, rows_all, self.start, self.sizes, self.mu, self.rho)
+        if residual > self.TOLERANCE and residual > sol.residual:
+            return sol
+        if factored is not None and np.array_equal(rows, np.flatnonzero(active & (r[:p] > 0.0))):
+            self.closing = (rows, factored)
+        self._last = (ro, yo - qo)
+        return FrictionSolution(r, y, residual, sol.sweeps, True, worst, sol.newton)
+
+    def close_again(self, y_n: np.ndarray) -> np.ndarray | None:
+        """The normal impulses' change that brings the closed rows of the last ``close_normal`` to ``y_N =
+        0`` from ``y_n`` (p, measured on the structure itself, whose operator W stands for to round-off),
+        with the factor of their block; None without one."""
+        if getattr(self, "closing", None) is None:
+            return None
+        from scipy.linalg import lu_solve
+
+        rows, factored = self.closing
+        change = np.zeros(self.p)
+        change[rows] = lu_solve(factored, -y_n[rows], check_finite=False)
+        return change
 
     @staticmethod
     def _newton_direction(J: np.ndarray, F: np.ndarray) -> np.ndarray:
