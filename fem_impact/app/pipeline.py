@@ -307,7 +307,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
                                 scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name,
                                 reactions=model.motion.names if model.motion else (),
-                                numerical_loss=getattr(raw, "theta", 0.5) != 0.5, rigid=system.rigid)
+                                numerical_loss=getattr(raw, "theta", 0.5) != 0.5, rigid=system.rigid,
+                                dt=getattr(integrator, "dt", None))
         observers = [history, stats, impacts] + ([periods] if periods is not None else [])
         sliding = SlidingWatch(cons, fields, comm)
         if sliding:
@@ -391,6 +392,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                            max_friction_residual=integrator.friction_residual,
                            max_friction_sweeps=integrator.friction_sweeps,
                            friction_retries=integrator.friction_retries)
+            if getattr(integrator, "friction_impact", None) is not None:   # (position level: Carnot's correction)
+                summary["friction_corrections_scaled"] = integrator.friction_scaled
         # the loss columns the run's contact laws declare beyond contact_loss (added only where they are)
         summary.update({name: final.energy.losses.get(name, 0.0) for name in cons.laws.extra_columns()})
         if comm.rank == 0 and stage is not None:

@@ -321,8 +321,9 @@ class MoreauJean(ContactScheme):
                 if self.friction_impact is not None:
                     friction_carnot = self._frictional_restitution(impulse, tangential, pv, pt, st.normal_velocity,
                                                                    pu_end, guard, friction_work, jump, st.step + 1, t1)
-                    if friction_carnot is not None:   # (the history's impulse: the normal total; its forces the step's)
+                    if friction_carnot is not None:   # (the history's impulses: the step's totals, as _stick's)
                         pv, pt, carnot, restitution_loss, stick_loss = friction_carnot
+                        tangential = tangential + carnot[p:]
                         carnot = carnot[:p]
                 else:
                     pv, restitution_loss, carnot = self._restitution(impulse, st.normal_velocity, pv, pu_end, guard,
