@@ -21,7 +21,9 @@ rows and e in [0, 1]:
   work is ``-p . Delta(P U) / dt = -(p / dt) . g_n <= 0``: the paper's position-level scheme with
   its contact work fixed, gaps exact to round-off. The trapezoidal step leaves a held row with a
   spurious velocity; Carnot's correction then sets it to ``-e`` times the approach speed (the
-  paper's law), or, should that give energy back, scales it by e (``_restitution``).
+  paper's law), or, should that give energy back, scales it by e (``_restitution``). With
+  friction the same, Carnot's correction then a frictional impact problem in the step's total
+  impulse, scaled down where it would give energy back (``_frictional_restitution``).
 - ``velocity``: Newton's law ``gdot_n+1 + e gdot_n >= 0 _|_ p >= 0`` (``gdot = -P V``) on the
   rows whose gap, predicted to mid-step, is closed (Siconos' MoreauJeanOSI). The work is
   ``p (1 - e) gdot_n / 2 <= 0`` while ``gdot_n <= 0``; a row active while separating (only after
@@ -67,8 +69,9 @@ class MoreauJean(ContactScheme):
       module's docstring). The energy balance closes to round-off.
     - ``theta in (1/2, 1]``: numerical damping of the high frequencies, first order; theta = 1
       is backward Euler. The balance then has the scheme's own dissipation as its residual.
-    - ``level``: ``position`` (the default: gaps closed at every step's end, Carnot's correction
-      for the restitution) or ``velocity`` (Newton's law on velocities; gaps drift).
+    - ``level``: ``position`` (the default: gaps closed at every step's end, with friction too,
+      Carnot's correction for the restitution) or ``velocity`` (Newton's law on velocities; gaps
+      drift).
 
     A step: ``(M + theta dt C + theta^2 dt^2 K) V1 = M V0 + dt R_theta - dt (1 - theta) C V0
     - dt K (U0 + theta (1 - theta) dt V0) - P^T p``, ``U1 = U0 + dt (theta V1 + (1 - theta) V0)``,
@@ -133,11 +136,14 @@ class MoreauJean(ContactScheme):
     def _build_friction(self) -> None:
         """The frictional one-step problem on ``[P; P_T]`` (docs/theory.md s. 11).
 
-        A rigid row with friction takes Newton's law and Coulomb's at the velocity level (De
-        Saxce's form, as Siconos' Moreau-Jean): the impulse of an impact then lies in the cone
-        with its normal part, which a position-level impulse followed by Carnot's correction
-        would split in two. An elastic stop with friction keeps its gap condition at the end of
-        the step (its normal unknown is the same impulse).
+        The rows with friction take the scheme's level, in De Saxce's form (as Siconos' Moreau-Jean),
+        which holds whatever the normal unknown is: at the position level a rigid row's gap at the end
+        of the step, closed to round-off (FrictionProblem.close_normal, _close_gaps), then Carnot's
+        correction as a frictional impact problem in the step's total impulse, so that the impulse of
+        an impact lies in the cone with its whole normal part (_frictional_restitution); at the
+        velocity level Newton's law on the velocities (gaps drift) and the stick correction (_stick).
+        An elastic stop with friction keeps its gap condition at the end of the step (its normal
+        unknown is the same impulse).
         """
         ops, dt, theta = self.ops, self.dt, self.theta
         self.rows = ops.with_tangents()
