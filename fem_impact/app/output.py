@@ -82,11 +82,16 @@ class FrictionColumns:
     ``NAME.tangential_force`` (the magnitude of the summed friction force on the body, the first node
     group of a pair), its components ``NAME.tx``, ``NAME.ty`` (``NAME.tz``) along the global axes,
     ``NAME.slip`` (the largest sliding speed of its rows in contact), ``NAME.sticking`` and ``NAME.slipping``
-    (rows carrying a normal force, strictly inside the friction cone or on it); then ``friction_loss``."""
+    (rows carrying a normal impulse, strictly inside the friction cone or on it); then ``friction_loss``.
+
+    The friction forces are the step's whole tangential impulses over dt (with a Carnot correction's, as
+    the normal impulse column holds it): the cone a row sticks inside is that of its whole normal
+    impulse, ``mu S_N / dt`` (``dt``; without it, ``mu F_N``: the same where no correction acts)."""
 
     STICK = 1e-9   # relative margin inside the cone that counts as sticking
 
-    def __init__(self, cons: Constraints):
+    def __init__(self, cons: Constraints, dt: float | None = None):
+        self.dt = dt
         self.cons, self.dim = cons, cons.tangent_dirs.shape[1]
         self.contacts = [c for c in cons.contacts if np.any(np.isin(cons.tangent_of, np.arange(cons.p)[c.rows]))]
 
@@ -104,9 +109,10 @@ class FrictionColumns:
         per_row_force = np.sqrt(np.bincount(cons.tangent_of, weights=f * f, minlength=p))
         per_row_speed = np.sqrt(np.bincount(cons.tangent_of, weights=state.tangential_velocity ** 2, minlength=p))
         on_body = -(f[:, None] * cons.tangent_dirs)   # the friction force on the body, per tangent row
-        loaded = state.force > 0.0
+        normal = state.force if self.dt is None else state.impulse / self.dt
+        loaded = normal > 0.0
         per_row_speed = np.where(loaded, per_row_speed, 0.0)   # sliding: of the rows in contact only
-        sticking = loaded & (per_row_force < (1.0 - self.STICK) * cons.friction * state.force)
+        sticking = loaded & (per_row_force < (1.0 - self.STICK) * cons.friction * normal)
         values = []
         for c in self.contacts:
             mine = (cons.tangent_of >= c.rows.start) & (cons.tangent_of < c.rows.stop)
@@ -125,7 +131,8 @@ class HistoryWriter:
 
     def __init__(self, path: Path | None, cons: Constraints, probes: Probes, comm: MPI.Comm, fields,
                  flush_every: int = 2000, momenta: BodyMomenta | None = None, scheme_energy: bool = False,
-                 name: str = "run", reactions: list[str] = (), numerical_loss: bool = False, rigid=None):
+                 name: str = "run", reactions: list[str] = (), numerical_loss: bool = False, rigid=None,
+                 dt: float | None = None):
         self.cons, self.probes, self.comm, self.fields = cons, probes, comm, fields
         self.rigid = rigid   # the rigid bodies of a rigid scene (their state: StepState.bodies)
         self.name = name
@@ -137,7 +144,7 @@ class HistoryWriter:
         self._pending = 0                    # rows kept since the last flush
         self.flush_every = flush_every
         self.scheme_energy = scheme_energy   # a scheme that conserves more than kinetic + strain (central difference)
-        self.friction = FrictionColumns(cons) if cons.pt else None
+        self.friction = FrictionColumns(cons, dt) if cons.pt else None
         self.reactions = list(reactions)   # moving supports (fem/prescribed.py): N, the support's force on the body
         self.numerical_loss = numerical_loss   # a scheme that books its own dissipation (Moreau-Jean, theta > 1/2)
         # (groups without columns read nothing: no probes, no bodies)

@@ -314,7 +314,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         history = HistoryWriter(stage / "history.csv" if stage else None, cons, probes, comm, fields, momenta=momenta,
                                 scheme_energy=getattr(integrator, "scheme_energy", False), name=case.name,
                                 reactions=model.motion.names if model.motion else (),
-                                numerical_loss=getattr(raw, "theta", 0.5) != 0.5, rigid=system.rigid)
+                                numerical_loss=getattr(raw, "theta", 0.5) != 0.5, rigid=system.rigid,
+                                dt=getattr(integrator, "dt", None))
         # (the sliding watch first: a step whose rows it finds again is written with them, as a restart
         # from that step's checkpoint writes it again)
         observers = ([sliding] if sliding else []) + [history, stats, impacts] + ([periods] if periods is not None
@@ -401,6 +402,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                            max_friction_residual=integrator.friction_residual,
                            max_friction_sweeps=integrator.friction_sweeps,
                            friction_retries=integrator.friction_retries)
+            if getattr(integrator, "friction_impact", None) is not None:   # (position level: Carnot's correction)
+                summary["friction_corrections_scaled"] = integrator.friction_scaled
         # the loss columns the run's contact laws declare beyond contact_loss (added only where they are)
         summary.update({name: final.energy.losses.get(name, 0.0) for name in cons.laws.extra_columns()})
         if comm.rank == 0 and stage is not None:

@@ -89,9 +89,10 @@ class _MoreauJeanKeys(BaseModel):
     theta: float = _number("-", "theta of the smooth forces: 1/2 the trapezoidal rule (energy-conserving), "
                                 "1 backward Euler (dissipative)", 0.5, ge=0.5, le=1.0)
     level: Literal["position", "velocity"] = Field(
-        "position", description="position: gaps held exactly at the end of every step, Carnot's correction "
-                                "for the restitution; velocity: Newton's impact law on the velocities, gaps "
-                                "drift by up to dt times the impact speed")
+        "position", description="position: gaps held exactly at the end of every step (with friction too), "
+                                "Carnot's correction for the restitution (with friction a frictional impact "
+                                "problem); velocity: Newton's impact law on the velocities, gaps drift by up to "
+                                "dt times the impact speed")
 
 
 class _NewmarkKeys(BaseModel):

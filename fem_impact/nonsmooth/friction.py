@@ -186,6 +186,9 @@ class FrictionProblem:
         else:
             self.upper, self.lower = W, np.zeros((0, 0), dtype=np.float32)
         self._last = None   # (r, W r) of the last solution, in row order: the next warm start's y
+        self.closing = None   # the closed rows of the last close_normal (close_again's)
+        self._normal_factors = None   # (rows, the solve with their W_NN's factor): _normal_factor
+        self.tangent_of = np.asarray(tangent_of, dtype=np.int64)
         self._layout = (None, None)   # (the active rows, the sweeps' blocks of them: cone.blocks_of)
 
     def product(self, x: np.ndarray) -> np.ndarray:
@@ -196,6 +199,12 @@ class FrictionProblem:
         if self.lower.size:
             cone.add_product(y, self.lower, x)
         return y
+
+    def multiply(self, x: np.ndarray) -> np.ndarray:
+        """``W x`` with ``x`` and the result in the caller's order (normal rows first, then tangents)."""
+        out = np.empty(x.size)
+        out[self.order] = self.product(np.ascontiguousarray(np.asarray(x, dtype=float)[self.order]))
+        return out
 
     def dense(self, idx: np.ndarray) -> np.ndarray:
         """``W[idx][:, idx]`` in float64."""
@@ -285,6 +294,88 @@ class FrictionProblem:
         out_r, out_y = np.empty(n), np.empty(n)
         out_r[self.order], out_y[self.order] = r, y
         return FrictionSolution(out_r, out_y, residual, sweeps, residual <= self.TOLERANCE, worst, newton)
+
+    def close_normal(self, sol: FrictionSolution, q: np.ndarray, active: np.ndarray, passes: int = 4
+                     ) -> FrictionSolution:
+        """The normal part of a solution brought to round-off: ``y_N = 0`` on its closed rows exactly.
+
+        A solve stops at the tolerance of the natural map (1e-10 of the data): where ``y_N`` is a gap
+        (the position level) the gaps would be closed to that, not to round-off. With each row's state
+        kept (closed or open, stick or slip, the slip's direction), the normal impulses of the closed
+        rows then solve ``W_NN dr_N = -y_N`` (a Cholesky factor of their block, kept while the closed
+        rows stay the same: W does not change from step to step), and the slip rows' tangential
+        impulses follow them (``|r_T| = mu r_N``, the same direction); their change moves ``y_N`` again
+        by a fraction of the change (the rows' normal-tangent coupling times mu), so a few passes reach
+        round-off. Rows the tolerance left slightly inside (``r = 0``, ``y_N < 0``) join the closed
+        rows, slipping against their tangential velocity. Should a normal impulse turn negative, the
+        solution is returned as it was (it is within the tolerance anyway).
+        """
+        p, mu = self.p, self.mu
+        r, y = sol.r.copy(), sol.y.copy()
+        owner, tangent = self.tangent_of, p + np.arange(self.tangent_of.size)
+        self.closing = None
+        rows = None
+        for _ in range(passes):
+            scale = max(float(np.abs(q[:p][active]).max(initial=0.0)), 1e-300)
+            closed = active & ((r[:p] > 0.0) | (y[:p] < 0.0))
+            if not np.count_nonzero(closed) or np.abs(y[:p][closed]).max() <= 4.0 * EPS * scale:
+                break
+            rows = np.flatnonzero(closed)
+            new = r[:p].copy()
+            new[rows] += self._normal_factor(rows)(-y[rows])
+            if np.any(new[rows] < 0.0):
+                return sol
+            if owner.size:
+                r_t, y_t = r[tangent], y[tangent]
+                size = np.sqrt(np.bincount(owner, weights=r_t * r_t, minlength=p))[owner]
+                speed = np.sqrt(np.bincount(owner, weights=y_t * y_t, minlength=p))[owner]
+                old, now, m = r[:p][owner], new[owner], mu[owner]
+                joining = closed[owner] & (old == 0.0) & (speed > 0.0)   # (it slips against its velocity)
+                slipping = closed[owner] & (old > 0.0) & (size >= (1.0 - 1e-9) * m * old) & (size > 0.0)
+                r_t = np.where(joining, -m * now * y_t / np.where(speed > 0.0, speed, 1.0), r_t)
+                r_t = np.where(slipping, r_t * (m * now / np.where(size > 0.0, size, 1.0)), r_t)
+                r[tangent] = r_t
+            r[:p] = new
+            y = self.multiply(r) + q
+        cone = _kernels()
+        rows_all = np.flatnonzero(active).astype(np.int64)
+        ro, yo, qo = r[self.order], y[self.order], np.ascontiguousarray(q[self.order])
+        residual, worst = cone.residual(ro, yo, qo, rows_all, self.start, self.sizes, self.mu, self.rho)
+        if residual > self.TOLERANCE and residual > sol.residual:
+            return sol
+        if rows is not None and np.array_equal(rows, np.flatnonzero(active & (r[:p] > 0.0))):
+            self.closing = rows
+        self._last = (ro, yo - qo)
+        return FrictionSolution(r, y, residual, sol.sweeps, True, worst, sol.newton)
+
+    def _normal_factor(self, rows: np.ndarray):
+        """``x -> W_NN[rows, rows]^-1 x`` (Cholesky; LU where the block is not positive definite to working
+        precision), the factor kept while the rows stay the same."""
+        from scipy.linalg import LinAlgError, cho_factor, cho_solve, lu_factor, lu_solve
+
+        kept = self._normal_factors
+        if kept is not None and np.array_equal(kept[0], rows):
+            return kept[1]
+        block = self.dense(self.start[rows])
+        try:
+            factor = cho_factor(block, check_finite=False)
+            solve = (lambda x: cho_solve(factor, x, check_finite=False))
+        except LinAlgError:
+            factor = lu_factor(block, check_finite=False)
+            solve = (lambda x: lu_solve(factor, x, check_finite=False))
+        self._normal_factors = (rows, solve)
+        return solve
+
+    def close_again(self, y_n: np.ndarray) -> np.ndarray | None:
+        """The normal impulses' change that brings the closed rows of the last ``close_normal`` to ``y_N =
+        0`` from ``y_n`` (p, measured on the structure itself, whose operator W stands for to round-off),
+        with the factor of their block; None without one."""
+        if getattr(self, "closing", None) is None:
+            return None
+        rows = self.closing
+        change = np.zeros(self.p)
+        change[rows] = self._normal_factor(rows)(-y_n[rows])
+        return change
 
     @staticmethod
     def _newton_direction(J: np.ndarray, F: np.ndarray) -> np.ndarray:
