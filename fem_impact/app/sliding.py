@@ -141,7 +141,7 @@ class SlidingWatch:
         tangents = None
         if T is not None:
             tangents = (sparse.hstack([T] + t_new).tocsc()[:, t_order] if t_new else T).tocsr()
-        integ.replace_rows(P_new, d0, tangents)
+        integ.replace_rows(P_new, d0, tangents, same=memory is not None)
         cons.P_local = ops.P_local
         if tangents is not None:
             cons.tangent_local = ops.tangents

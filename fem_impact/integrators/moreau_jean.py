@@ -182,24 +182,26 @@ class MoreauJean(ContactScheme):
 
     takes_new_rows = True
 
-    def replace_rows(self, P_local, d0: np.ndarray, tangents=None) -> None:
+    def replace_rows(self, P_local, d0: np.ndarray, tangents=None, same: bool = False) -> None:
         """New rows between two steps (ContactScheme.replace_rows): the one-step problem on the new W,
-        the frictional problem on the new rows (its warm start and figures kept: the rows are the same
-        nodes'), and the state's projections on the new rows (the state itself does not change)."""
+        the frictional problem on the new rows (its guess and figures kept: the rows are the same
+        nodes'), and the state's projections on the new rows (the state itself does not change).
+        ``same``: the rows the run had (a restart's): the solvers' last ``W r``, restored with them,
+        hold too (on new rows they would not: W changed)."""
         super().replace_rows(P_local, d0, tangents)
         ops, static = self.ops, self.ops.static
         self.lcp = OneStepProblem(self.W, ops.laws, self.dt, compliance_scale=self.theta * self.dt * self.dt,
                                   row_scale=self.theta * self.dt,
                                   static=static.compliance if static is not None else None)
-        if self.friction is not None:   # (the solvers' warm starts kept: a restart's, restored, too)
+        if self.friction is not None:   # (the guess kept; a restart's solvers as restored)
             kept = (self.r_prev, self.friction_residual, self.friction_sweeps, self.friction_retries,
                     self.friction_scaled)
-            warm = [getattr(problem, "_last", None) for problem in (self.friction, self.friction_impact)]
+            warm = [getattr(problem, "_last", None) for problem in (self.friction, self.friction_impact)]   # (r, W r)
             self._build_friction()
             (self.r_prev, self.friction_residual, self.friction_sweeps, self.friction_retries,
              self.friction_scaled) = kept
             for problem, last in zip((self.friction, self.friction_impact), warm):
-                if problem is not None and last is not None:
+                if same and problem is not None and last is not None:
                     problem._last = last
         st = self.state
         pu, pv = ops.project_many(self.U, self.V)

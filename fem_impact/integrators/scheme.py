@@ -94,7 +94,7 @@ class ContactScheme:
     # as its bodies slide); the others keep the rows of t = 0.
     takes_new_rows = False
 
-    def replace_rows(self, P_local, d0: np.ndarray, tangents=None) -> None:
+    def replace_rows(self, P_local, d0: np.ndarray, tangents=None, same: bool = False) -> None:
         """New rows of the same count between two steps: the operators' rows and what the scheme built
         on them (W, G, the condensed factor's rows, Carnot's operators, rebuilt on use)."""
         ops = self.ops

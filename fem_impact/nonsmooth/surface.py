@@ -384,14 +384,20 @@ def surface_rows(node: np.ndarray, x: np.ndarray, slave: Surface | None, master:
     return _assemble([_nts_part(nts["index"], nts, master)], node, x)
 
 
-def tangent_directions(normal: np.ndarray) -> list[np.ndarray]:
+def tangent_directions(normal: np.ndarray, previous: np.ndarray | None = None) -> list[np.ndarray]:
     """Unit tangents of each row (r x dim each): one in 2D (the normal turned by +90 degrees), two
-    in 3D (right-handed with the normal)."""
+    in 3D (right-handed with the normal). ``previous``: the rows' first tangents before (3D): each
+    new one is the old turned into the new plane, so that a row's tangential impulses (the friction
+    solver's warm start, the outputs) keep their meaning across a search."""
     if normal.shape[1] == 2:
         return [np.column_stack([-normal[:, 1], normal[:, 0]])]
     helper = np.eye(3)[np.argmin(np.abs(normal), axis=1)]
     t1 = np.cross(helper, normal)
     t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    if previous is not None:
+        turned = previous - np.einsum("ij,ij->i", previous, normal)[:, None] * normal
+        size = np.linalg.norm(turned, axis=1, keepdims=True)
+        t1 = np.where(size > 0.5, turned / np.maximum(size, 1e-300), t1)
     return [t1, np.cross(normal, t1)]
 
 
@@ -446,7 +452,8 @@ class SurfaceContact(Relation):
         """The columns of P^T (and of P_T^T with friction) of ``found``, and the sliding watch's."""
         layout = self._layout
         normal_col = _columns(found, found.normal, *layout)
-        tangents = tangent_directions(found.normal)
+        tangents = tangent_directions(found.normal, getattr(self, "_first_tangent", None))
+        self._first_tangent = tangents[0] if len(tangents) > 1 else None
         columns = [_columns(found, t, *layout) for t in tangents]
         # the relative tangential displacement of each row, watched for sliding (app/sliding.py)
         self.sliding = sparse.hstack(columns).tocsr()
