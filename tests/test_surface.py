@@ -11,7 +11,6 @@ step), the gaps held at the position level.
 from __future__ import annotations
 
 import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -490,7 +489,8 @@ def plot(png: Path, folder: Path) -> Path:
     for h, marker in ((R / 50, "s"), (R / 100, "^"), (R / 200, "o")):
         x, p, _ = hertz_pressure(hertz_case(build(folder / f"hertz_{R / h:.0f}.msh", h)))
         near = x < 1.6 * A_HERTZ
-        ax.plot(x[near] / A_HERTZ, p[near] / P0_HERTZ, marker, ms=4, mfc="none", label=f"mortar rows, cells R/{R / h:.0f}")
+        ax.plot(x[near] / A_HERTZ, p[near] / P0_HERTZ, marker, ms=4, mfc="none",
+                label=f"mortar rows, cells R/{R / h:.0f}")
     ax.set_xlabel("x / a (a: Hertz's half-width)")
     ax.set_ylabel("contact pressure / p0")
     ax.set_title("A steel cylinder pressed on a steel block, plane strain, meshed apart (type: surface)")
