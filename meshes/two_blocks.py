@@ -76,9 +76,10 @@ def build(path: Path, n: int = 5, m: int = 7, triangles: bool = False, up: int |
     return path
 
 
-def build_3d(path: Path, n: int = 5, m: int = 7, up: int = 3) -> Path:
-    """The two blocks as boxes 0.1 deep (z in [0, 0.1]), hexahedra, ``n`` and ``m`` cells across x and
-    z, ``up`` up: the same groups, ``left`` on x = 0 and ``back`` on z = 0 of both."""
+def build_3d(path: Path, n: int = 5, m: int = 7, up: int = 3, tetrahedra: bool = False) -> Path:
+    """The two blocks as boxes 0.1 deep (z in [0, 0.1]), hexahedra (or ``tetrahedra``, six a hexahedron,
+    triangles on the faces), ``n`` and ``m`` cells across x and z, ``up`` up: the same groups, ``left``
+    on x = 0 and ``back`` on z = 0 of both."""
     if n < 1 or m < 1 or up < 1:
         raise ValueError(f"the blocks need at least one cell each way, got {n}, {m} and {up}")
     path = Path(path)
@@ -96,8 +97,11 @@ def build_3d(path: Path, n: int = 5, m: int = 7, up: int = 3) -> Path:
                 gmsh.model.mesh.setTransfiniteCurve(abs(curve), (up if y1 - y0 > 1e-6 else cells) + 1)
             for _, face in boundary:
                 gmsh.model.mesh.setTransfiniteSurface(face)
-                gmsh.model.mesh.setRecombine(2, face)
+                if not tetrahedra:
+                    gmsh.model.mesh.setRecombine(2, face)
             gmsh.model.mesh.setTransfiniteVolume(volume)
+            if not tetrahedra:
+                gmsh.model.mesh.setRecombine(3, volume)
 
         def faces(volume, axis, value):
             found = []
