@@ -404,6 +404,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                            friction_retries=integrator.friction_retries)
             if getattr(integrator, "friction_impact", None) is not None:   # (position level: Carnot's correction)
                 summary["friction_corrections_scaled"] = integrator.friction_scaled
+                # (steps whose position-level cone problem was not solved, taken at the velocity level)
+                summary["friction_velocity_steps"] = integrator.friction_velocity_steps
         # the loss columns the run's contact laws declare beyond contact_loss (added only where they are)
         summary.update({name: final.energy.losses.get(name, 0.0) for name in cons.laws.extra_columns()})
         if comm.rank == 0 and stage is not None:

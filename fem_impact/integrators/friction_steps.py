@@ -90,7 +90,47 @@ class FrictionSteps:
         ops, p, V = self.ops, self.ops.p, self.V
         free = self.rows.project_many(V)[0]
         pv_free, pt_free = free[:p], free[p:]
-        q, active = self._contact_problem(st, pv_free, t1)
+        self.at_velocity = self.level == "velocity"
+        figures = (self.friction_residual, self.friction_sweeps, self.friction_retries)
+        try:
+            sol, q, q_all, active = self._cone_steps(st, t1, pv_free, pt_free)
+        except ContactSolverError:
+            if self.at_velocity:
+                raise
+            # Its cone problem at the position level not solved (De Saxce's form with the gap's rate
+            # need not have a solution for a large mu: a block sticking at mu = 5 on its ringing rows):
+            # this step at the velocity level, energy-safe, its gaps drifting by (1 - theta) dt |v_N|
+            # at most, no Carnot correction (summary: friction_velocity_steps).
+            self.at_velocity = True
+            self.friction_velocity_steps += 1
+            self.friction_residual, self.friction_sweeps, self.friction_retries = figures   # (the solve kept's)
+            sol, q, q_all, active = self._cone_steps(st, t1, pv_free, pt_free)
+        r = sol.r
+        self.r_prev = r
+        self._r_t = r[p:]
+        if not np.count_nonzero(r):
+            return r[:p], r[p:], pv_free, pt_free, 0.0
+        self.G_all.subtract_from(V, r)
+        self.rows.subtract_transpose(rhs, r)   # the step's equation with the impulses, for K V1
+        Wr = sol.y - q_all   # W r with the compliance; without it on the normal rows:
+        if self.compliance is not None:
+            Wr[:p] -= self.compliance.dot(r[:p])
+        if not self.at_velocity:
+            return self._close_gaps(r, q, pv_free, free, float(np.abs(Wr[:p]).max()), rhs)
+        return r[:p], r[p:], pv_free - Wr[:p], pt_free - Wr[p:], float(np.abs(Wr[:p]).max())
+
+    def _cone_steps(self, st: StepState, t1: float, pv_free: np.ndarray, pt_free: np.ndarray):
+        """The step's cone problem solved at ``self.at_velocity``'s level, with the rows it adds to the
+        slip law or to the solve: (the solution, q of the normal rows, the whole q, the active rows)."""
+        ops, p = self.ops, self.ops.p
+        position = not self.at_velocity
+        kept = self.position_rows
+        if not position:   # (the velocity level's rows: the elastic ones alone take their gap)
+            self.position_rows = self.position_rows & self.elastic if self.level == "position" else kept
+        try:
+            q, active = self._contact_problem(st, pv_free, t1)
+        finally:
+            self.position_rows = kept
         # Tangent rows of a contact that persists (an impulse in the previous step): Coulomb's law on
         # the slip over the step, (1 - theta) P_T V0 + theta P_T V1, scaled by 1/theta (W stays
         # symmetric); the friction then never does positive work in a step. A row that closes in
@@ -106,12 +146,12 @@ class FrictionSteps:
         # Rows at the position level are all in the problem, but a row whose free gap stays open and that
         # carried nothing in the previous step is left out of the solve (a face in flight costs nothing);
         # one that the others' impulses would push into the obstacle is added and the problem solved again.
-        tried = active & ((q <= 0.0) | (st.impulse > 0.0) | ~self.position_rows) if self.level == "position" else active
+        tried = active & ((q <= 0.0) | (st.impulse > 0.0) | ~self.position_rows) if position else active
         for attempt in range(2 * p + 2):   # (each new solve adds a row to the slip law or to the solve)
             q_t = -pt_free_rel - np.where(slip_law, (1.0 - self.theta) / self.theta * pt0, 0.0)
             q_all = np.concatenate([q, q_t])
             sol = self._solve_cone(self.friction, q_all, tried, guess, st.step + 1, t1)
-            if self.level == "position":   # (the gaps closed to round-off, not to the solver's tolerance)
+            if position:   # (the gaps closed to round-off, not to the solver's tolerance)
                 sol = self.friction.close_normal(sol, q_all, tried)
             closing = active & ~tried & (sol.y[:p] < 0.0)
             if np.count_nonzero(closing):
@@ -127,19 +167,7 @@ class FrictionSteps:
             slip_law |= giving
             guess = sol.r
         self._persists = slip_law if np.count_nonzero(slip_law) else None
-        r = sol.r
-        self.r_prev = r
-        self._r_t = r[p:]
-        if not np.count_nonzero(r):
-            return r[:p], r[p:], pv_free, pt_free, 0.0
-        self.G_all.subtract_from(V, r)
-        self.rows.subtract_transpose(rhs, r)   # the step's equation with the impulses, for K V1
-        Wr = sol.y - q_all   # W r with the compliance; without it on the normal rows:
-        if self.compliance is not None:
-            Wr[:p] -= self.compliance.dot(r[:p])
-        if self.level == "position":
-            return self._close_gaps(r, q, pv_free, free, float(np.abs(Wr[:p]).max()), rhs)
-        return r[:p], r[p:], pv_free - Wr[:p], pt_free - Wr[p:], float(np.abs(Wr[:p]).max())
+        return sol, q, q_all, active
 
     def _close_gaps(self, r: np.ndarray, q: np.ndarray, pv_free: np.ndarray, free: np.ndarray, jump: float, rhs):
         """The gaps of the closed rows measured on the structure and closed there to round-off.

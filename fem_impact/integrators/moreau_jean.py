@@ -86,7 +86,7 @@ class MoreauJean(FrictionSteps, ContactScheme):
     # friction solver's warm start (its guess), and the solver's extremes over the run (the summary's)
     __checkpoint__ = ContactScheme.__checkpoint__ + ("KU", "KV", "_pu_dyn", "r_prev", "friction", "friction_residual",
                                                      "friction_sweeps", "friction_retries", "friction_impact",
-                                                     "friction_scaled")
+                                                     "friction_scaled", "friction_velocity_steps")
 
     def __init__(self, ops: Operators, dt: float, theta: float = 0.5, level: str = "position"):
         if not 0.5 <= theta <= 1.0:
@@ -112,6 +112,7 @@ class MoreauJean(FrictionSteps, ContactScheme):
         self.carnot_rows = ~self.elastic & ~ops.massless_rows if level == "position" else np.zeros(ops.p, bool)
         self.friction = self.r_prev = self.friction_impact = None
         self.friction_residual, self.friction_sweeps, self.friction_retries, self.friction_scaled = 0.0, 0, 0, 0
+        self.friction_velocity_steps = 0   # steps whose position-level cone problem fell back to the velocity level
         if ops.pt:
             self._build_friction()
         new = self.alg.vector
@@ -296,7 +297,7 @@ class MoreauJean(FrictionSteps, ContactScheme):
             moved = ops.obstacle_moved(st.t, t1)
             obstacle_rate = None if moved is None else moved / dt
             step_contact_loss = float(impulse.dot(0.5 * (st.normal_velocity + pv_star)))
-            if np.count_nonzero(self.carnot_rows):
+            if np.count_nonzero(self.carnot_rows) and not getattr(self, "at_velocity", False):
                 pu_end = self._pu_dyn + dt * ((1.0 - theta) * st.normal_velocity + theta * pv_star)
                 guard = step_contact_loss if moved is None else step_contact_loss - float(impulse.dot(obstacle_rate))
                 if self.friction_impact is not None:
