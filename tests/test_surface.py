@@ -307,6 +307,7 @@ def test_a_frictionless_block_crosses_the_strip_at_its_speed_and_rests_on_it(str
     assert h["face.force"][h["t"] > 0.01].mean() == pytest.approx(BLOCK_MASS * G, rel=0.01)
 
 
+@pytest.mark.slow   # (10 s: 64 rows with friction in 3D, 150 steps)
 def test_a_3d_box_sliding_obliquely_on_a_box_meshed_apart_slows_at_mu_g_against_its_motion(tmp_path):
     """3D, node-to-segment rows on hexahedra (5 against 7 cells across), the upper box launched at
     (1, 0, 0.5) m/s under gravity, mu = 0.3: its velocity keeps its direction and loses mu g t (within
