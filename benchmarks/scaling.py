@@ -82,7 +82,7 @@ def one(method: str, cells: int, steps: int, history_file: str) -> None:
                      "solver.mass=lumped", "output.vtk=false", "output.every=1"]
     else:
         case = CASE
-        overrides = [f"mesh.dim=3", f"mesh.cells={cells}", "contacts.0.coupling=mean", f"solver.dt={dt}",
+        overrides = ["mesh.dim=3", f"mesh.cells={cells}", "contacts.0.coupling=mean", f"solver.dt={dt}",
                      f"solver.t_end={steps * dt}", f"contacts.0.gap={steps / 4 * dt}", "output.vtk=false",
                      f"output.every={steps}", *METHODS[method]]
     result = fi.run(fi.load_case(case, overrides))
@@ -189,8 +189,8 @@ def main() -> None:
                       f"{serial['step_ms'] / pair['step_ms']:>7.2f}{serial['peak_MiB']:>11.0f}{pair['peak_MiB']:>11.0f}"
                       f"{diff:>14.1e}", flush=True)
         if args.plate:
-            print(f"\nExplicit plate landing face-first (cases/plate_drop.yaml, central difference, lumped mass), every "
-                  f"face node a row, the whole impact (5 n steps); E max / E0 and the momentum gap on 1 | 2 ranks",
+            print("\nExplicit plate landing face-first (cases/plate_drop.yaml, central difference, lumped mass), every "
+                  "face node a row, the whole impact (5 n steps); E max / E0 and the momentum gap on 1 | 2 ranks",
                   flush=True)
             print(f"{'rows':>7}{'unknowns':>10}{'setup 1':>9}{'setup 2':>9}{'ratio':>7}{'step 1 ms':>11}"
                   f"{'step 2 ms':>11}{'ratio':>7}{'peak 1 MiB':>11}{'peak 2 MiB':>11}{'history diff':>14}"

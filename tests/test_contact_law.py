@@ -285,7 +285,7 @@ def test_a_damped_stop_defined_here_rebounds_as_the_damped_oscillator(damped_sto
     kinetic energy lost; the balance closes to 1e-10 of the energy; the force never pulls."""
     dt = 1e-3 / OMEGA
     h = damped_bounce(scheme, zeta, dt)
-    t, u, v, f = h[:, 0], h[:, 1], h[:, 2], h[:, 3]
+    u, v, f = h[:, 1], h[:, 2], h[:, 3]
     e0 = 0.5 * M_ * V0_**2
     exact = rebound_ratio(zeta)
     # (first order in omega dt: the dashpot acts on the step's mean rate, central difference one step late)

@@ -12,7 +12,6 @@ import types
 from pathlib import Path
 from typing import Literal
 
-import pytest
 from pydantic import BaseModel, Field
 
 ROOT = Path(__file__).resolve().parents[1]

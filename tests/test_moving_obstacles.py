@@ -48,7 +48,7 @@ def shaken_ball(e: float, gamma: float, f: float, per_period: int, periods: int,
     phi = np.arccos(np.pi * (1.0 - e) / ((1.0 + e) * gamma))
     # The ball's height u above where it starts, the table's normal -1 (the ball falls onto it): -u <= d(t).
     table = MovingPlane(FixedPlane(None, np.array([-1.0]), [], 0.0),
-                        [parse_expression(f"A*sin(w*t + phi)", ("t",), {"A": A, "w": w, "phi": phi})])
+                        [parse_expression("A*sin(w*t + phi)", ("t",), {"A": A, "w": w, "phi": phi})])
     table.d0, table._start = np.array([0.0]), table._vector(0.0, 0)   # (a one-dof system: no mesh to place it)
     newton = laws.RowLaws([(laws.law_of("newton", {"restitution": e}), [0])], 1)
     ops = Operators(one_by_one(1.0), one_by_one(0.0), None, ConstantLoad(-g), np.array([[-1.0]]), np.array([0.0]),

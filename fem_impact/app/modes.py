@@ -49,7 +49,6 @@ def _run_modes(case, out, n, comm, t_start, at=None, direction="x") -> dict:
     outdir = out.path
     install_signal_handlers()   # (after PETSc's own: dolfinx_api loaded it)
     model = finite_element_model(case, comm)
-    meshdata = model.meshdata
     available = free_dof_count(model)
     if n is None:
         if isinstance(getattr(case.solver, "modes", None), int):   # (only the reduced model's solver has modes)
@@ -151,7 +150,7 @@ def format_table(summary: dict) -> str:
                      f"the mass-normalized mode's mean displacement there (units of the case: mass, force/length); "
                      + gamma)
     radial = [a for a in AXES[: summary["dim"]] if a not in axes]
-    lines.append(f"Effective mass: share of the free mass that each mode carries in a translation"
+    lines.append("Effective mass: share of the free mass that each mode carries in a translation"
                  + (f" (along the axis {axes[0]} only: axisymmetric, a uniform {radial[0]} displacement is a "
                     "ring's expansion, no translation)" if summary.get("axisymmetric") and radial else "") + ". "
                  f"Wall time {summary['wall_time_s']:.2f} s on {summary['mpi_ranks']} rank(s). "

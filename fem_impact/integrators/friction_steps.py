@@ -87,7 +87,7 @@ class FrictionSteps:
         Returns (normal impulses, tangential impulses, P V, P_T V, the largest normal velocity jump).
         A solve that misses its tolerance stops the run (ContactSolverError, status 3).
         """
-        ops, p, V = self.ops, self.ops.p, self.V
+        p, V = self.ops.p, self.V
         free = self.rows.project_many(V)[0]
         pv_free, pt_free = free[:p], free[p:]
         self.at_velocity = self.level == "velocity"

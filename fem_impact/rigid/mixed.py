@@ -77,7 +77,7 @@ class ElasticPart(MoreauJean):
         return self.share(pv_free)
 
     def _frictional_impulse(self, st: StepState, t1: float, rhs: np.ndarray):
-        ops, p, V = self.ops, self.ops.p, self.V
+        p, V = self.ops.p, self.V
         free = self.rows.project_many(V)[0]
         r = self.share(free)
         self._r_t = r[p:]
