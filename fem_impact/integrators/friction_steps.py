@@ -98,7 +98,7 @@ class FrictionSteps:
             if self.at_velocity:
                 raise
             # Its cone problem at the position level not solved (De Saxce's form with the gap's rate
-            # need not have a solution for a large mu: a block sticking at mu = 5 on its ringing rows):
+            # need not have a solution the solver finds at a large mu, docs/theory.md s. 11):
             # this step at the velocity level, energy-safe, its gaps drifting by (1 - theta) dt |v_N|
             # at most, no Carnot correction (summary: friction_velocity_steps).
             self.at_velocity = True
@@ -177,9 +177,7 @@ class FrictionSteps:
         leaves gaps of that size. From the velocity itself, ``y_N = q_N + P V_free - P V1 + c r_N``, the
         closed rows' normal impulses are corrected with W_NN's factor (friction.close_again) until
         ``y_N`` is at round-off (two passes at most), and P V1, P_T V1 are returned as measured (the next
-        step's gaps are taken with them). On the plate of verification.md landing while sliding, the
-        largest penetration falls from 8.7e-15 to 2.8e-16 (Courant 5) and from 2.8e-13 to 2.2e-15
-        (Courant 50). Returns what _frictional_impulse does."""
+        step's gaps are taken with them; docs/theory.md s. 11). Returns what _frictional_impulse does."""
         p, V = self.ops.p, self.V
         actual = self.rows.project_many(V)[0]
         scale = 4.0 * np.finfo(float).eps * max(float(np.abs(q).max()), 1e-300)

@@ -9,13 +9,13 @@ each row holds one node of the group and the surface nodes it faces, the Delassu
 sparse as node pairs', and a uniform pressure and a linear displacement field cross the interface
 exactly (the contact patch test). A node whose segments the surface does not cover entirely (the
 end of a face that overhangs the other) takes a node-to-segment row, a node that faces no segment
-none.
+a row on itself alone with a far gap (every node keeps its row: their count never changes).
 
 3D: node-to-segment rows: each node of the group projected on the facet (quadrilateral or
 triangle) it faces, ``-n_m . (u_j - sum_k N_k(xi) u_k) <= g_j``.
 
-Small sliding: the rows are those of the geometry at t = 0; ``SlidingWatch`` (fem_impact/app)
-stops a run whose rows slid more than ``SLIDING_LIMIT`` of a cell since.
+The rows are found on the mesh's geometry at t = 0 and again, on the displaced one, each time a row
+slid ``SLIDING_LIMIT`` of a cell (``SurfaceContact.search``, driven by fem_impact/app/sliding.py).
 """
 
 from __future__ import annotations
@@ -272,8 +272,8 @@ def _mortar_rows(node, x, slave: Surface, master: Surface):
     covered = np.where(valid, hi - lo, 0.0).sum(axis=1)
     full = covered >= 1.0 - 1e-9
     # Nodes: their segments, and which of them are covered.
-    pos = np.searchsorted(node, slave.nodes, sorter=np.argsort(node))
     order = np.argsort(node)
+    pos = np.searchsorted(node, slave.nodes, sorter=order)
     local = order[np.clip(pos, 0, node.size - 1)]
     local = np.where(node[local] == slave.nodes, local, -1)     # (ns, 2): each segment end's node index
     n = node.size
@@ -403,7 +403,8 @@ def tangent_directions(normal: np.ndarray, previous: np.ndarray | None = None) -
 
 class SurfaceContact(Relation):
     """``type: surface``: the nodes of a group against the boundary facets of another, on rows found
-    by a search on the geometry at t = 0 (mortar rows in 2D, node-to-segment in 3D)."""
+    by a search on the geometry (mortar rows in 2D, node-to-segment in 3D), at t = 0 and as the
+    bodies slide (``search``)."""
 
     def __init__(self, nodes: str, surface: str, key: tuple, name: str, friction: bool):
         super().__init__(None, [])
