@@ -307,6 +307,46 @@ def test_a_frictionless_block_crosses_the_strip_at_its_speed_and_rests_on_it(str
     assert h["face.force"][h["t"] > 0.01].mean() == pytest.approx(BLOCK_MASS * G, rel=0.01)
 
 
+def test_a_block_on_a_strip_carried_by_its_moving_support_slides_then_rides_with_it(strip, tmp_path):
+    """The strip's base carried along x at a constant acceleration a (supports: displacement a t^2 / 2)
+    under the block launched at V0: the block slides forward on the strip, decelerating at mu g (its
+    rows found again as it slides: the support moves no node of the contact), stops relative to the
+    strip at t = V0 / (mu g + a) having slid V0^2 / (2 (mu g + a)) along it, then rides with it
+    (a < mu g) at the strip's speed a t; each within 1 %. No energy created: E <= E0 + W_ext with the
+    support's work in W_ext."""
+    accel = 1.0
+    case = strip_case(strip, 2e-4, t_end=0.2).with_changes({
+        "supports": [{"nodes": "base", "fix": "all", "displacement": [f"0.5*{accel}*t**2", "0"]}]})
+    result = fi.run(case, tmp_path / "out")
+    h, summary = result.history, result.summary
+    t, v = h["t"], h["upper.px"] / BLOCK_MASS
+    relative = v - accel * t
+    stop = t[np.flatnonzero(relative <= 1e-3 * V0)[0]]
+    assert stop == pytest.approx(V0 / (MU * G + accel), rel=0.01)
+    slid = np.sum(0.5 * (relative[1:] + relative[:-1]) * np.diff(t))
+    assert slid == pytest.approx(V0 ** 2 / (2 * (MU * G + accel)), rel=0.01) and slid > 5 * 0.004
+    sliding = (t > 0.01) & (t < stop - 0.01)
+    assert np.polyfit(t[sliding], v[sliding], 1)[0] == pytest.approx(-MU * G, rel=0.01)
+    riding = t > stop + 0.02
+    assert np.abs(v[riding] - accel * t[riding]).max() <= 0.01 * accel * t[riding].max()
+    assert summary["surface_searches"] >= slid / (0.25 * 0.004 + V0 * 2e-4) - 1
+    assert summary["energy_created"] == 0.0
+    assert np.abs(h["energy_error"]).max() <= max(summary["energy_roundoff"], 1e-12)
+
+
+def test_a_support_that_moves_a_surfaces_nodes_is_refused_by_name(strip, tmp_path):
+    """A contact's gap would move with a support's prescribed motion (not in its relation): the strip's
+    top, the contact's surface, moved as prescribed is refused, naming the support."""
+    case = strip_case(strip, 2e-4, friction=0.0, t_end=0.05).with_changes({
+        "supports": [{"nodes": "base", "fix": "all"},
+                     {"nodes": "lower_top", "fix": ["y"], "displacement": ["1e-7*sin(200*t)"]}]})
+    case = case.with_changes({"contacts": [{"name": "face", "type": "surface", "nodes": "upper_bottom",
+                                            "surface": "lower_top"}]})
+    with pytest.raises(CaseError) as info:
+        fi.run(case, tmp_path / "out")
+    assert "contacts" in str(info.value) and "a support prescribes" in str(info.value)
+
+
 @pytest.mark.slow   # (10 s: 64 rows with friction in 3D, 150 steps)
 def test_a_3d_box_sliding_obliquely_on_a_box_meshed_apart_slows_at_mu_g_against_its_motion(tmp_path):
     """3D, node-to-segment rows on hexahedra (5 against 7 cells across), the upper box launched at

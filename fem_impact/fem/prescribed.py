@@ -214,6 +214,11 @@ class MovingFields:
         self.inner, self.motion, self.comm = inner, motion, comm
         self.E = motion.patterns
 
+    @property
+    def replicated(self) -> bool:
+        """Whether the inner reader's fields are the reduced model's (replicated on every rank)."""
+        return self.inner.replicated
+
     def at(self, state, dofs: np.ndarray):
         u, v = self.inner.at(state, dofs)
         g, g1, _ = self.motion.values(state.t)
