@@ -263,7 +263,7 @@ class MotionView:
         self.integrator, self.motion, self.fields, self.comm = integrator, motion, fields, comm
         self._x0 = 0.0
         self._damping = 0.0       # D_s so far
-        self._phi = 0.0           # its integrand at the previous step
+        self._phi = 0.0           # at the previous step: (g', C_pf^T V) per pattern, concatenated
         self._t = 0.0
         self._reaction = None     # at the last state
 
@@ -287,15 +287,19 @@ class MotionView:
         mv, ku, cv, ma = self._products(state)
         kinetic = float(g1 @ mv + 0.5 * g1 @ held["M"] @ g1)
         strain = float(g @ ku + 0.5 * g @ held["K"] @ g)
-        phi = float(2.0 * g1 @ cv + g1 @ held["C"] @ g1) if "C" in held else 0.0
+        phi = np.concatenate([g1, cv])
         reaction = ma + cv + ku + held["M"] @ g2 + held["K"] @ g - m.held_load_at(state.t)
         if "C" in held:
             reaction += held["C"] @ g1
         e = state.energy.copy()
         if first:
             self._x0, self._damping = kinetic + strain, 0.0
-        else:
-            self._damping += 0.5 * (state.t - self._t) * (self._phi + phi)   # (trapezoidal rule)
+        elif "C" in held and np.ndim(self._phi) == 1:
+            # D_s with the step's mean rates, as the integrators book the free dofs' damping (dU . C V_mean,
+            # dU = dt V_mean at theta = 1/2): the whole structure's loss is then dt V_mean^T C V_mean >= 0 in
+            # every step; the trapezoidal rule on the cross terms alone could book a gain (of order dt^2).
+            g1_mean, cv_mean = 0.5 * (self._phi + phi).reshape(2, -1)
+            self._damping += (state.t - self._t) * float(2.0 * g1_mean @ cv_mean + g1_mean @ held["C"] @ g1_mean)
         self._phi, self._t = phi, state.t
         e.kinetic += kinetic
         e.strain += strain
