@@ -220,6 +220,7 @@ class HeldLoad:
 def full_system(case: Case, model: Model, cons: Constraints) -> System:
     """The finite-element system itself (the full methods: moreau_jean, newmark, central_difference)."""
     import numpy as np
+    from mpi4py import MPI
 
     from .fem.fields import StateFields
     from .mechanics.system import Operators
@@ -231,6 +232,14 @@ def full_system(case: Case, model: Model, cons: Constraints) -> System:
     reach = [r.reach_dofs for r in cons.relations.relations if getattr(r, "reach_dofs", None) is not None]
     if reach:   # (a surface contact's rows, found again as its bodies slide, may touch any of its nodes)
         ops.reach = np.unique(np.concatenate(reach))
+        # A scheme that finds rows again takes W and D from the inverse's blocks on all of them from the
+        # start (app/sliding.py decides the same): the first search then costs no more than the others.
+        from .integrators import integrator_class, scheme_of
+
+        searches = getattr(integrator_class(scheme_of(case.solver)), "takes_new_rows", False)
+        moved = model.motion is not None and np.isin(ops.reach, model.motion.moving_dofs()).any()
+        ops.searched = bool(searches and not any(m == "rigid" for m in case.bodies.values())
+                            and not model.comm.allreduce(moved, op=MPI.LOR))
     return System(model, cons, None, ops, StateFields(cons), model.U0, model.V0, {"modes": None})
 
 

@@ -95,7 +95,9 @@ class Operators:
     # Owned dofs that new rows may touch beyond the present ones (a surface contact's nodes and
     # surface, searched again as they slide): the inverse's blocks W and D come from (_inverse_block).
     reach: np.ndarray | None = None
-    searched: bool = False   # (whether new rows came: the block on ``reach`` is kept from then on)
+    # Whether W and D come from the blocks on ``reach`` (kept with the factors): from the start where the
+    # scheme finds rows again (build.full_system), else from the first new rows on.
+    searched: bool = False
 
     def __post_init__(self):
         self.algebra = PETScAlgebra(self.K) if isinstance(self.K, PETSc.Mat) else DenseAlgebra(self.K)
@@ -353,7 +355,7 @@ class Operators:
             where = np.minimum(np.searchsorted(kept[0], dofs), kept[0].size - 1)
             if np.array_equal(kept[0][where], dofs):
                 return kept[1], where
-        if self.reach is not None and self.searched:   # (from the first search on: a run that never slides pays nothing)
+        if self.reach is not None and self.searched:
             every = np.union1d(dofs, self.reach)
             if 8 * every.size ** 2 <= REACH_BLOCK_BYTES:
                 block = solve.inverse_block(every)
