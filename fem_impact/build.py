@@ -230,16 +230,18 @@ def full_system(case: Case, model: Model, cons: Constraints) -> System:
                     friction=cons.friction if cons.pt else None, tangents=cons.tangent_local,
                     tangent_of=cons.tangent_of, laws=cons.laws, relations=cons.relations)
     reach = [r.reach_dofs for r in cons.relations.relations if getattr(r, "reach_dofs", None) is not None]
-    if reach:   # (a surface contact's rows, found again as its bodies slide, may touch any of its nodes)
-        ops.reach = np.unique(np.concatenate(reach))
-        # A scheme that finds rows again takes W and D from the inverse's blocks on all of them from the
-        # start (app/sliding.py decides the same): the first search then costs no more than the others.
+    if reach:
+        # A surface contact's rows, found again as its bodies slide, may touch any of its nodes. They are
+        # found again (app/sliding.py) by a scheme that takes new rows, without rigid bodies, and where no
+        # support moves a node the search reads (its motion is not in the full model's displacement).
         from .integrators import integrator_class, scheme_of
 
+        reach = np.unique(np.concatenate(reach))
         searches = getattr(integrator_class(scheme_of(case.solver)), "takes_new_rows", False)
-        moved = model.motion is not None and np.isin(ops.reach, model.motion.moving_dofs()).any()
-        ops.searched = bool(searches and not any(m == "rigid" for m in case.bodies.values())
-                            and not model.comm.allreduce(moved, op=MPI.LOR))
+        moved = model.motion is not None and bool(np.isin(reach, model.motion.moving_dofs()).any())
+        if searches and not any(m == "rigid" for m in case.bodies.values()) and \
+                not model.comm.allreduce(moved, op=MPI.LOR):
+            ops.reach = reach
     return System(model, cons, None, ops, StateFields(cons), model.U0, model.V0, {"modes": None})
 
 

@@ -266,8 +266,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     if model.motion is not None:
         parts["motion"] = integrator
     # surface contacts: rows found again as their bodies slide (Moreau-Jean, full model), else watched
-    sliding = SlidingWatch(cons, fields, comm, raw if system.rigid is None else None, model.fixed,
-                           model.motion.moving_dofs() if model.motion is not None else None)
+    sliding = SlidingWatch(cons, fields, comm, raw, model.fixed)
     if sliding.searching:
         parts["sliding"] = sliding
     model_keys = checkpoint.model_keys(case)

@@ -22,16 +22,13 @@ class SlidingWatch:
     # (a restart finds the rows of the checkpoint's step again from the displacement they were found at)
     __checkpoint__ = ("searches", "memory")
 
-    def __init__(self, cons, fields, comm, integrator=None, fixed=None, moving=None):
+    def __init__(self, cons, fields, comm, integrator=None, fixed=None):
         self.cons, self.fields, self.comm = cons, fields, comm
         self.surfaces = [(c, r) for c, r in zip(cons.contacts, cons.relations.relations)
                          if getattr(r, "sliding", None) is not None]
-        # (a search reads the full model's displacement of the surfaces' nodes: one a support moves
-        # (``moving``: owned dofs) is not in it, so such a run keeps its rows)
-        self.moved_surface = bool(moving is not None and allsum(comm, np.array(
-            [float(np.isin(r.reach_dofs, moving).any()) for _, r in self.surfaces]).sum()) > 0)
+        # (whether the run finds rows again is the model's: the dofs they may reach, set where it does)
         takes = (integrator is not None and getattr(integrator, "takes_new_rows", False)
-                 and integrator.ops.static is None and not fields.replicated and not self.moved_surface)
+                 and getattr(integrator.ops, "reach", None) is not None)
         self.integrator = integrator if takes else None
         self.fixed = fixed
         self.origin = {c.name: np.zeros(r.sliding.shape[1]) for c, r in self.surfaces}
@@ -74,12 +71,12 @@ class SlidingWatch:
             row = worst % found.r
             where = ", ".join(f"{v:.6g}" for v in found.x[row])
             limit = relation.sliding_limit[worst] / found.size[row]
-            why = ("a support moves nodes of its surfaces (supports: displacement)" if self.moved_surface
-                   else "rows found again as the bodies slide take method: moreau_jean on the full model")
             raise SimulationError(
                 f"contact {c.name}: the node at ({where}) slid {abs(slid[worst]):.3g} m along the surface by "
                 f"t = {state.t:.6g} s, more than {limit:g} of its cell ({found.size[row]:.3g} m): this run keeps "
-                f"the rows found at t = 0 (small sliding; {why}; docs/limitations.md)")
+                "the rows found at t = 0 (small sliding; rows are found again as the bodies slide by method: "
+                "moreau_jean on the full model, without rigid bodies or a support moving the surfaces' nodes; "
+                "docs/limitations.md)")
         if over:
             clock = time.perf_counter()
             self._search(state)

@@ -93,11 +93,9 @@ class Operators:
     # every obstacle fixed at ``d0``.
     relations: object | None = None
     # Owned dofs that new rows may touch beyond the present ones (a surface contact's nodes and
-    # surface, searched again as they slide): the inverse's blocks W and D come from (_inverse_block).
+    # surface, where the run finds its rows again as they slide; build.full_system), else None: W and D
+    # come from the inverse's blocks on all of them, built at setup and kept (_inverse_block).
     reach: np.ndarray | None = None
-    # Whether W and D come from the blocks on ``reach`` (kept with the factors): from the start where the
-    # scheme finds rows again (build.full_system), else from the first new rows on.
-    searched: bool = False
 
     def __post_init__(self):
         self.algebra = PETScAlgebra(self.K) if isinstance(self.K, PETSc.Mat) else DenseAlgebra(self.K)
@@ -111,7 +109,6 @@ class Operators:
         self.d0[:] = d0
         if tangents is not None:
             self.tangents = tangents
-        self.searched = True
         self._index_rows()
 
     def _index_rows(self) -> None:
@@ -355,7 +352,7 @@ class Operators:
             where = np.minimum(np.searchsorted(kept[0], dofs), kept[0].size - 1)
             if np.array_equal(kept[0][where], dofs):
                 return kept[1], where
-        if self.reach is not None and self.searched:
+        if self.reach is not None:
             every = np.union1d(dofs, self.reach)
             if 8 * every.size ** 2 <= REACH_BLOCK_BYTES:
                 block = solve.inverse_block(every)
