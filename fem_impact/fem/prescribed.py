@@ -214,11 +214,6 @@ class MovingFields:
         self.inner, self.motion, self.comm = inner, motion, comm
         self.E = motion.patterns
 
-    @property
-    def replicated(self) -> bool:
-        """Whether the inner reader's fields are the reduced model's (replicated on every rank)."""
-        return self.inner.replicated
-
     def at(self, state, dofs: np.ndarray):
         u, v = self.inner.at(state, dofs)
         g, g1, _ = self.motion.values(state.t)
@@ -294,12 +289,15 @@ class MotionView:
         e = state.energy.copy()
         if first:
             self._x0, self._damping = kinetic + strain, 0.0
-        elif "C" in held and np.ndim(self._phi) == 1:
+        elif "C" in held:
             # D_s with the step's mean rates, as the integrators book the free dofs' damping (dU . C V_mean,
             # dU = dt V_mean at theta = 1/2): the whole structure's loss is then dt V_mean^T C V_mean >= 0 in
             # every step; the trapezoidal rule on the cross terms alone could book a gain (of order dt^2).
-            g1_mean, cv_mean = 0.5 * (self._phi + phi).reshape(2, -1)
-            self._damping += (state.t - self._t) * float(2.0 * g1_mean @ cv_mean + g1_mean @ held["C"] @ g1_mean)
+            rate = lambda g1, cv: float(2.0 * g1 @ cv + g1 @ held["C"] @ g1)   # noqa: E731
+            if np.ndim(self._phi) == 1:
+                self._damping += (state.t - self._t) * rate(*(0.5 * (self._phi + phi)).reshape(2, -1))
+            else:   # (a checkpoint written before: its integrand at the step's start, the trapezoidal rule)
+                self._damping += 0.5 * (state.t - self._t) * (self._phi + rate(g1, cv))
         self._phi, self._t = phi, state.t
         e.kinetic += kinetic
         e.strain += strain
