@@ -80,7 +80,7 @@ def main() -> None:
         plain = (surface["loop_time_s"] - sum(seconds)) / surface["steps"]
         each = sum(rest) / len(rest) if rest else first
         every = args.steps / searches
-        print(f"the first search {first:.2f} s (it builds the inverse's block on every dof the rows may reach), "
+        print(f"the first search {first:.2f} s (the inverse's blocks on every dof the rows may reach: at setup), "
               f"the others {each:.3f} s each ({each / step:.0f} steps of the pairs' run); a step between searches "
               f"{1e3 * plain:.2f} ms ({plain / step:.2f} of the pairs')")
         print(f"a step with searches every {every:.0f} steps ({args.speed:g} m/s), the first search aside: "

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import ScriptParser, length_option, output_option, run_script
+from fem_impact.fem.gmsh_utils import ScriptParser, add_named_groups, length_option, output_option, run_script, write_msh
 
 GAP = 1e-6
 
@@ -45,12 +45,11 @@ def build(path: Path, h: float = 0.01) -> Path:
         def edge(y, x0, x1):
             return [t for _, t in gmsh.model.getEntitiesInBoundingBox(x0 - 1e-7, y - 1e-7, -1, x1 + 1e-7, y + 1e-7, 1, 1)]
 
-        for name, dim, tags in (("slab", 2, slab), ("block", 2, [block]), ("base", 1, edge(0.0, 0.0, 0.6)),
-                                ("top", 1, edge(0.05, 0.2, 0.4)), ("bottom", 1, edge(0.05 + GAP, 0.2, 0.4)),
-                                ("lid", 1, edge(0.1 + GAP, 0.2, 0.4))):
-            gmsh.model.setPhysicalName(dim, gmsh.model.addPhysicalGroup(dim, tags), name)
+        add_named_groups(2, {"slab": slab, "block": [block]})
+        add_named_groups(1, {"base": edge(0.0, 0.0, 0.6), "top": edge(0.05, 0.2, 0.4),
+                             "bottom": edge(0.05 + GAP, 0.2, 0.4), "lid": edge(0.1 + GAP, 0.2, 0.4)})
         gmsh.model.mesh.generate(2)
-        gmsh.write(str(path))
+        write_msh(path)
     finally:
         gmsh.finalize()
     return path

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import ScriptParser, length_option, output_option, run_script
+from fem_impact.fem.gmsh_utils import ScriptParser, add_named_groups, length_option, output_option, run_script, write_msh
 
 R = 0.05
 
@@ -75,14 +75,13 @@ def build(path: Path, h: float = R / 200, zone: float = R / 5, whole: bool = Fal
         for option in ("Mesh.MeshSizeExtendFromBoundary", "Mesh.MeshSizeFromPoints", "Mesh.MeshSizeFromCurvature"):
             gmsh.option.setNumber(option, 0)
         if whole:
-            groups = (("rim", 1, arcs[1:3]), ("side", 1, [arcs[0], arcs[3]]))
+            edges = {"rim": arcs[1:3], "side": [arcs[0], arcs[3]]}
         else:
-            groups = (("rim", 1, [arc]), ("axis", 1, [axis_c, axis_b]))
-        for name, dim, tags in (("cylinder", 2, [cylinder]), ("block", 2, [block]), *groups,
-                                ("lid", 1, [lid]), ("top", 1, [top]), ("base", 1, [base])):
-            gmsh.model.setPhysicalName(dim, gmsh.model.addPhysicalGroup(dim, tags), name)
+            edges = {"rim": [arc], "axis": [axis_c, axis_b]}
+        add_named_groups(2, {"cylinder": [cylinder], "block": [block]})
+        add_named_groups(1, {**edges, "lid": [lid], "top": [top], "base": [base]})
         gmsh.model.mesh.generate(2)
-        gmsh.write(str(path))
+        write_msh(path)
     finally:
         gmsh.finalize()
     return path

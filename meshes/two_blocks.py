@@ -20,7 +20,7 @@ from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import ScriptParser, output_option, run_script
+from fem_impact.fem.gmsh_utils import ScriptParser, add_named_groups, output_option, run_script, write_msh
 
 WIDTH, HEIGHT = 0.1, 0.05
 
@@ -63,14 +63,12 @@ def build(path: Path, n: int = 5, m: int = 7, triangles: bool = False, up: int |
         def at_x0(b):
             return abs(b[0]) < 1e-6 and abs(b[3]) < 1e-6
 
-        for name, dim, tags in (("lower", 2, [lower]), ("upper", 2, [upper]), ("base", 1, curves(lower, at_y(0.0))),
-                                ("lower_top", 1, curves(lower, at_y(HEIGHT))),
-                                ("upper_bottom", 1, curves(upper, at_y(HEIGHT))),
-                                ("lid", 1, curves(upper, at_y(2 * HEIGHT))),
-                                ("left", 1, curves(lower, at_x0) + curves(upper, at_x0))):
-            gmsh.model.setPhysicalName(dim, gmsh.model.addPhysicalGroup(dim, tags), name)
+        add_named_groups(2, {"lower": [lower], "upper": [upper]})
+        add_named_groups(1, {"base": curves(lower, at_y(0.0)), "lower_top": curves(lower, at_y(HEIGHT)),
+                             "upper_bottom": curves(upper, at_y(HEIGHT)), "lid": curves(upper, at_y(2 * HEIGHT)),
+                             "left": curves(lower, at_x0) + curves(upper, at_x0)})
         gmsh.model.mesh.generate(2)
-        gmsh.write(str(path))
+        write_msh(path)
     finally:
         gmsh.finalize()
     return path
@@ -111,14 +109,13 @@ def build_3d(path: Path, n: int = 5, m: int = 7, up: int = 3, tetrahedra: bool =
                     found.append(abs(face))
             return found
 
-        for name, dim, tags in (("lower", 3, [lower]), ("upper", 3, [upper]), ("base", 2, faces(lower, 1, 0.0)),
-                                ("lower_top", 2, faces(lower, 1, HEIGHT)), ("upper_bottom", 2, faces(upper, 1, HEIGHT)),
-                                ("lid", 2, faces(upper, 1, 2 * HEIGHT)),
-                                ("left", 2, faces(lower, 0, 0.0) + faces(upper, 0, 0.0)),
-                                ("back", 2, faces(lower, 2, 0.0) + faces(upper, 2, 0.0))):
-            gmsh.model.setPhysicalName(dim, gmsh.model.addPhysicalGroup(dim, tags), name)
+        add_named_groups(3, {"lower": [lower], "upper": [upper]})
+        add_named_groups(2, {"base": faces(lower, 1, 0.0), "lower_top": faces(lower, 1, HEIGHT),
+                             "upper_bottom": faces(upper, 1, HEIGHT), "lid": faces(upper, 1, 2 * HEIGHT),
+                             "left": faces(lower, 0, 0.0) + faces(upper, 0, 0.0),
+                             "back": faces(lower, 2, 0.0) + faces(upper, 2, 0.0)})
         gmsh.model.mesh.generate(3)
-        gmsh.write(str(path))
+        write_msh(path)
     finally:
         gmsh.finalize()
     return path
