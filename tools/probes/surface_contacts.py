@@ -734,6 +734,27 @@ def _watched_kept(ctx):
     return _stopped(ctx, r, out, kept=True)
 
 
+def _keeps_its_momentum(h: dict) -> list:
+    """The frictionless sliding block's momentum, m v0 throughout: [] or the problem."""
+    off = np.abs(h["upper.px"] - M_UPPER * V0).max()
+    return [f"the sliding block's momentum off m v0 by {off:.3g}"] if off > 1e-9 * M_UPPER * V0 else []
+
+
+def _continues_exactly(ctx, data: dict, end: float, what: str) -> Verdict:
+    """``data``, run with checkpoints into ``first`` already, run to ``end`` whole and restarted from ``first``:
+    the same history to 1e-12."""
+    data["solver"]["t_end"] = end
+    whole, bad = solved(ctx, data, out="whole")
+    if bad:
+        return bad
+    continued, bad = solved(ctx, data, "--restart", ctx.folder / "first", out="continued")
+    if bad:
+        return bad
+    differ = _differ(whole, continued, tol=1e-12)
+    searches = _summary(ctx, "whole").get("surface_searches")
+    return wrong(f"continued after {what}: {differ}") if differ else ok(f"{searches} searches")
+
+
 @probe("surface-contacts", "sent sideways at 1 m/s, Moreau-Jean: stops at a quarter cell in one line, or (rows "
                            "found again as it slides) keeps its speed exactly, no force, no energy created")
 def _watched_default(ctx):
@@ -743,9 +764,7 @@ def _watched_default(ctx):
         return _stopped(ctx, r, out)
     h = history(out)
     s = _summary(ctx)
-    problems: list = []
-    if np.abs(h["upper.px"] - M_UPPER * V0).max() > 1e-9 * M_UPPER * V0:
-        problems.append(f"the sliding block's momentum off m v0 by {np.abs(h['upper.px'] - M_UPPER * V0).max():.3g}")
+    problems = _keeps_its_momentum(h)
     if np.abs(h[f"{NAME}.impulse"]).max() > 1e-9 * M_UPPER * V0:
         problems.append(f"impulses up to {np.abs(h[f'{NAME}.impulse']).max():.3g} on a block sliding freely")
     _budget(h, s, problems)
@@ -760,16 +779,7 @@ def _watched_default_restart(ctx):
     r, out = run_case(ctx, data, out="first")
     if r.status != 0 or r.traceback:   # (the rows of t = 0 kept: it stops before 5 mm)
         return _stopped(ctx, r, out)
-    data["solver"]["t_end"] = 0.01
-    whole, bad = solved(ctx, data, out="whole")
-    if bad:
-        return bad
-    continued, bad = solved(ctx, data, "--restart", ctx.folder / "first", out="continued")
-    if bad:
-        return bad
-    differ = _differ(whole, continued, tol=1e-12)
-    searches = _summary(ctx, "whole").get("surface_searches")
-    return wrong(f"continued after 5 mm: {differ}") if differ else ok(f"{searches} searches")
+    return _continues_exactly(ctx, data, 0.01, "5 mm")
 
 
 def _carried(method: str = "moreau_jean", t_end: float = 0.01) -> dict:
@@ -788,9 +798,7 @@ def _carried_default(ctx):
     if bad:
         return bad
     s = _summary(ctx)
-    problems: list = []
-    if np.abs(h["upper.px"] - M_UPPER * V0).max() > 1e-9 * M_UPPER * V0:
-        problems.append(f"the sliding block's momentum off m v0 by {np.abs(h['upper.px'] - M_UPPER * V0).max():.3g}")
+    problems = _keeps_its_momentum(h)
     if not s.get("surface_searches"):
         problems.append(f"slid {1.5 * h['t'][-1]:.3g} m on the lower block with no search")
     _budget(h, s, problems)
@@ -803,17 +811,7 @@ def _carried_restart(ctx):
     data = _carried(t_end=0.005)
     data["output"]["checkpoint_every"] = 10
     _, bad = solved(ctx, data, out="first")
-    if bad:
-        return bad
-    data["solver"]["t_end"] = 0.01
-    whole, bad = solved(ctx, data, out="whole")
-    if bad:
-        return bad
-    continued, bad = solved(ctx, data, "--restart", ctx.folder / "first", out="continued")
-    if bad:
-        return bad
-    differ = _differ(whole, continued, tol=1e-12)
-    return wrong(f"continued after 5 ms: {differ}") if differ else ok()
+    return bad or _continues_exactly(ctx, data, 0.01, "5 ms")
 
 
 @probe("surface-contacts", "the same on 2 MPI ranks: the serial history (to 1e-8)", timeout=300)
