@@ -229,16 +229,17 @@ def full_system(case: Case, model: Model, cons: Constraints) -> System:
                     massless=model.massless, stop_compliance=cons.compliance,
                     friction=cons.friction if cons.pt else None, tangents=cons.tangent_local,
                     tangent_of=cons.tangent_of, laws=cons.laws, relations=cons.relations)
-    reach = [r.reach_dofs for r in cons.relations.relations if getattr(r, "reach_dofs", None) is not None]
-    if reach:
+    searched = [r for r in cons.relations.relations if getattr(r, "reach_dofs", None) is not None]
+    if searched:
         # A surface contact's rows, found again as its bodies slide, may touch any of its nodes. They are
         # found again (app/sliding.py) by a scheme that takes new rows, without rigid bodies, and where no
         # support moves a node the search reads (its motion is not in the full model's displacement).
         from .integrators import integrator_class, scheme_of
 
-        reach = np.unique(np.concatenate(reach))
+        reach = np.unique(np.concatenate([r.reach_dofs for r in searched]))
+        read = np.concatenate([r.read_dofs for r in searched])   # (every axis of the nodes a search reads)
         searches = getattr(integrator_class(scheme_of(case.solver)), "takes_new_rows", False)
-        moved = model.motion is not None and bool(np.isin(reach, model.motion.moving_dofs()).any())
+        moved = model.motion is not None and bool(np.isin(read, model.motion.moving_dofs()).any())
         if searches and not any(m == "rigid" for m in case.bodies.values()) and \
                 not model.comm.allreduce(moved, op=MPI.LOR):
             ops.reach = reach

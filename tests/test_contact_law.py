@@ -17,7 +17,7 @@ import fem_impact
 from conftest import ConstantLoad
 from fem_impact.integrators import CentralDifference, MoreauJean, Newmark, Operators, integrate
 from fem_impact.nonsmooth import laws
-from fem_impact.nonsmooth.lcp import Delassus, solve_lcp
+from fem_impact.nonsmooth.lcp import CholeskyFactor, Delassus, UpdatedFactor, solve_lcp
 from fem_impact.nonsmooth.problem import OneStepProblem
 
 # The schemes B0 holds for: the paper's, and Moreau-Jean at the position level (the default) and
@@ -60,6 +60,57 @@ def test_lcp_without_contact_returns_the_free_gap():
     x, w, active = solve_lcp(np.eye(2), np.array([0.3, 0.0]))
     assert not x.any() and not active.any()
     np.testing.assert_array_equal(w, [0.3, 0.0])
+
+
+@pytest.mark.parametrize("added,removed", [(0, 9), (7, 0), (6, 11)])
+def test_a_block_near_a_factored_one_is_solved_through_its_factor(added, removed):
+    """``UpdatedFactor``: the block of an SPD matrix on a set that differs from a factored one by
+    rows added and removed, solved through the factored one's Cholesky factor, is its inverse to
+    round-off (one right-hand side and several)."""
+    from scipy.linalg import cho_factor
+
+    rng = np.random.default_rng(added + 10 * removed)
+    n = 400
+    B = rng.normal(size=(n, n))
+    A = B @ B.T + n * np.eye(n)
+    base_rows = np.sort(rng.choice(n, 300, replace=False))
+    rows = np.setdiff1d(base_rows, rng.choice(base_rows, removed, replace=False))
+    rows = np.union1d(rows, rng.choice(np.setdiff1d(np.arange(n), base_rows), added, replace=False))
+    base = CholeskyFactor(base_rows, cho_factor(A[np.ix_(base_rows, base_rows)], lower=True))
+    factor = UpdatedFactor(A, base, rows)
+    block = A[np.ix_(rows, rows)]
+    for b in (rng.normal(size=rows.size), rng.normal(size=(rows.size, 3))):
+        np.testing.assert_allclose(block @ factor.solve(b), b, rtol=0, atol=1e-11 * np.abs(b).max())
+    # an update of the update (a level deeper): two rows more out, one back in
+    again = np.union1d(np.setdiff1d(rows, rows[[3, 50]]), np.setdiff1d(base_rows, rows)[:1])
+    deeper = UpdatedFactor(A, factor, again)
+    b = rng.normal(size=again.size)
+    assert deeper.depth == 2
+    np.testing.assert_allclose(A[np.ix_(again, again)] @ deeper.solve(b), b, rtol=0, atol=1e-11 * np.abs(b).max())
+
+
+def test_pivoting_through_updated_factors_finds_the_factorized_solutions():
+    """An LCP of 600 rows solved 20 times as its right-hand side drifts (its active set changes by a
+    few rows a time): through updated factors (``Delassus.UPDATE_FROM``) and by a factorization of
+    every active block, the same active sets and forces to round-off; at least one solve was
+    updated."""
+    rng = np.random.default_rng(5)
+    n = 600
+    B = rng.normal(size=(n, n))
+    A = B @ B.T + n * np.eye(n)
+    updating, factorizing = Delassus(A), Delassus(A)
+    factorizing.UPDATE_FROM = n + 1
+    q = rng.normal(size=n)
+    kinds = set()
+    for _ in range(20):
+        q += 0.05 * rng.normal(size=n)
+        x1, w1, a1 = updating.solve(q, guess=a1 if kinds else None)
+        x2, w2, a2 = factorizing.solve(q, guess=a2 if kinds else None)
+        kinds |= {kind for kind, _ in updating._factors.values()}
+        np.testing.assert_array_equal(a1, a2)
+        np.testing.assert_allclose(x1, x2, rtol=0, atol=1e-12 * np.abs(x2).max())
+        assert np.all(x1 >= 0) and np.all(w1 >= 0) and abs(x1 @ w1) <= 1e-9 * np.abs(q).max() * np.abs(x1).max()
+    assert "updated" in kinds
 
 
 # --- B0: a point mass dropped on a rigid floor (docs/benchmarks.md B0) --------------------

@@ -368,12 +368,18 @@ class Operators:
     def condensed_dofs(self) -> np.ndarray | None:
         """The dofs of the rows, and of the tangent rows if any, where ``delassus`` is to take W from a
         block of ``A^-1`` (a serial model, from ``INVERSE_ENTRIES_FROM`` rows, too many to store
-        ``A^-1 P^T``): the factorization of the step matrix may keep them out (``CondensedFactor``).
-        Else None."""
+        ``A^-1 P^T``): the factorization of the step matrix may keep them out (``CondensedFactor``),
+        with the dofs of rows found again (``reach``), so that the steps after a search solve the
+        same way. Else None."""
         rows = self.with_tangents() if self.pt else self
         if self.comm.size > 1 or rows.p < INVERSE_ENTRIES_FROM or rows._keeps_columns():
             return None
-        return np.unique(rows._P.indices)
+        dofs = np.unique(rows._P.indices)
+        if self.reach is not None:   # (and those of rows found again, where their block is kept: _inverse_block)
+            every = np.union1d(dofs, self.reach)
+            if 8 * every.size ** 2 <= REACH_BLOCK_BYTES:
+                return every
+        return dofs
 
     def _diagonal_delassus(self, solve) -> tuple[sparse.csr_matrix, DiagonalColumns] | None:
         if not isinstance(solve, DiagonalFactor) or not self.algebra.distributed:

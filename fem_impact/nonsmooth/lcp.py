@@ -131,8 +131,10 @@ class Delassus:
     index (Murty's rule), which is finite for P-matrices (a Delassus matrix ``P S^-1 P^T`` with
     independent rows is symmetric positive definite). The factor of the active block is kept
     (keyed by the active set, the last ``KEEP``), so a persisting contact state costs two
-    triangular solves and no factorization. Round-off cycling on an ill-conditioned matrix ends
-    in the equivalent convex problem (``_lcp_as_nnls``).
+    triangular solves and no factorization; a large active set that differs from a factored one
+    by a few rows is solved through that factor (``UpdatedFactor``), not factorized again.
+    Round-off cycling on an ill-conditioned matrix ends in the equivalent convex problem
+    (``_lcp_as_nnls``).
 
     ``solve(q, guess, rows)`` solves the LCP on the principal submatrix ``A[rows][:, rows]``
     (``rows`` sorted indices, or all), sharing the factors: Carnot's correction solves on the
@@ -140,21 +142,36 @@ class Delassus:
     """
 
     RETRIES = 3
-    KEEP = 2
+    KEEP = 4
+    # A set of at least UPDATE_FROM rows that differs from a solved one (a base: the last BASES
+    # factorized, the last BASES updated) by at most 1/UPDATE_SHARE of its rows is solved through the
+    # base: its update costs a solve a row that differs, where a factorization costs about a third of
+    # the set's size in solves. An update of an update adds a level (DEPTH at most): the active sets
+    # of successive steps differ by a few rows, each from the last, and by many from a factorized one.
+    UPDATE_FROM = 256
+    UPDATE_SHARE = 32
+    BASES = 2
+    DEPTH = 4
 
-    def __init__(self, A: np.ndarray):
+    def __init__(self, A: np.ndarray, symmetric: bool | None = None):
         self.matrix = np.ascontiguousarray(A, dtype=float)
-        self.symmetric = _is_symmetric(self.matrix) if self.matrix.size else True
+        if symmetric is None:
+            symmetric = _is_symmetric(self.matrix) if self.matrix.size else True
+        self.symmetric = symmetric
         self._factors: dict[bytes, tuple] = {}
+        self._bases: list[CholeskyFactor] = []          # sets factorized, the last BASES
+        self._updates: list[UpdatedFactor] = []         # and updated, the last BASES
 
     @classmethod
     def regularized(cls, A: np.ndarray, relative: float = 1e-10) -> Delassus:
         """The solver of ``regularized(A)``; on a large matrix the Cholesky factor that shows it
         regular is kept as the factor of the all-active block (a contact of every row)."""
         matrix, factor = _regularized(A, relative)
-        solver = cls(matrix)
+        solver = cls(matrix, symmetric=True if factor is not None else None)   # (a factor: found symmetric)
         if factor is not None:
-            solver._factors[np.arange(A.shape[0]).tobytes()] = ("cholesky", (factor, True))
+            every = np.arange(A.shape[0])
+            solver._factors[every.tobytes()] = ("cholesky", (factor, True))
+            solver._bases.append(CholeskyFactor(every, (factor, True)))
         return solver
 
     @property
@@ -176,22 +193,46 @@ class Delassus:
         if key in self._factors:
             return self._factors[key]
         A = self.matrix
+        factor = self._updated(F) if self.symmetric and F.size >= self.UPDATE_FROM else None
+        if factor is not None:
+            self._updates = self._updates[1 - self.BASES:] + [factor[1]]
+            self._keep(key, factor)
+            return factor
         block = A if F.size == A.shape[0] else A[np.ix_(F, F)]
-        factor = None
         if self.symmetric:
             try:
                 factor = ("cholesky", cho_factor(block, lower=True, check_finite=False))
             except np.linalg.LinAlgError:
                 factor = None
+            if factor is not None and F.size >= self.UPDATE_FROM:
+                self._bases = self._bases[1 - self.BASES:] + [CholeskyFactor(F.copy(), factor[1])]
         if factor is None:
             if np.linalg.matrix_rank(block) < F.size:
                 factor = ("lstsq", block.copy())
             else:
                 factor = ("lu", lu_factor(block, check_finite=False))
+        self._keep(key, factor)
+        return factor
+
+    def _keep(self, key: bytes, factor: tuple) -> None:
         if len(self._factors) >= self.KEEP:
             self._factors.pop(next(iter(self._factors)))
         self._factors[key] = factor
-        return factor
+
+    def _updated(self, F: np.ndarray) -> tuple | None:
+        """``("updated", UpdatedFactor)`` for the rows ``F`` from the base nearest them (fewest rows
+        that differ, then fewest levels), if one is near enough (``UPDATE_SHARE``); else None."""
+        best, near = None, (max(1, F.size // self.UPDATE_SHARE), self.DEPTH)
+        for base in self._bases + [u for u in self._updates if u.depth < self.DEPTH]:
+            differ = base.rows.size + F.size - 2 * np.intersect1d(base.rows, F, assume_unique=True).size
+            if (differ, base.depth) <= near:
+                best, near = base, (differ, base.depth)
+        if best is None:
+            return None
+        try:
+            return "updated", UpdatedFactor(self.matrix, best, F)
+        except np.linalg.LinAlgError:   # (a complement not positive definite to round-off: factorize)
+            return None
 
     @staticmethod
     def _apply(factor, b: np.ndarray) -> np.ndarray:
@@ -200,6 +241,8 @@ class Delassus:
         kind, f = factor
         if kind == "cholesky":
             return cho_solve(f, b, check_finite=False)
+        if kind == "updated":
+            return f.solve(b)
         if kind == "lu":
             return lu_solve(f, b, check_finite=False)
         return np.linalg.lstsq(f, b, rcond=None)[0]
@@ -253,6 +296,75 @@ class Delassus:
         # Pivoting is finite for P-matrices but may take many steps (and round-off can make it
         # cycle on ill-conditioned ones): fall back on the equivalent convex problem.
         return _lcp_as_nnls(A if full else A[np.ix_(idx, idx)], q)
+
+
+class CholeskyFactor:
+    """``A[rows][:, rows]^-1`` by its Cholesky factor (scipy's ``cho_factor`` pair): a base of
+    ``UpdatedFactor``."""
+
+    depth = 0
+
+    def __init__(self, rows: np.ndarray, factor: tuple):
+        self.rows, self.factor = rows, factor
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        from scipy.linalg import cho_solve
+
+        return cho_solve(self.factor, b, check_finite=False)
+
+
+class UpdatedFactor:
+    """``A[F][:, F]^-1`` for a symmetric positive definite ``A`` through a solver of ``A[F0][:, F0]``
+    (``base``: a ``CholeskyFactor``, or an ``UpdatedFactor`` itself, one level deeper), ``F`` a set
+    near ``F0`` (sorted row indices both). On ``U = F0 + added`` (the rows of F not in F0), A's
+    block is solved by bordering: the added rows' Schur complement ``S = A_aa - B^T A_00^-1 B``
+    (``B = A[F0, added]``). The removed rows ``r`` (of F0, not in F) are then held at zero by as
+    many unknowns ``c`` on their equations: with ``Z = A_UU^-1 E_r``, ``y = A_UU^-1 b - Z Z_rr^-1
+    (A_UU^-1 b)_r`` is zero on r and solves ``A_FF y_F = b`` (Z_rr, a principal block of an SPD
+    inverse, is SPD). To build: a solve with the base a row that differs; to apply: one solve with
+    the base and products with the n x k arrays."""
+
+    def __init__(self, A: np.ndarray, base, F: np.ndarray):
+        from scipy.linalg import cho_factor, cho_solve
+
+        self._cho_solve = cho_solve
+        F0 = base.rows
+        self.rows, self.depth = F, base.depth + 1
+        added = np.setdiff1d(F, F0, assume_unique=True)
+        removed = np.flatnonzero(~np.isin(F0, F, assume_unique=True))   # (positions in F0, and in U)
+        self.base, self.n0, self.added = base, F0.size, added.size
+        if added.size:
+            self.B = A[np.ix_(F0, added)]
+            self.Y = base.solve(self.B)                                     # A_00^-1 B
+            self.S = cho_factor(A[np.ix_(added, added)] - self.B.T @ self.Y, lower=True, check_finite=False)
+        U = np.concatenate([F0, added])
+        order = np.argsort(U, kind="stable")
+        self.where = order[np.searchsorted(U[order], F)]   # F's rows' positions in U
+        self.removed = removed
+        if removed.size:
+            E = np.zeros((U.size, removed.size))
+            E[removed, np.arange(removed.size)] = 1.0
+            self.Z = self._solve_u(E)
+            self.Zrr = cho_factor(self.Z[removed], lower=True, check_finite=False)
+
+    def _solve_u(self, r: np.ndarray) -> np.ndarray:
+        """``A_UU^-1 r`` (U: the base's rows, then the added ones)."""
+        y = np.array(r, dtype=float)
+        y[:self.n0] = self.base.solve(y[:self.n0])
+        if self.added:
+            ya = self._cho_solve(self.S, y[self.n0:] - self.B.T @ y[:self.n0], check_finite=False)
+            y[:self.n0] -= self.Y @ ya
+            y[self.n0:] = ya
+        return y
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """``A[F][:, F]^-1 b`` (b: F.size, or F.size x k)."""
+        r = np.zeros((self.n0 + self.added,) + b.shape[1:])
+        r[self.where] = b
+        y = self._solve_u(r)
+        if self.removed.size:
+            y -= self.Z @ self._cho_solve(self.Zrr, y[self.removed], check_finite=False)
+        return y[self.where]
 
 
 def solve_lcp(

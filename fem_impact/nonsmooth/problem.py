@@ -158,9 +158,9 @@ def carnot_projection(carnot: Delassus, rows: np.ndarray, x: np.ndarray, target:
     smallest restitution of the rows), which loses ``(1 - e^2)/2 x . D^-1 x >= 0``: the contacts
     never give energy (docs/theory.md s. 4.2).
     """
-    def loss_for(goal):
+    def loss_for(goal):   # (lam . D_aa lam = lam . (x - goal): no copy of D's block)
         lam = carnot.solve_block(rows, x - goal)
-        return lam, float(lam.dot(x) - 0.5 * lam.dot(carnot.matrix[np.ix_(rows, rows)].dot(lam)))
+        return lam, float(lam.dot(x) - 0.5 * lam.dot(x - goal))
 
     if np.abs(x - target).max() <= ROUND_OFF * scale:
         return None

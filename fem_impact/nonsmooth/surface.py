@@ -36,18 +36,27 @@ SLIDING_LIMIT = 0.25   # the share of a cell a row may slide before its partners
 FAR = 10.0             # the gap of a node that faces no facet, in the model's size: it never closes
 FACING = -0.5          # cosine of the angle between two facets' outward normals, at most: they face each other
 CANDIDATES = 8         # facets tried per node or segment (the nearest by centre)
+ROUND_OFF = 1e-12      # a unit normal's component below it is round-off's (a face flat along an axis)
 
 
 @dataclass
 class Surface:
     """The boundary facets of a node group, on every rank in one order: their nodes' global numbers
     (f x k), coordinates (f x k x dim), outward unit normals at their centres (f x dim) and sizes (f:
-    a segment's length, the square root of a face's area)."""
+    a segment's length, the square root of a face's area). Moved by the bodies' displacement
+    (``_moved``), the facets keep their normals from the mesh's geometry, ``x0`` (docs/theory.md
+    s. 2.7: the linear model's small strains)."""
 
     nodes: np.ndarray
     x: np.ndarray
     normal: np.ndarray
     size: np.ndarray
+    x0: np.ndarray | None = None   # the facets' nodes at t = 0, where the normals are taken (None: x)
+
+    @property
+    def frame(self) -> np.ndarray:
+        """The coordinates the normals are taken at (the mesh's)."""
+        return self.x if self.x0 is None else self.x0
 
     def __len__(self) -> int:
         return self.nodes.shape[0]
@@ -77,14 +86,23 @@ def gather_surface(model: Model, group: str, key: tuple) -> Surface:
     normal, size = _facet_normals(x)
     centre = x.mean(axis=1)
     normal *= np.where(np.einsum("ij,ij->i", normal, centre - inside) < 0.0, -1.0, 1.0)[:, None]
-    return Surface(nodes, x, normal, size)
+    return Surface(nodes, x, _axis_exact(normal), size)
+
+
+def _axis_exact(normal: np.ndarray) -> np.ndarray:
+    """Unit normals (..., dim) without their components of round-off's size: a face flat along an
+    axis to round-off (its coordinates as a mesher wrote them) has its normal along it exactly, so
+    that its rows touch that axis' dofs alone."""
+    normal = np.where(np.abs(normal) < ROUND_OFF, 0.0, normal)
+    return normal / np.linalg.norm(normal, axis=-1, keepdims=True)
 
 
 def _moved(surface: Surface, x: np.ndarray) -> Surface:
-    """The surface with its facets' nodes at ``x``: normals and sizes there, outward as before."""
-    normal, size = _facet_normals(x)
-    normal *= np.where(np.einsum("ij,ij->i", normal, surface.normal) < 0.0, -1.0, 1.0)[:, None]
-    return Surface(surface.nodes, x, normal, size)
+    """The surface with its facets' nodes at ``x`` and their sizes there; the normals the mesh's (a
+    facet turns by its material's rotation, of the order of the strain, which the linear model
+    neglects: a row's direction is the one its equations are written in; docs/theory.md s. 2.7)."""
+    _, size = _facet_normals(x)
+    return Surface(surface.nodes, x, surface.normal, size, surface.frame)
 
 
 def _facet_normals(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -149,6 +167,7 @@ def node_to_segment(node: np.ndarray, x: np.ndarray, master: Surface) -> dict:
     i = np.flatnonzero(found)
     b = best[i]
     shape = np.clip(shape[i, b], 0.0, 1.0)
+    shape[shape < 1e-12] = 0.0   # (a node at a facet's corner: that corner's alone, not round-off's others)
     shape /= shape.sum(axis=1, keepdims=True)
     return {"index": i, "facet": cand[i, b], "shape": shape, "normal": -normal[i, b], "gap": s[i, b],
             "size": master.size[cand[i, b]]}
@@ -174,7 +193,8 @@ def _shape(master: Surface, xi: np.ndarray) -> np.ndarray:
 
 def _project(x: np.ndarray, master: Surface, cand: np.ndarray):
     """Closest points of the candidate facets ``cand`` (n, k) to the points ``x`` (n, 1, dim): their
-    parametric coordinates, the points, and the facets' outward normals there."""
+    parametric coordinates, the points, and the facets' outward normals there (on the mesh's
+    geometry, ``Surface.frame``)."""
     X = master.x[cand]                                   # (n, k, m, dim)
     m = X.shape[2]
     if m == 2:
@@ -208,6 +228,7 @@ def _project(x: np.ndarray, master: Surface, cand: np.ndarray):
     if m == 2:
         normal = np.broadcast_to(master.normal[cand], point.shape)
     else:
+        X = master.frame[cand]
         if m == 3:
             t1, t2 = X[:, :, 1] - X[:, :, 0], X[:, :, 2] - X[:, :, 0]
         else:
@@ -215,7 +236,7 @@ def _project(x: np.ndarray, master: Surface, cand: np.ndarray):
             t1 = (1 - b) * (X[:, :, 1] - X[:, :, 0]) + b * (X[:, :, 3] - X[:, :, 2])
             t2 = (1 - a) * (X[:, :, 2] - X[:, :, 0]) + a * (X[:, :, 3] - X[:, :, 1])
         normal = np.cross(t1, t2)
-        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+        normal = _axis_exact(normal / np.linalg.norm(normal, axis=-1, keepdims=True))
         normal *= np.sign(np.einsum("nkd,nkd->nk", normal, master.normal[cand]))[..., None]
     return xi, point, normal
 
@@ -446,7 +467,11 @@ class SurfaceContact(Relation):
         self.reach_nodes = np.unique(np.concatenate(parts))
         local = self.reach_nodes - first
         self._owned = np.flatnonzero((local >= 0) & (local < n_owned))
-        self.reach_dofs = (local[self._owned][:, None] * bs + np.arange(dim)).ravel()
+        self.read_dofs = (local[self._owned][:, None] * bs + np.arange(dim)).ravel()
+        # the dofs rows found again may touch: the reach's nodes, along the axes of the surface's
+        # normals (on the mesh: a flat face's one axis), all axes with friction's tangents
+        axes = np.arange(dim) if self.with_friction else np.flatnonzero(np.any(master.normal != 0.0, axis=0))
+        self.reach_dofs = (local[self._owned][:, None] * bs + axes).ravel()
         return self._done(self._rows_of(found))
 
     def _rows_of(self, found: SurfaceRows) -> RelationRows:
@@ -468,13 +493,14 @@ class SurfaceContact(Relation):
         owned entries ``U`` of the full model's displacement."""
         dim = self._geometry[1].shape[1]
         out = np.zeros((self.reach_nodes.size, dim))
-        out[self._owned] = U[self.reach_dofs].reshape(-1, dim)
+        out[self._owned] = U[self.read_dofs].reshape(-1, dim)
         return comm.allreduce(out, op=MPI.SUM) if comm.size > 1 else out
 
     def search(self, u: np.ndarray) -> tuple[SurfaceRows, RelationRows]:
         """The rows found on the geometry displaced by ``u`` (``displacement``): the mesh's coordinates
-        plus u for the group's nodes and the surfaces' facets, their normals and sizes there (the
-        facets' outward sides kept). Gaps: the distances there (a node alone: far)."""
+        plus u for the group's nodes and the surfaces' facets, each node's facet and weights there,
+        its direction the facet's normal on the mesh (``_moved``). Gaps: the distances there along
+        it (a node alone: far)."""
         node, x, slave, master = self._geometry
         at = lambda g: u[np.searchsorted(self.reach_nodes, g)]   # noqa: E731
         moved = lambda f: None if f is None else _moved(f, f.x + at(f.nodes))   # noqa: E731
