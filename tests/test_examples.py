@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -25,7 +26,7 @@ def run_example(name: str, tmp_path, monkeypatch):
 
 
 def test_every_example_is_tested():
-    tested = {"parameter_study", "gmsh_scene", "reduced_vs_full", "large_steps", "vibromotor_curves"}
+    tested = {"parameter_study", "gmsh_scene", "reduced_vs_full", "large_steps", "vibromotor_curves", "vibromotor_zone"}
     assert {p.stem for p in EXAMPLES.glob("*.py")} == tested
 
 
@@ -82,3 +83,23 @@ def test_the_vibromotor_characteristic_falls_with_the_load_to_a_stall(tmp_path, 
     assert out["loads"] == [0.0, 2.0, 4.0]
     assert speeds[0] > speeds[1] > 0.0 > speeds[2]   # forward, slower under load, pushed back past stall
     assert 2.0 < out["stall"] < 4.0
+
+
+def test_vibromotor_zone_shows_the_zone_open_at_its_ends_and_sticking_at_the_reversals(tmp_path, monkeypatch):
+    """examples/vibromotor_zone.py (cases/vibromotor_surface.yaml, 1 mm, 0.004 s): in the last two periods
+    the tip's open nodes are always a run from one end of the tip (it rocks, lifting off at its ends),
+    some frames have every node in contact, some nodes stick, and a stick frame is one where the friction
+    on the slider changes sign within a step of it (the reversals)."""
+    z = run_example("vibromotor_zone", tmp_path, monkeypatch)
+    state = z["state"]
+    assert state.shape[1] == 11
+    for frame in state:
+        open_ = np.flatnonzero(frame == 0)
+        if open_.size:   # (a run of nodes from an end)
+            assert np.all(np.diff(open_) == 1) and (open_[0] == 0 or open_[-1] == frame.size - 1)
+    assert (state > 0).all(axis=1).any()
+    sticking = np.flatnonzero((state == 1).any(axis=1))
+    assert sticking.size
+    friction = -z["tangential"]
+    reversal = np.flatnonzero(np.sign(friction[1:]) != np.sign(friction[:-1]))
+    assert all(np.abs(reversal - k).min() <= 1 or np.abs(reversal + 1 - k).min() <= 1 for k in sticking)

@@ -120,7 +120,7 @@ def test_binary_fields_are_read_by_meshio_pyvista_and_the_api(tmp_path):
         points, _ = reader.read_points_cells()
         assert reader.num_steps == 11
         t, data, _ = reader.read_data(3)
-    assert t == pytest.approx(fields.t[3]) and set(data) == {"u", "v", "a", "contact_force"}
+    assert t == pytest.approx(fields.t[3]) and set(data) == {"u", "v", "a", "contact_force", "contact_state"}
     assert np.array_equal(data["v"], fields.values["v"][3]) and np.array_equal(points, fields.points)
     reader = pyvista.get_reader(str(tmp_path / "run" / "results.xdmf"))
     assert np.allclose(reader.time_values, fields.t)

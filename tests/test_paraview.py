@@ -197,7 +197,7 @@ def test_paraview_opens_the_binary_series(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     info = json.loads(proc.stdout.split("JSON", 1)[1])
     fields = fi.Result.load(folder).fields()
-    assert info["arrays"] == ["a", "contact_force", "u", "v"]
+    assert info["arrays"] == ["a", "contact_force", "contact_state", "u", "v"]
     assert np.allclose(info["times"], fields.t, rtol=0, atol=1e-12) and len(fields.t) == 11
     assert info["points"] == fields.points.shape[0]
     assert np.abs(np.asarray(info["u"]) - fields.values["u"][-1]).max() == 0.0

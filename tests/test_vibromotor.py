@@ -81,7 +81,7 @@ def test_the_surface_contacts_loaded_speed_converges_in_the_mesh(tmp_path):
     preload 40 N, load 1 N) on meshes of 1, 0.5 and 0.25 mm: the contact holds over every period (the
     motion is regular: its speed does not depend on round-off), and the slider's mean speed over the
     second half of 0.01 s converges in the mesh, each refinement changing it less, the last by at most
-    3 % (measured 23.69, 22.83, 22.50 mm/s). No energy is created; the gaps stay closed to round-off.
+    3 % (measured 23.69, 22.84, 22.53 mm/s). No energy is created; the gaps stay closed to round-off.
     The mean row on the same scene (10.4 mm/s) is compared in docs/tutorials/vibromotor.md."""
     spec = importlib.util.spec_from_file_location("vibromotor", CASES.parent / "meshes" / "vibromotor.py")
     module = importlib.util.module_from_spec(spec)

@@ -36,13 +36,13 @@ FIELDS = {
     "v": ("v", "speed"),
     "a": ("a", "acceleration magnitude"),
     "contact": ("contact_force", "contact force magnitude"),
+    "state": ("contact_state", "contact state: 0 open, 1 stick, 2 slip"),
 }
 DEFAULT_SIZE = (800, 448)    # multiples of 16: what MP4 encoders want
 AUTO_FRACTION = 0.10         # automatic scale: largest displacement = 10 % of the model size
 ARROW_FRACTION = 0.15        # the largest contact force is an arrow of 15 % of the model size
 
-# VTK cell types -> topological dimension; order-1 Lagrange cells (dolfinx writes those)
-# -> the linear cell with the same corner ordering.
+# VTK cell types -> topological dimension; dolfinx's order-1 Lagrange cells -> the linear cell of their corner order.
 _CELL_DIM = {1: 0, 3: 1, 4: 1, 21: 1, 68: 1, 5: 2, 7: 2, 8: 2, 9: 2, 22: 2, 23: 2, 28: 2, 69: 2, 70: 2,
              10: 3, 11: 3, 12: 3, 13: 3, 14: 3, 24: 3, 25: 3, 29: 3, 71: 3, 72: 3, 73: 3, 74: 3}
 _LINEAR = {68: (2, 3), 69: (3, 5), 70: (4, 9), 71: (4, 10), 72: (8, 12)}
@@ -564,8 +564,8 @@ def add_parser(sub) -> None:
                     "--scale) coloured by a field, contact forces as red arrows, the undeformed outline in "
                     "grey, the time. 1D bars are drawn as a tube moved along x by the magnified displacement.")
     a.add_argument("outdir", metavar="OUTDIR", help="a run's output folder")
-    a.add_argument("--field", default="v", metavar="FIELD",
-                   help="colour by |u|, |v|, |a| or the contact-force magnitude: u, v, a or contact (default v)")
+    a.add_argument("--field", default="v", metavar="FIELD", help="colour by |u|, |v|, |a|, |contact force| or "
+                   "the contact state (0 open, 1 stick, 2 slip): u, v, a, contact or state (default v)")
     a.add_argument("--scale", metavar="S",
                    help="displacement magnification (default: the largest displacement is 10%% of the model size)")
     a.add_argument("-o", "--output", metavar="FILE",

@@ -24,7 +24,7 @@ fem-impact: dynamics of elastic structures with unilateral constraints.
 
 A case file (YAML) describes the mesh, material, supports, loads, contacts, solver and
 output; `fem-impact run` integrates it in time and writes into OUTDIR:
-  results.pvd         ParaView time series (point data u, v, a, contact_force)
+  results.pvd         ParaView time series (point data u, v, a, contact_force, contact_state)
   history.csv         per step: gaps, forces, impulses per contact, probes, energies,
                       momentum of every body
   summary.json        run figures (times, unknowns, steps, max penetration, energy error)

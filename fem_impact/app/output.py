@@ -15,7 +15,7 @@ import numpy as np
 from mpi4py import MPI
 
 from ..fem import dolfinx_api as dx
-from ..nonsmooth.relation import Constraints
+from ..nonsmooth.relation import OPEN, STUCK, Constraints, nodal_states, row_states
 from ..integrators import StepState
 from ..fem.model import AXES, Model
 from ..fem.probes import Probes  # noqa: F401  (HistoryWriter reads them)
@@ -88,8 +88,6 @@ class FrictionColumns:
     the normal impulse column holds it): the cone a row sticks inside is that of its whole normal
     impulse, ``mu S_N / dt`` (``dt``; without it, ``mu F_N``: the same where no correction acts)."""
 
-    STICK = 1e-9   # relative margin inside the cone that counts as sticking
-
     def __init__(self, cons: Constraints, dt: float | None = None):
         self.dt = dt
         self.cons, self.dim = cons, cons.tangent_dirs.shape[1]
@@ -106,13 +104,11 @@ class FrictionColumns:
     def values(self, state: StepState) -> list[float]:
         cons, p = self.cons, self.cons.p
         f = state.tangential
-        per_row_force = np.sqrt(np.bincount(cons.tangent_of, weights=f * f, minlength=p))
         per_row_speed = np.sqrt(np.bincount(cons.tangent_of, weights=state.tangential_velocity ** 2, minlength=p))
         on_body = -(f[:, None] * cons.tangent_dirs)   # the friction force on the body, per tangent row
-        normal = state.force if self.dt is None else state.impulse / self.dt
-        loaded = normal > 0.0
+        states = row_states(cons, state, self.dt)
+        loaded, sticking = states != OPEN, states == STUCK
         per_row_speed = np.where(loaded, per_row_speed, 0.0)   # sliding: of the rows in contact only
-        sticking = loaded & (per_row_force < (1.0 - self.STICK) * cons.friction * normal)
         values = []
         for c in self.contacts:
             mine = (cons.tangent_of >= c.rows.start) & (cons.tangent_of < c.rows.stop)
@@ -328,27 +324,39 @@ def csv_rows(data: np.ndarray) -> str:
 
 
 class VTKWriter:
-    """u, v, a and the contact force on the structure (-P^T F_N) every N steps: ``results.pvd``
-    (ASCII VTU pieces, the default), or ``results.xdmf`` + ``results.h5`` (binary, ``xdmf``)."""
+    """u, v, a, the contact force on the structure (-P^T F_N) and each node's contact state every N
+    steps: ``results.pvd`` (ASCII VTU pieces, the default), or ``results.xdmf`` + ``results.h5``
+    (binary, ``xdmf``). ``contact_state`` (a scalar): 0 where no row in contact touches the node, 1
+    where the rows that do stick, 2 where one slides (or has no friction): the stick and slip regions
+    of a contact zone in ParaView and ``fem-impact animate --field state``."""
 
     FILES = {"vtu": "results.pvd", "xdmf": "results.xdmf"}
 
-    def __init__(self, folder: Path, model: Model, fields, every: int, last_step: int, form: str = "vtu"):
-        self.fields, self.every, self.last_step = fields, every, last_step
+    def __init__(self, folder: Path, model: Model, fields, every: int, last_step: int, form: str = "vtu",
+                 dt: float | None = None, cons: Constraints | None = None):
+        self.fields, self.every, self.last_step, self.dt = fields, every, last_step, dt
+        self.cons = cons if cons is not None else fields.cons
         series = dx.XDMFSeries if form == "xdmf" else dx.VTKSeries
-        self.series = series(model.comm, folder / self.FILES[form], model.V, ("u", "v", "a", "contact_force"))
+        self.series = series(model.comm, folder / self.FILES[form], model.V, ("u", "v", "a", "contact_force"),
+                             scalars=("contact_state",))
+        self.bs = model.bs
         self.frames = 0
+
+    def _frame(self, state: StepState, frame: dict) -> dict:
+        cons = self.cons
+        frame["contact_state"] = nodal_states(cons, row_states(cons, state, self.dt), self.bs)
+        return frame
 
     def write(self, state: StepState) -> None:
         if state.step % self.every and state.step != self.last_step:
             return
-        self.series.write(state.t, self.fields.frame(state))
+        self.series.write(state.t, self._frame(state, self.fields.frame(state)))
         self.frames += 1
 
     def write_block(self, block) -> None:
         """The frames that fall in a block of steps (the fields' ``frame_in``)."""
         for j in np.flatnonzero((block.step % self.every == 0) | (block.step == self.last_step)):
-            self.series.write(float(block.t[j]), self.fields.frame_in(block, int(j)))
+            self.series.write(float(block.t[j]), self._frame(block.state(int(j)), self.fields.frame_in(block, int(j))))
             self.frames += 1
 
     def close(self) -> None:

@@ -31,7 +31,8 @@ import numpy as np
 from .._version import __version__
 from .animate import AUTO_FRACTION, AnimateError, auto_scale, piece_files, read_pvd
 
-COLORS = {"u": "u", "v": "v", "a": "a", "contact": "contact_force", "contact_force": "contact_force"}
+COLORS = {"u": "u", "v": "v", "a": "a", "contact": "contact_force", "contact_force": "contact_force",
+          "state": "contact_state", "contact_state": "contact_state"}
 
 def _find_array(text: bytes, name: bytes | None) -> np.ndarray | None:
     """The values of the (first) ASCII DataArray called ``name`` (None: the Points array)."""
@@ -112,7 +113,7 @@ def write_view_script(outdir, dim: int | None = None, scale: float | None = None
     """
     outdir = Path(outdir)
     if color not in COLORS:
-        raise ValueError(f"color {color!r}: choose one of u, v, a, contact")
+        raise ValueError(f"color {color!r}: choose one of u, v, a, contact, state")
     ext = series_extremes(outdir)
     if scale is None:
         scale = auto_scale(ext["max_u"], ext["size"]) if ext else 1.0
@@ -157,7 +158,7 @@ from paraview.simple import (AnnotateTimeFilter, ColorBy, GetActiveView, GetActi
 
 DIM = @DIM@                # 1 rod, 2 strip (seen in the x-y plane), 3 solid
 SCALE = @SCALE@            # displacement magnification (the largest |u| ~ @FRACTION@ of the model size)
-COLOR = @COLOR@            # u, v, a or contact_force: coloured by its magnitude
+COLOR = @COLOR@            # u, v, a, contact_force or contact_state: coloured by its magnitude
 ARROW = 0.15               # arrow length of the largest nodal contact force, as a fraction of the model size
 FORCE_MAX = @FMAX@         # the largest nodal |contact_force| of the series (None: from history.csv)
 
@@ -198,7 +199,7 @@ def _largest_contact_force(folder):
 IN_GUI = paraview.fromGUI or (sys.argv[:1] in ([], [""]) and GetActiveView() is not None)
 HERE = _folder()
 reader = PVDReader(registrationName="results.pvd", FileName=os.path.join(HERE, "results.pvd"))
-reader.PointArrays = ["u", "v", "a", "contact_force"]
+reader.PointArrays = ["u", "v", "a", "contact_force", "contact_state"]
 reader.UpdatePipelineInformation()
 times = list(reader.TimestepValues) if reader.TimestepValues else [0.0]
 reader.UpdatePipeline(times[0])

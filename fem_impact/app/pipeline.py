@@ -102,7 +102,7 @@ class Result:
 class Fields:
     """A run's nodal fields: ``t`` (frames,), ``points`` (nodes, the coordinates as written: 2 columns in 1D
     and 2D, 3 in 3D) and ``values[name]`` (frames, nodes, 3) for u, v, a and contact_force (1D and 2D fields
-    padded to 3 components, zeros)."""
+    padded to 3 components, zeros), (frames, nodes, 1) for contact_state (0 open, 1 stick, 2 slip)."""
 
     t: np.ndarray
     points: np.ndarray
@@ -321,7 +321,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
                                                                                   else [])
         vtk = None
         if case.output.vtk and stage is not None:
-            vtk = VTKWriter(stage, model, fields, case.output.every, n_steps, case.output.format)
+            vtk = VTKWriter(stage, model, fields, case.output.every, n_steps, case.output.format,
+                            dt=getattr(integrator, "dt", None), cons=cons)
             observers.append(vtk)
         if hasattr(fields, "write"):   # the reduced model's fields remember the previous step
             observers.append(fields)

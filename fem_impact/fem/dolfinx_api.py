@@ -276,18 +276,41 @@ def function(V, name: str):
     return f
 
 
+class _NodalScalars:
+    """Scalar fields on V's nodes (a P1 space of one component on V's mesh): their values given per
+    owned node of V, in V's order."""
+
+    def __init__(self, V, names):
+        bs = V.dofmap.index_map_bs
+        if bs > 1:
+            Q, dofs = V.sub(0).collapse()
+            self.node = np.asarray(dofs, dtype=np.int64) // bs   # (V's node of each of Q's dofs)
+        else:
+            Q = V
+            self.node = np.arange(V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts)
+        self.owned = Q.dofmap.index_map.size_local
+        self.functions = {name: function(Q, name) for name in names}
+
+    def set(self, name: str, values: np.ndarray) -> None:
+        f = self.functions[name]
+        f.x.array[:self.owned] = values[self.node[:self.owned]]
+        f.x.scatter_forward()
+
+
 class VTKSeries:
-    """A ParaView time series (.pvd, one .vtu/.pvtu piece per frame) of nodal vector fields.
+    """A ParaView time series (.pvd, one .vtu/.pvtu piece per frame) of nodal vector fields, and of
+    nodal scalars (``scalars``: one value per owned node).
 
     dolfinx 0.5 cannot write a one-component vector space, so 1D fields are written as 3D
     vectors (x component filled) on the same nodes: ParaView's Warp By Vector works the same.
     """
 
-    def __init__(self, comm: MPI.Comm, path, V, names):
+    def __init__(self, comm: MPI.Comm, path, V, names, scalars=()):
         self.bs = V.dofmap.index_map_bs
         W = V if self.bs > 1 else fem.VectorFunctionSpace(V.mesh, ("CG", 1), dim=3)
         self.out_bs = W.dofmap.index_map_bs
         self.functions = {name: function(W, name) for name in names}
+        self.scalars = _NodalScalars(V, scalars)
         self._file = io.VTKFile(comm, str(path), "w")
         self._path, self._comm = Path(path), comm
         self._frames = 0
@@ -299,11 +322,14 @@ class VTKSeries:
         short): each rank reads the end of its piece back, and all raise OSError if one is incomplete.
         """
         for name, values in owned_values.items():
+            if name in self.scalars.functions:
+                self.scalars.set(name, values)
+                continue
             f = self.functions[name]
             blocks = values.reshape(-1, self.bs)
             f.x.array.reshape(-1, self.out_bs)[: blocks.shape[0], : self.bs] = blocks
             f.x.scatter_forward()
-        self._file.write_function(list(self.functions.values()), t)
+        self._file.write_function(list(self.functions.values()) + list(self.scalars.functions.values()), t)
         stem, rank = self._path.stem, self._comm.rank
         files = [self._path.with_name(f"{stem}_p{rank}_{self._frames:06d}.vtu")]
         if rank == 0:
@@ -335,11 +361,12 @@ class XDMFSeries:
     dolfinx's XDMFFile writes them; meshio (``meshio.xdmf.TimeSeriesReader``), pyvista and
     ParaView read it. The same fields and the same 1D rule as :class:`VTKSeries`."""
 
-    def __init__(self, comm: MPI.Comm, path, V, names):
+    def __init__(self, comm: MPI.Comm, path, V, names, scalars=()):
         self.bs = V.dofmap.index_map_bs
         W = V if self.bs > 1 else fem.VectorFunctionSpace(V.mesh, ("CG", 1), dim=3)
         self.out_bs = W.dofmap.index_map_bs
         self.functions = {name: function(W, name) for name in names}
+        self.scalars = _NodalScalars(V, scalars)
         self._path, self._comm = Path(path), comm
         silence_hdf5_errors()
         try:
@@ -351,10 +378,14 @@ class XDMFSeries:
     def write(self, t: float, owned_values: dict) -> None:
         """Write one frame; ``owned_values`` maps a field name to its owned dof values."""
         for name, values in owned_values.items():
-            f = self.functions[name]
-            blocks = values.reshape(-1, self.bs)
-            f.x.array.reshape(-1, self.out_bs)[: blocks.shape[0], : self.bs] = blocks
-            f.x.scatter_forward()
+            if name in self.scalars.functions:
+                self.scalars.set(name, values)
+                f = self.scalars.functions[name]
+            else:
+                f = self.functions[name]
+                blocks = values.reshape(-1, self.bs)
+                f.x.array.reshape(-1, self.out_bs)[: blocks.shape[0], : self.bs] = blocks
+                f.x.scatter_forward()
             try:
                 self._file.write_function(f, t)
             except RuntimeError:   # (HDF5's failed write, e.g. a full disk)
@@ -397,7 +428,10 @@ def _one_collection(path: Path) -> None:
     the XML changes; the data stay in the .h5 where dolfinx wrote them."""
     import xml.etree.ElementTree as ET
 
-    domain = ET.parse(path).getroot().find("Domain")
+    try:
+        domain = ET.parse(path).getroot().find("Domain")
+    except (ET.ParseError, OSError):   # (dolfinx wrote it cut short: a full disk)
+        raise _unwritten(path) from None
     # (dolfinx leaves the floats' precision out, which XDMF reads as 4 bytes: VTK and ParaView
     # then read the float64 data as float32; say 8)
     for item in domain.iter("DataItem"):
@@ -422,7 +456,11 @@ def _one_collection(path: Path) -> None:
                   *attributes, "      </Grid>"]
     lines += ["    </Grid>", "  </Domain>", "</Xdmf>", ""]
     temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text("\n".join(lines))
+    try:
+        temporary.write_text("\n".join(lines))
+    except OSError:
+        temporary.unlink(missing_ok=True)
+        raise _unwritten(path) from None
     os.replace(temporary, path)
 
 

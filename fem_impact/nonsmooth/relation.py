@@ -76,6 +76,36 @@ class Constraints:
         return allsum(comm, self.P_local.T @ local_values)
 
 
+STICK = 1e-9   # relative margin inside the friction cone that counts as sticking
+OPEN, STUCK, SLIDING = 0, 1, 2   # a row's state (row_states)
+
+
+def row_states(cons: Constraints, state, dt: float | None = None) -> np.ndarray:
+    """Each row's state at a step (int8, p): ``OPEN`` (no normal force), ``STUCK`` (closed, its
+    friction force strictly inside the cone, by ``STICK``), ``SLIDING`` (closed, on the cone, or
+    without friction). The force is the step's whole normal impulse over ``dt`` (with a Carnot
+    correction's); without ``dt`` the force at the step's end."""
+    normal = state.force if dt is None else state.impulse / dt
+    loaded = normal > 0.0
+    states = np.where(loaded, SLIDING, OPEN).astype(np.int8)
+    if state.tangential is not None and cons.pt:
+        f = state.tangential
+        per_row = np.sqrt(np.bincount(cons.tangent_of, weights=f * f, minlength=cons.p))
+        states[loaded & (per_row < (1.0 - STICK) * cons.friction * normal)] = STUCK
+    return states
+
+
+def nodal_states(cons: Constraints, states: np.ndarray, bs: int) -> np.ndarray:
+    """A row state per owned node (float, the owned nodes of ``P_local``'s rows): the largest of the
+    rows that touch it (``OPEN`` where none does), for the output's ``contact_state``."""
+    P = cons.P_local.tocsr()
+    per_dof = np.zeros(P.shape[0])
+    touched = np.flatnonzero(np.diff(P.indptr))
+    if touched.size and states.size:
+        per_dof[touched] = np.maximum.reduceat(states[P.indices], P.indptr[touched])
+    return per_dof.reshape(-1, bs).max(axis=1)
+
+
 def relation_of(contact: Contact, model: Model, key: tuple) -> Relation:
     """The relation object of a contact of the case file (its rows, gaps and their time dependence)."""
     dim = model.meshdata.dim

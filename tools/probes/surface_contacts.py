@@ -643,6 +643,35 @@ def _two_ranks(ctx):
     return wrong(f"2 ranks: {differ}") if differ else ok()
 
 
+@probe("surface-contacts", "the oblique frictional drop's contact_state field (xdmf, every step): 0, 1 or 2 at every "
+                           "node, stick and slip both seen, the same on 2 MPI ranks node by node", timeout=300)
+def _contact_state(ctx):
+    from fem_impact.app.xdmf import open_xdmf
+
+    data = _drop(velocity=(0.3, -V0))
+    data["contacts"] = [_contact(friction=0.3)]
+    data["output"] = {"vtk": True, "format": "xdmf", "every": 1}
+    states = []
+    for out, mpi in (("serial", 0), ("mpi", 2)):
+        r, folder = run_case(ctx, data, mpi=mpi, out=out)
+        bad = ctx.succeeded(r)
+        if bad:
+            return bad
+        with open_xdmf(folder / "results.xdmf") as series:
+            order = np.lexsort(series.points.T[::-1])
+            states.append(np.array([d["contact_state"].ravel()[order] for _, d in series.frames()]))
+    serial, parallel = states
+    problems = []
+    if np.abs(serial - np.rint(serial)).max() > 1e-12 or not np.isin(np.rint(serial), (0, 1, 2)).all():
+        problems.append("a contact_state value other than 0, 1, 2")
+    seen = set(np.unique(np.rint(serial)).astype(int))
+    if not {1, 2} <= seen:
+        problems.append(f"states seen {sorted(seen)}: stick and slip expected in an oblique frictional drop")
+    if serial.shape != parallel.shape or np.abs(serial - parallel).max() > 1e-9:
+        problems.append("contact_state on 2 ranks differs from the serial run's")
+    return wrong("; ".join(problems)) if problems else ok(f"{len(serial)} frames, states {sorted(seen)}")
+
+
 @probe("surface-contacts", "the patch test on 2 MPI ranks: every node's u exact on both pieces, the serial history",
        timeout=300)
 def _two_ranks_patch(ctx):
