@@ -658,8 +658,11 @@ def _contact_state(ctx):
         if bad:
             return bad
         with open_xdmf(folder / "results.xdmf") as series:
-            order = np.lexsort(series.points.T[::-1])
-            states.append(np.array([d["contact_state"].ravel()[order] for _, d in series.frames()]))
+            x = series.points.T[::-1]
+            # (by the nodes' coordinates; two bodies' nodes at one point by their states: their order is the
+            # partition's)
+            states.append(np.array([d["contact_state"].ravel()[np.lexsort((d["contact_state"].ravel(), *x))]
+                                    for _, d in series.frames()]))
     serial, parallel = states
     problems = []
     if np.abs(serial - np.rint(serial)).max() > 1e-12 or not np.isin(np.rint(serial), (0, 1, 2)).all():
