@@ -74,7 +74,8 @@ def draw(z: dict, path: Path) -> None:
 
     fig, (forces, states) = plt.subplots(2, 1, figsize=(8, 6), sharex=True, gridspec_kw={"height_ratios": [1, 1.6]})
     forces.plot(z["phase"], z["normal"], color="k", label="normal force N")
-    forces.plot(z["phase"], -z["tangential"], color="tab:orange", label="friction on the slider along x (-drive.tx)")
+    forces.plot(z["phase"], -z["tangential"], color="tab:orange",
+                label="friction on the slider along x (-drive.tx)")
     forces.axhline(0.0, color="0.7", lw=0.8)
     forces.set_ylabel("force (N)")
     forces.legend(loc="upper right", fontsize=8)

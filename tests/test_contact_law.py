@@ -101,11 +101,11 @@ def test_pivoting_through_updated_factors_finds_the_factorized_solutions():
     updating, factorizing = Delassus(A), Delassus(A)
     factorizing.UPDATE_FROM = n + 1
     q = rng.normal(size=n)
-    kinds = set()
+    kinds, a1, a2 = set(), None, None
     for _ in range(20):
         q += 0.05 * rng.normal(size=n)
-        x1, w1, a1 = updating.solve(q, guess=a1 if kinds else None)
-        x2, w2, a2 = factorizing.solve(q, guess=a2 if kinds else None)
+        x1, w1, a1 = updating.solve(q, guess=a1)
+        x2, w2, a2 = factorizing.solve(q, guess=a2)
         kinds |= {kind for kind, _ in updating._factors.values()}
         np.testing.assert_array_equal(a1, a2)
         np.testing.assert_allclose(x1, x2, rtol=0, atol=1e-12 * np.abs(x2).max())
