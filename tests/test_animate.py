@@ -167,6 +167,20 @@ def test_png_of_one_frame(strip, tmp_path):
     assert proc.returncode == 0 and (strip / "frame.png").is_file(), proc.stderr
 
 
+def test_the_contact_state_field_animates(strip, tmp_path):
+    """--field state reads contact_state: the frictionless bar's contact nodes 2 (closed without friction)
+    in the frames where the contact pushes, never 1 (stick), 0 everywhere before; the picture renders."""
+    from fem_impact.app.animate import animate, load_series
+
+    series = load_series(strip, "state")
+    state = np.rint(series.scalar)
+    pushed = [len(idx) > 0 for idx, _ in series.force]
+    assert not state[0].any() and not np.isin(1, state)
+    assert all((state[k] == 2).any() == pushed[k] for k in range(len(pushed))) and any(pushed)
+    out, _, frames = animate(strip, field="state", output=tmp_path / "state.png", size=(160, 96), progress=False)
+    assert frames == 1 and out.is_file()
+
+
 def test_mp4(strip, tmp_path):
     pytest.importorskip("imageio_ffmpeg", reason="imageio-ffmpeg is not installed: MP4 is not available")
     import imageio.v2 as iio
@@ -184,7 +198,7 @@ def test_mp4(strip, tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["{tmp}"], "no results.pvd"),
     (["{tmp}/nowhere"], "no such folder"),
-    (["{run}", "--field", "w"], "--field w: unknown, choose one of u, v, a, contact"),
+    (["{run}", "--field", "w"], "--field w: unknown, choose one of u, v, a, contact, state"),
     (["{run}", "-o", "{tmp}/a.jpg"], "write a .gif or an .mp4 (an animation) or a .png (one frame)"),
     (["{run}", "--frame", "2", "-o", "{tmp}/a.gif"], "--frame and --time pick one frame for a picture"),
     (["{run}", "--frame", "11"], "--frame 11: the run stored 11 frames"),

@@ -4,17 +4,15 @@ The frames come from ``results.pvd`` and its pieces (read with VTK through pyvis
 .pvd and .pvtu indexes are parsed here, so that a piece listed more than once, as dolfinx
 0.5 writes them, is read once, and ghost cells of a parallel run are dropped), or from
 ``results.xdmf`` and its ``results.h5`` (``output.format: xdmf``, read with meshio). Each frame
-shows the deformed shape ``x + scale * u`` coloured by ``|u|``, ``|v|``, ``|a|`` or the
-contact-force magnitude, the contact forces as arrows (tip at the node, length in
-proportion to the force), the undeformed outline in grey and the time. Camera, colour
-range and arrow scale are fixed over the whole series.
+shows the deformed shape ``x + scale * u`` coloured by ``|u|``, ``|v|``, ``|a|``, the contact-force
+magnitude or the contact state (open, stick, slip), the contact forces as arrows (tip at the node,
+length in proportion to the force), the undeformed outline in grey and the time. Camera, colour range
+and arrow scale are fixed over the whole series.
 
-1D bars are drawn as a tube along x at ``x + scale * u_x`` (the bar moves and shortens
-with the magnified displacement, coloured by the field), the undeformed bar as a thin grey
-line just below it.
+1D bars are drawn as a tube along x at ``x + scale * u_x`` (the bar moves and shortens with the
+magnified displacement, coloured by the field), the undeformed bar as a thin grey line just below it.
 
-Nothing here imports dolfinx or MPI: the command works on any run's folder.
-"""
+Nothing here imports dolfinx or MPI: the command works on any run's folder."""
 
 from __future__ import annotations
 
@@ -324,9 +322,8 @@ class _Writer:
     """Frames to a GIF (Pillow, adaptive palette per frame), an MP4 (imageio-ffmpeg) or, for a single
     frame, a PNG (Pillow, full colour).
 
-    GIF frames are reduced to 256 colours in worker threads (Pillow releases the GIL), so
-    that this overlaps with the rendering of the next frames.
-    """
+    GIF frames are reduced to 256 colours in worker threads (Pillow releases the GIL), so that this
+    overlaps with the rendering of the next frames."""
 
     def __init__(self, path: Path, fps: float):
         self.path, self.fps = path, fps
@@ -449,6 +446,9 @@ def render(series: Series, out: Path, field: str, scale: float, fps: float, size
     sbar = {"title": label, "vertical": False, "color": "black", "position_x": 0.3, "position_y": 0.02,
             "width": 0.4, "height": 0.14, "fmt": "%.3g", "title_font_size": 14, "label_font_size": 12}
     common = {"scalars": "field", "clim": clim, "cmap": "viridis", "scalar_bar_args": sbar, "reset_camera": False}
+    if field == "state":   # (open, stick, slip: three colours, not mixed across a cell into a false stick)
+        sbar.update(fmt="%.0f", n_labels=3)
+        common.update(clim=[0, 2], cmap=["whitesmoke", "tab:blue", "tab:red"], n_colors=3, interpolate_before_map=False)
 
     if series.dim == 1:
         line = pv.PolyData(X.copy(), lines=_line_cells(series.grid))
@@ -585,9 +585,8 @@ def animate(outdir, field: str = "v", scale: float | None = None, output=None, f
             when: float | None = None) -> tuple[Path, float, int]:
     """Render a run's results; returns (file, scale used, frames written). Raises AnimateError.
 
-    A ``.png`` output (or ``frame``/``time`` given) is one picture: stored frame ``frame``
-    (negative counts from the end), the frame nearest to time ``when``, or the last frame.
-    """
+    A ``.png`` output (or ``frame``/``time`` given) is one picture: stored frame ``frame`` (negative
+    counts from the end), the frame nearest to time ``when``, or the last frame."""
     outdir = Path(outdir)
     if field not in FIELDS:
         raise AnimateError(f"--field {field}: unknown, choose one of {', '.join(FIELDS)}")
