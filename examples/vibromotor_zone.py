@@ -102,7 +102,8 @@ def main(coarse: bool = False, plot: Path | None = None, cell: float = 1e-3) -> 
     print("phase   open  stick  slip   N (N)   friction on the slider, x (N)")
     for k in range(0, len(z["phase"]), 5):
         s = np.bincount(z["state"][k], minlength=3)
-        print(f"{z['phase'][k]:5.3f}  {s[0]:5d}  {s[1]:5d}  {s[2]:4d}  {z['normal'][k]:7.2f}  {-z['tangential'][k]:9.3f}")
+        forces = f"{z['normal'][k]:7.2f}  {-z['tangential'][k]:9.3f}"
+        print(f"{z['phase'][k]:5.3f}  {s[0]:5d}  {s[1]:5d}  {s[2]:4d}  {forces}")
     stick = (z["state"] == 1).sum() / max((z["state"] > 0).sum(), 1)
     print(f"of the tip nodes in contact, {100 * stick:.1f} % stick over the last {PERIODS} periods")
     if plot:
