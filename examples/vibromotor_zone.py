@@ -59,6 +59,10 @@ def zone(cell: float = 1e-3, t_end: float = 0.01) -> dict:
     still = np.abs(u[late][:, :, 0]).max(axis=0) < TRAVEL
     tip = np.flatnonzero(top & still & (points[:, 0] >= -1e-9) & (points[:, 0] <= 0.01 + 1e-9))
     tip = tip[np.argsort(points[tip, 0])]
+    expected = round(0.01 / cell) + 1   # (the tip's nodes: 10 mm in cells of ``cell``)
+    if tip.size != expected:   # (a slider that did not travel cannot be told from the tip this way)
+        raise SystemExit(f"vibromotor_zone: found {tip.size} tip nodes, expected {expected}: the slider's face "
+                         f"nodes moved less than {TRAVEL:g} m (a stalled slider?)")
     state = np.rint(states[late][:, tip]).astype(int)
     rows = np.searchsorted(h["t"], t[late] - 1e-12)
     return {"x": points[tip, 0], "t": t[late], "phase": (t[late] - t[late][0]) * f, "state": state,
