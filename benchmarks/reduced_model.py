@@ -17,8 +17,17 @@ method (Moreau-Jean), 150 steps a period: ``fem_impact.run`` of the same case wi
 each, their ratio (target: at least 20x), the steps taken in blocks and the largest difference
 of any history column (relative to the column's largest value).
 
+The strip on its stop (issue 34): a clamped steel strip (1 x 0.1 m, 200 x 20 cells, 8442 unknowns)
+whose end section (21 rows) rests on a stop at zero gap, pressed onto it by a force of 1000 N on the
+section and a body load that varies (50 (1 + 0.5 sin(2 pi 300 t)) m/s^2): every row closed every step.
+The full model (moreau_jean) against ten modes with the static correction, one step at a time and with
+its steps, the contact steps included, in compiled blocks (the default from 4000 steps); loop time per
+step (best of ``--repeat``), the ratio full / blocks (target: at least 50, at most about 18 us a step)
+and the largest difference between the reduced model's two histories (target: 1e-10 of each column's
+scale; an energy term on the energy's, a probe's component on its largest).
+
     python benchmarks/reduced_model.py [--cells 240] [--modes 10] [--steps 1600] [--periods 300]
-                                       [--per-period 150] [--repeat 3] [--only b3|oscillator]
+                                       [--per-period 150] [--repeat 3] [--only b3|oscillator|strip]
 """
 
 from __future__ import annotations
@@ -148,6 +157,68 @@ def oscillator(args) -> None:
     print(f"largest history difference between the two: {difference:.2g} of the column's largest value")
 
 
+def strip_case(method: str, steps: int, blocks: bool | None = None, cells: int = 200) -> fem_impact.Case:
+    """The strip on its stop (module docstring)."""
+    solver = {"dt": 1e-5, "t_end": steps * 1e-5}
+    if method == "modal":
+        solver.update({"method": "modal", "modes": 10, "static_correction": True, "blocks": blocks})
+    return fem_impact.Case.from_dict({
+        "name": "strip_on_stop",
+        "mesh": {"shape": "bar", "dim": 2, "length": 1.0, "height": 0.1, "cells": cells},
+        "material": {"E": 2.1e11, "rho": 7800.0, "nu": 0.3, "area": 0.01},
+        "supports": [{"nodes": "left", "fix": ["x", "y"]}],
+        "loads": [{"nodes": "right", "force": [0.0, -1000.0]},
+                  {"body": "all", "acceleration": [0.0, "-50*(1 + 0.5*sin(2*pi*300*t))"]}],
+        "contacts": [{"name": "stop", "type": "obstacle", "nodes": "right", "normal": [0.0, -1.0], "gap": 0.0,
+                      "restitution": 0.0}],
+        "solver": solver,
+        "output": {"vtk": False, "probes": {"tip": [1.0, 0.05], "middle": [0.5, 0.05]}},
+    })
+
+
+def history_difference(a: dict, b: dict) -> tuple[float, str]:
+    """The largest difference of two histories over each column's scale (an energy term on the energy's, a
+    probe's component and the gaps on the probes' largest displacement), and its column."""
+    energy = max(np.abs(a[k]).max() for k in ("kinetic", "strain", "external_work", "contact_loss"))
+    worst = (0.0, "")
+    for name in a:
+        scale = max(np.abs(a[name]).max(), 1e-300)
+        if name in ("energy_error", "damping_loss", "numerical_loss"):
+            scale = energy
+        for group in ((".gap", ".ux", ".uy"), (".vx", ".vy"), (".px", ".py")):
+            if name.endswith(group):
+                scale = max(scale, *(np.abs(a[k]).max() for k in a if k.endswith(group[-2:])))
+        worst = max(worst, (float(np.abs(a[name] - b[name]).max() / scale), name))
+    return worst
+
+
+def strip(args) -> None:
+    steps = args.strip_steps
+    fem_impact.run(strip_case("modal", 50, True))   # (imports, compiled steps loaded: not timed below)
+    per_step, results = {"full": [], "single": [], "blocks": []}, {}
+    for _ in range(args.repeat):
+        for name in per_step:
+            if name == "full" and per_step["full"] and len(per_step["full"]) >= 2:
+                continue   # (two runs of the full model are enough: its step is 100 times longer)
+            case = strip_case("moreau_jean", steps) if name == "full" else strip_case("modal", steps, name == "blocks")
+            result = fem_impact.run(case)
+            per_step[name].append(result.summary["loop_time_s"] / result.summary["steps"])
+            results[name] = result
+    best = {name: min(times) for name, times in per_step.items()}
+    s, h = results["blocks"].summary, results["blocks"].history
+    closed = int(np.count_nonzero(h["stop.force"][1:] > 0.0))
+    difference, column = history_difference(results["single"].history, h)
+    full = results["full"].summary
+    print(f"strip on its stop: {full['dofs']} unknowns, {full['constraints']} contact rows, {s['steps']} steps, "
+          f"contact force > 0 in {closed} of them; {s['steps_in_blocks']} steps in {s['blocks']} blocks")
+    print(f"loop per step: full model {1e6 * best['full']:.1f} us, reduced one step at a time "
+          f"{1e6 * best['single']:.2f} us, reduced in blocks {1e6 * best['blocks']:.2f} us (best of "
+          f"{args.repeat}; blocks: {', '.join(f'{1e6 * x:.2f}' for x in per_step['blocks'])} us)")
+    print(f"ratio full / blocks {best['full'] / best['blocks']:.1f}x (one step at a time "
+          f"{best['full'] / best['single']:.1f}x); largest history difference blocks / single steps "
+          f"{difference:.2g} of its scale ({column})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--cells", type=int, default=240, help="cells along the beam (default 240: ~20 700 unknowns)")
@@ -156,12 +227,15 @@ def main() -> None:
     parser.add_argument("--periods", type=int, default=300, help="the oscillator's forcing periods")
     parser.add_argument("--per-period", type=int, default=150, help="the oscillator's steps per forcing period")
     parser.add_argument("--repeat", type=int, default=3, help="runs of each path of the oscillator (best taken)")
-    parser.add_argument("--only", choices=("b3", "oscillator"), help="one of the two measurements")
+    parser.add_argument("--strip-steps", type=int, default=4000, help="the strip's time steps (default 4000)")
+    parser.add_argument("--only", choices=("b3", "oscillator", "strip"), help="one of the three measurements")
     args = parser.parse_args()
-    if args.only != "oscillator":
+    if args.only in (None, "b3"):
         b3(args)
-    if args.only != "b3":
+    if args.only in (None, "oscillator"):
         oscillator(args)
+    if args.only in (None, "strip"):
+        strip(args)
 
 
 if __name__ == "__main__":

@@ -432,13 +432,37 @@ class ImpactLog:
         self._remember(state.t, state.gap, state.normal_velocity)
 
     def write_block(self, block) -> None:
-        """A block of steps: without impulses it ends the impacts still open (else step by step)."""
-        if np.count_nonzero(block.impulse):
+        """A block of steps: ``write`` on each, by runs of steps with and without impulses (a contact that
+        persists through the block is one run); step by step before moving obstacles."""
+        relations = self.cons.relations
+        if np.count_nonzero(block.impulse) and relations is not None and relations.time_dependent:
             for state in block.states():
                 self.write(state)
             return
-        for name in list(self._open):
-            self._finish(name)
+        for c in self.cons.contacts:
+            impulse = block.impulse[:, c.rows]
+            carrying = impulse > 0.0
+            pushed = carrying.any(axis=1)
+            # the runs of steps with and without impulses: [start, end) each, alternating
+            edges = np.flatnonzero(np.diff(pushed.astype(np.int8))) + 1
+            for start, end in zip(np.concatenate(([0], edges)), np.concatenate((edges, [pushed.size])), strict=True):
+                if not pushed[start]:
+                    if c.name in self._open:
+                        self._finish(c.name)
+                    continue
+                if c.name not in self._open:   # (opened at the run's first step: the state before it)
+                    if start:
+                        self._remember(float(block.t[start - 1]), block.gap[start - 1],
+                                       block.normal_velocity[start - 1])
+                    before = self._approach[c.rows] if self._approach is not None else np.zeros(0)
+                    t = float(block.t[start])
+                    self._open[c.name] = [t, c.name, 0.0, float(max(before.max(initial=0.0), 0.0)), 0,
+                                          self._contact_time(c.rows, carrying[start], t)]
+                    self._rows[c.name] = np.zeros(carrying.shape[1], dtype=bool)
+                event = self._open[c.name]
+                # (summed step after step, as write does)
+                event[2] = float(np.cumsum(np.concatenate(([event[2]], impulse[start:end].sum(axis=1))))[-1])
+                self._rows[c.name] |= carrying[start:end].any(axis=0)
         self._remember(float(block.t[-1]), block.gap[-1], block.normal_velocity[-1])
 
     def _finish(self, name: str) -> None:

@@ -80,9 +80,11 @@ class StateFields:
         return self._parts(state, dofs)
 
     def _static_block(self, XR, XP, block, last: list | None = None, shape=None):
-        """``_static_and_rate`` for each step of a block (no contact force in it): (L x k) each, for
-        the rows XR, XP (k x nl, k x p); ``last`` keeps the last step's value in ``shape``."""
+        """``_static_and_rate`` for each step of a block: (L x k) each, for the rows XR, XP (k x nl, k x p);
+        ``last`` keeps the last step's value in ``shape``."""
         now = block.coefficients @ XR.T
+        if np.count_nonzero(block.force):   # (steps with impulses: contact_blocks)
+            now -= block.force @ XP.T
         rate = np.empty_like(now)
         t = block.t
         rate[0] = 0.0

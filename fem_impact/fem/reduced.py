@@ -169,19 +169,41 @@ class StaticCorrection:
             return np.broadcast_to(self._offset0, (c.shape[0], self._offset0.size))
         return c @ self.load_offsets.T
 
-    def energies_for(self, c: np.ndarray) -> np.ndarray:
-        """``energy`` at each step of a block without contact force."""
+    def energies_for(self, c: np.ndarray, force: np.ndarray | None = None) -> np.ndarray:
+        """``energy`` at each step of a block, from its coefficients (L x nl) and its forces (L x p; None:
+        without contact force)."""
         if self._constant:
-            return np.full(c.shape[0], self._energy0)
-        return 0.5 * np.einsum("ji,ik,jk->j", c, self.load_gram, c)
+            stored = np.full(c.shape[0], self._energy0)
+        else:
+            stored = 0.5 * np.einsum("ji,ik,jk->j", c, self.load_gram, c)
+        if force is not None:
+            stored = stored - np.einsum("ji,ji->j", force, self.offsets_for(c))
+            stored += 0.5 * np.einsum("ji,ji->j", force, force @ self.compliance.T)
+        return stored
 
-    def works_for(self, c0: np.ndarray, c1: np.ndarray, gamma: float) -> np.ndarray:
-        """``work`` over each step of a block without contact force (coefficients at the steps' starts
-        and ends)."""
+    def works_for(self, c0: np.ndarray, c1: np.ndarray, gamma: float, f0: np.ndarray | None = None,
+                  f1: np.ndarray | None = None) -> np.ndarray:
+        """``work`` over each step of a block (coefficients and forces at the steps' starts and ends;
+        forces None: without contact force)."""
         if self._constant:
-            return np.zeros(c1.shape[0])
+            work = np.zeros(c1.shape[0])
+            if f0 is not None:
+                work = work - (f1 - f0) @ self._offset0
+            return work
         c_mean = (1.0 - gamma) * c0 + gamma * c1
-        return np.einsum("ji,ik,jk->j", c_mean, self.load_gram, c1 - c0)
+        work = np.einsum("ji,ik,jk->j", c_mean, self.load_gram, c1 - c0)
+        if f0 is not None:
+            work -= np.einsum("ji,ji->j", c_mean @ self.load_offsets.T, f1 - f0)
+        return work
+
+    def contact_losses(self, c: np.ndarray, f0: np.ndarray, f1: np.ndarray) -> np.ndarray:
+        """What the static part adds to the contact loss over each step of a block (MoreauJean's
+        ``_static_contact_loss``): ``c`` the coefficients at the block's start and its steps' ends
+        (L + 1 x nl), ``f0``, ``f1`` the forces at the steps' starts and ends (L x p)."""
+        offsets = self.offsets_for(c)
+        loss = 0.5 * np.einsum("ji,ji->j", f0 + f1, offsets[1:] - offsets[:-1])
+        C = self.compliance.T
+        return loss - 0.5 * (np.einsum("ji,ji->j", f1, f1 @ C) - np.einsum("ji,ji->j", f0, f0 @ C))
 
 
 @dataclass

@@ -200,6 +200,9 @@ class BlockStepper:
         self._closing = False     # the last block stopped before a step where a row may act
         self._phase = 0           # steps of the open phase the last block ended (in blocks since a single step)
         self._end = -1            # the last block's last step
+        self._single = False      # the next step is the integrator's own (a load not finite, an LCP it solves)
+        self.contact = bool(getattr(integrator, "contact_step", lambda: False)())   # steps with impulses compiled
+        self.contact_length = MIN_BLOCK
 
     @classmethod
     def of(cls, integrator) -> BlockStepper | None:
@@ -218,15 +221,18 @@ class BlockStepper:
 
     def advance(self, limit: int) -> StepBlock | None:
         """Up to ``limit`` steps from the integrator's state, stopped before the first step in which a
-        contact row may act; None when that is the next one (or the state carries a force into it)."""
+        contact row may act (or, on a scheme with compiled contact steps, through the contact: steps
+        with impulses); None when the next step is the integrator's own."""
         it, ops, static = self.integrator, self.ops, self.static
         st = it.state
-        if self._closing:
-            self._closing = False
+        closing, single = self._closing, self._single
+        self._closing = self._single = False
+        if single or limit <= 0 or (closing and not self.contact):
             return None
-        if limit <= 0 or not it.block_ready(st):
+        open_ok = not closing and it.block_ready(st)
+        if not (open_ok or self.contact):
             return None
-        size = min(limit, self.length)
+        size = min(limit, self.length if open_ok else self.contact_length)
         t = it.t0 + np.arange(st.step + 1, st.step + size + 1) * it.dt   # (the integrators' own t1)
         loads = np.empty((size + 1, it.R.size))
         loads[0] = it.R
@@ -244,20 +250,33 @@ class BlockStepper:
             size = int(np.argmin(finite))
             if not size:
                 return None
-            self._closing = True
+            self._single = True
             t, loads = t[:size], loads[:size + 1]
             coefficients = coefficients[:size + 1] if coefficients is not None else None
-        steps = it.open_steps(loads)
-        pu = steps.PU if static is None else steps.PU + static.offsets_for(coefficients[1:])
-        keep = self._open_count(st, t, steps, pu)
-        phase = keep + (self._phase if st.step == self._end else 0)   # the open phase's steps so far
-        self.length = min(MAX_BLOCK, max(MIN_BLOCK, 2 * (phase if keep < size else size)))
-        if not keep:
+        pu_static = None if static is None else static.offsets_for(coefficients[1:])
+        if open_ok:
+            steps = it.open_steps(loads)
+            pu = steps.PU if static is None else steps.PU + pu_static
+            keep = self._open_count(st, t, steps, pu)
+            phase = keep + (self._phase if st.step == self._end else 0)   # the open phase's steps so far
+            self.length = min(MAX_BLOCK, max(MIN_BLOCK, 2 * (phase if keep < size else size)))
+            if keep:
+                if keep < size:   # (the step after the block may close: the next call does not try again)
+                    self._closing = True
+                return self._block(st, t[:keep], steps.head(keep), pu[:keep], loads[:keep + 1],
+                                   coefficients[:keep + 1] if coefficients is not None else None)
+            if not self.contact:
+                return None
+        # Steps with impulses, compiled (moreau_jean.contact_steps): the rows' gaps less the static offsets
+        taken, steps, impulse = it.contact_steps(loads, self._gaps(t)[0] - pu_static)
+        self.contact_length = min(MAX_BLOCK, max(MIN_BLOCK, 2 * taken))
+        if taken < t.size:
+            self._single = True   # (the step the compiled one could not take)
+        if not taken:
             return None
-        if keep < size:   # (the step after the block may close: the next call does not try again)
-            self._closing = True
-        return self._block(st, t[:keep], steps.head(keep), pu[:keep], loads[:keep + 1],
-                           coefficients[:keep + 1] if coefficients is not None else None)
+        force = impulse / it.dt
+        pu = steps.PU + pu_static[:taken] - force @ static.compliance.T
+        return self._block(st, t[:taken], steps, pu, loads[:taken + 1], coefficients[:taken + 1], impulse)
 
     def _open_count(self, st: StepState, t, steps: OpenSteps, pu) -> int:
         """How many of the block's first steps no contact row can act in (module docstring); ``pu``:
@@ -293,12 +312,16 @@ class BlockStepper:
         d = np.array([ops.gap0(tj) for tj in t])
         return d, np.abs(d)
 
-    def _block(self, st: StepState, t, steps: OpenSteps, pu, loads, coefficients) -> StepBlock:
-        """The StepBlock of the kept steps: contact rows and the energy budget of each step."""
+    def _block(self, st: StepState, t, steps: OpenSteps, pu, loads, coefficients,
+               impulse: np.ndarray | None = None) -> StepBlock:
+        """The StepBlock of the kept steps: contact rows and the energy budget of each step (``impulse``:
+        the steps' impulses, L x p, on rows a static part makes compliant; None: steps without contact)."""
         it, ops, static = self.integrator, self.ops, self.static
         w, size, p = self.open_step.weight, t.size, ops.p
         U, V = steps.U, steps.V
         zeros = np.zeros((size, p))
+        force = zeros if impulse is None else impulse / it.dt
+        force0 = None if impulse is None else np.concatenate((st.force[None], force[:-1]))
 
         # The budget as _step_energies and _book_stored book it, with the contact terms zero.
         e0 = st.energy
@@ -316,32 +339,39 @@ class BlockStepper:
         if self.open_step.damping is not None:
             CV = V * self.open_step.damping
             damping = (1.0 - w) * _rows_dot(du, np.concatenate((it.CV[None], CV[:-1]))) + w * _rows_dot(du, CV)
-        static_work = None
+        static_work = contact_loss = None
         if static is not None:
-            stored = static.energies_for(coefficients[1:])
-            strain += stored
-            static_work = static.works_for(coefficients[:-1], coefficients[1:], w)
+            strain += static.energies_for(coefficients[1:], None if impulse is None else force)
+            static_work = static.works_for(coefficients[:-1], coefficients[1:], w,
+                                           *((None, None) if impulse is None else (force0, force)))
             if it.loaded:
-                load_scale += stored
+                load_scale += static.energies_for(coefficients[1:])
+        pv0 = np.concatenate((st.normal_velocity[None], steps.PV[:-1])) if impulse is not None else None
+        if impulse is not None:   # the impulses' work with the steps' mean velocities, the static part's share
+            contact_loss = _accumulate(e0.contact_loss, _rows_dot(impulse, 0.5 * (pv0 + steps.PV)),
+                                       static.contact_losses(coefficients, force0, force))
         numerical = None
         if self.open_step.dissipation:
             V0 = np.concatenate((it.V[None], V[:-1]))
             dV, V_w = V - V0, (1.0 - w) * V0 + w * V
-            numerical = self.open_step.dissipation * (
-                dV * dV @ self.open_step.mass + it.dt ** 2 * (V_w * V_w @ self.open_step.stiffness))
+            terms = dV * dV @ self.open_step.mass + it.dt ** 2 * (V_w * V_w @ self.open_step.stiffness)
+            if impulse is not None:
+                terms += _rows_dot(impulse, steps.PV - pv0)
+            numerical = self.open_step.dissipation * terms
         constant = lambda value: np.full(size, value)   # noqa: E731
         energy = BlockEnergy(
             kinetic=kinetic, strain=strain, external_work=_accumulate(e0.external_work, work, static_work),
             damping_loss=_accumulate(e0.damping_loss, damping) if damping is not None else constant(e0.damping_loss),
-            impact_loss=constant(e0.impact_loss), contact_loss=constant(e0.contact_loss),
+            impact_loss=constant(e0.impact_loss),
+            contact_loss=contact_loss if contact_loss is not None else constant(e0.contact_loss),
             initial=constant(e0.initial), scheme=np.zeros(size), load_scale=load_scale,
             friction_loss=constant(e0.friction_loss),
             numerical_loss=_accumulate(e0.numerical_loss, numerical) if numerical is not None else
             constant(e0.numerical_loss),
             roundoff=np.finfo(float).eps * ((U * U) @ np.abs(self.open_step.stiffness)) + it._start_roundoff,
             losses=dict(e0.losses))
-        return StepBlock(np.arange(st.step + 1, st.step + size + 1), t, U, V, steps.A, self._gaps(t)[0] - pu, zeros,
-                         zeros.copy(), energy, pu, steps.PV, st,
+        return StepBlock(np.arange(st.step + 1, st.step + size + 1), t, U, V, steps.A, self._gaps(t)[0] - pu, force,
+                         zeros.copy() if impulse is None else impulse, energy, pu, steps.PV, st,
                          coefficients[1:] if coefficients is not None else None, dict(steps.carry, R=loads[1:]))
 
     def commit(self, block: StepBlock) -> None:

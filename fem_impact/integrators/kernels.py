@@ -16,6 +16,8 @@ from numba import njit, types
 from numba.extending import intrinsic
 from scipy.linalg.blas import daxpy
 
+from ..nonsmooth.lcp_kernel import solve as lcp_solve
+
 
 @intrinsic
 def _fma(typingctx, a, b, c):
@@ -112,6 +114,92 @@ def newmark_steps(fused, damped, coef, m, k, d, inv_S, R, U0, V0, A0, MV0, MA0, 
             U[j, i], V[j, i], A[j, i], MV[j, i] = ui, vi, ai, mvi
 
 
+@njit(cache=True)
+def moreau_jean_contact_steps(first, check_every, fused, loaded, damped, coef, m, k, d, inv_S, R,
+                              U0, V0, MV0, KU0, KV0, CV0, P, G, A_lcp, W, gap_free, pu0, pv0, active,
+                              U, V, A, KU, KV, X, PV, PU) -> int:
+    """MoreauJean.step with its impulses, on rows that all take their gap at the step's end (every row
+    compliant: a static part's), ``U.shape[0]`` times; as ``moreau_jean_steps`` plus the rows: ``P``
+    (p x n), ``G = S^-1 P^T`` (n x p), ``A_lcp`` the one-step problem's matrix, ``W = P S^-1 P^T``;
+    ``gap_free`` (L x p) the obstacles' gaps less the static offsets at the steps' ends; ``pu0``, ``pv0``
+    P U (of the modes) and P V of the state; ``active`` (in/out) the rows with an impulse. Writes as
+    ``moreau_jean_steps`` and the impulses X, P V and P U (of the modes) after each step (L x p).
+    Returns how many steps it took: fewer where the LCP leaves pivoting (lcp_kernel.solve), the
+    step the caller takes itself."""
+    c0, c1, c2, c3, c4, c5, c6, c7 = coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7]
+    n, p = U0.size, P.shape[0]
+    u, v, mv, ku, kv, cv = U0.copy(), V0.copy(), MV0.copy(), KU0.copy(), KV0.copy(), CV0.copy()
+    pu, pv = pu0.copy(), pv0.copy()
+    rhs, vf, uh = np.empty(n), np.empty(n), np.empty(n)
+    q, pvf = np.empty(p), np.empty(p)
+    factored, L, rows, x, w, y = np.full(p, -1, dtype=np.int8), np.zeros((p, p)), np.zeros(p, dtype=np.int64), \
+        np.zeros(p), np.zeros(p), np.zeros(2 * p)
+    for j in range(U.shape[0]):
+        identity = (first + j + 1) % check_every != 0
+        for i in range(n):
+            r = mv[i]
+            if loaded:
+                r = _axpy(fused, c0, R[j, i], r)
+                r = _axpy(fused, c1, R[j + 1, i], r)
+            if damped:
+                r = _axpy(fused, c2, cv[i], r)
+            r = _axpy(fused, c3, ku[i], r)
+            r = _axpy(fused, c4, kv[i], r)
+            rhs[i] = r
+            uh[i] = _axpy(fused, c0, v[i], u[i])   # U0 + dt (1 - theta) V0
+            vf[i] = inv_S[i] * r                   # the free velocity
+        for a in range(p):                         # the rows' problem at the step's end (MoreauJean._contact_problem)
+            s = 0.0
+            for i in range(n):
+                s += P[a, i] * vf[i]
+            pvf[a] = s
+            q[a] = (gap_free[j, a] - pu[a] - c0 * pv[a]) / c1 - pvf[a]
+        if not lcp_solve(A_lcp, q, active, factored, L, rows, x, w, y):
+            return j
+        pushed = False
+        for a in range(p):
+            pushed = pushed or x[a] != 0.0
+        for a in range(p):
+            s = 0.0
+            if pushed:
+                for b in range(p):
+                    s += W[a, b] * x[b]
+            pv[a] = pvf[a] - s
+        for i in range(n):
+            vi = vf[i]
+            if pushed:
+                s, t = 0.0, 0.0
+                for a in range(p):
+                    s += G[i, a] * x[a]
+                    t += P[a, i] * x[a]
+                vi -= s
+                rhs[i] -= t
+            v0 = v[i]
+            ui = _axpy(fused, c1, vi, uh[i])
+            cvi = d[i] * vi if damped else 0.0
+            ai = (vi - v0) * c5
+            mvi = m[i] * vi
+            if identity:
+                kvi = rhs[i] - mvi
+                if damped:
+                    kvi = _axpy(fused, c6, cvi, kvi)
+                kvi = kvi * c7
+                kui = _axpy(fused, c0, kv[i], ku[i])
+                kui = _axpy(fused, c1, kvi, kui)
+            else:
+                kvi = k[i] * vi
+                kui = k[i] * ui
+            u[i], v[i], mv[i], ku[i], kv[i], cv[i] = ui, vi, mvi, kui, kvi, cvi
+            U[j, i], V[j, i], A[j, i], KU[j, i], KV[j, i] = ui, vi, ai, kui, kvi
+        for a in range(p):
+            s = 0.0
+            for i in range(n):
+                s += P[a, i] * u[i]
+            pu[a] = s
+            X[j, a], PV[j, a], PU[j, a] = x[a], pv[a], s
+    return U.shape[0]
+
+
 def warm_up() -> None:
     """Compile the loops (or load them from Numba's cache) now, on arrays of the types the integrators
     pass, so that the time loop does not pay for it."""
@@ -120,3 +208,8 @@ def warm_up() -> None:
                       block, block.copy(), block.copy(), block.copy(), block.copy())
     newmark_steps(FUSED, True, np.ones(5), one, one, one, one, row, one, one, one, one, one, block, block.copy(),
                   block.copy(), block.copy(), block.copy(), block.copy())
+    rows, square = np.ones((1, 1)), np.ones((1, 1))
+    moreau_jean_contact_steps(0, 32, FUSED, True, True, np.ones(8), one, one, one, one, row, one, one, one, one, one,
+                              one, rows, rows.copy(), square, square.copy(), block.copy(), one.copy(), one.copy(),
+                              np.zeros(1, dtype=np.bool_), block.copy(), block.copy(), block.copy(), block.copy(),
+                              block.copy(), block.copy(), block.copy(), block.copy())

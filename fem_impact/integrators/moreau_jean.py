@@ -135,6 +135,7 @@ class MoreauJean(FrictionSteps, ContactScheme):
         ``same``: the rows the run had (a restart's): the solvers' last ``W r``, restored with them,
         hold too (on new rows they would not: W changed)."""
         super().replace_rows(P_local, d0, tangents)
+        self._contact_args = None   # (compiled contact steps: on the new rows)
         ops, static = self.ops, self.ops.static
         self.lcp = OneStepProblem(self.W, ops.laws, self.dt, compliance_scale=self.theta * self.dt * self.dt,
                                   row_scale=self.theta * self.dt,
@@ -188,6 +189,47 @@ class MoreauJean(FrictionSteps, ContactScheme):
                U, V, A, KU, KV)
         P = ops._P_block   # (p x n, dense on a replicated system)
         return OpenSteps(U, V, A, V * ops.M, np.einsum("ji,ji->j", U, KU), U @ P.T, V @ P.T, {"KU": KU, "KV": KV})
+
+    def contact_step(self) -> bool:
+        """Whether its steps with impulses can be taken in compiled blocks (contact_blocks.py): a diagonal
+        replicated system without friction (``open_step``) whose rows all take their gap at the step's
+        end with a compliance of the static part alone (no Carnot correction, no stop's spring, no
+        memory), on fixed obstacles, their work in one loss column, contact_loss."""
+        ops = self.ops
+        return bool(self.open_step() is not None and ops.p and ops.static is not None and self.elastic.all()
+                    and not np.count_nonzero(self.carnot_rows) and not self._elastic_stops
+                    and not self.lcp.has_memory and not ops.moving and self._condensed is None
+                    and isinstance(self.lcp.matrix, np.ndarray)
+                    and set(ops.laws.columns) <= {"contact_loss"})
+
+    def contact_steps(self, loads: np.ndarray, gap_free: np.ndarray) -> tuple[int, OpenSteps, np.ndarray]:
+        """Up to ``len(loads) - 1`` steps with impulses from the state (``contact_step``), the loads as for
+        ``open_steps``, ``gap_free`` (L x p) the gaps less the static offsets at the steps' ends: the
+        compiled step (kernels.py). Returns (steps taken, their OpenSteps, their impulses, L x p); fewer
+        steps than asked where the one-step problem needs the solver's fallback (that step is then the
+        integrator's own)."""
+        ops = self.ops
+        if getattr(self, "_contact_args", None) is None:
+            from .kernels import moreau_jean_contact_steps
+
+            self.open_steps(loads[:1])   # (the open step's constants)
+            P = np.ascontiguousarray(ops._P_block)
+            G = np.ascontiguousarray(self.solve_S.inverse[:, None] * P.T)
+            self._contact_args = (moreau_jean_contact_steps, P, G, np.ascontiguousarray(self.lcp.matrix),
+                                  np.ascontiguousarray(P @ G))
+        kernel, P, G, A_lcp, W = self._contact_args
+        _, *args = self._open_args
+        size, n, p = loads.shape[0] - 1, self.U.size, ops.p
+        U, V, A, KU, KV = np.empty((5, size, n))
+        X, PV, PU = np.empty((3, size, p))
+        CV = self.CV if ops.C is not None else self.U
+        st = self.state
+        taken = kernel(st.step, CHECK_EVERY, *args, loads, self.U, self.V, self.MV, self.KU, self.KV, CV,
+                       P, G, A_lcp, W, np.ascontiguousarray(gap_free), self._pu_dyn, st.normal_velocity,
+                       st.impulse > 0.0, U, V, A, KU, KV, X, PV, PU)
+        U, V, A, KU, KV, X, PV, PU = (x[:taken] for x in (U, V, A, KU, KV, X, PV, PU))
+        steps = OpenSteps(U, V, A, V * ops.M, np.einsum("ji,ji->j", U, KU), PU, PV, {"KU": KU, "KV": KV})
+        return taken, steps, X
 
     def block_ready(self, state: StepState) -> bool:
         """The previous force enters a step only through a static part or an elastic stop's spring
