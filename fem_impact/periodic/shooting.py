@@ -61,6 +61,8 @@ class ReducedSystem:
     restitution: np.ndarray
     # The rows' relations when an obstacle moves (their d(t), d'(t), d''(t): docs/theory.md s. 2.6), else None
     obstacles: object | None = None
+    # A rigid body in translation (periodic/rigid.py): the rows whose impulse would turn it, else None
+    spins: np.ndarray | None = None
 
     def gap0(self, t: float) -> np.ndarray:
         """``d(t)``: the rows' stops at time t."""
@@ -191,8 +193,16 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
     lost = 1e-9 * scale                                                  # a row this far beyond it was lost
     pressed = 1e-10 * max(vscale * np.sqrt(system.w2.max()), vscale / span, load.max())   # |acceleration| of a row
 
+    def turns(t, j):
+        """A rigid body in translation struck off its centre's line would turn: not this flight's."""
+        if system.spins is not None and system.spins[j]:
+            raise ShootingError(f"row {j} meets its obstacle at t = {t:.6g} off the line through the rigid body's "
+                                "centre: the impact would turn it, and the event-driven flight takes it in "
+                                "translation (--flight scheme integrates its rotation)")
+
     def impact(t, j, y):
         nonlocal count
+        turns(t, j)
         if stuck:
             raise ShootingError(f"row {j} meets its stop at t = {t:.6g} while row {stuck[0]} sticks: two rows at "
                                 "once are not followed")
@@ -223,6 +233,7 @@ def flight(system: ReducedSystem, x: np.ndarray, t0: float, t1: float, impacts: 
             if speed > STICK_SPEED * vscale:
                 impact(t, j, y)
             elif speed > -STICK_SPEED * vscale and holding(t, y, j) * np.linalg.norm(row) > pressed:
+                turns(t, j)
                 if stuck:
                     raise ShootingError(f"rows {stuck[0]} and {j} stick at once at t = {t:.6g}: two rows at once "
                                         "are not followed")
@@ -388,11 +399,18 @@ def reduced_scene(case) -> ReducedScene:
 
     from ..build import build_system
     from ..integrators import is_reduced
+    from .rigid import rigid_system
 
-    if not is_reduced(case.solver):
-        raise ShootingError("shooting takes the reduced model (solver.method: modal, static_correction: false)")
+    rigid = any(model == "rigid" for model in case.bodies.values())
+    if not (rigid or is_reduced(case.solver)):
+        raise ShootingError("shooting takes the reduced model (solver.method: modal, static_correction: false) "
+                            "or a rigid body (bodies: {NAME: {model: rigid}})")
     built = build_system(case, MPI.COMM_SELF, probes=True)
     probes = built.probes
+    if rigid:
+        system, start, rows = rigid_system(built, ReducedSystem, ShootingError)
+        return ReducedScene(system, start, probes.names, rows, probes.dim,
+                            [(c.name, c.rows) for c in built.constraints.contacts])
     system = ReducedSystem.from_operators(built.operators)
     Y1 = built.fields.Y1
     rows = np.array([[Y1[d] for d in dofs] for dofs in probes.owned_dofs]).reshape(-1, Y1.shape[1])
