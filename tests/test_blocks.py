@@ -59,7 +59,7 @@ def assert_same_histories(single, fast, tolerance=ROUND_OFF):
         assert np.abs(a[name] - b[name]).max() <= tolerance * scale, name
     for key in ("steps", "impacts", "max_penetration", "max_stop_compression", "total_impulse", "impact_loss",
                 "contact_loss", "energy_created_at"):
-        if isinstance(single.summary[key], float):
+        if isinstance(single.summary[key], float) or key == "total_impulse":
             assert fast.summary[key] == pytest.approx(single.summary[key], rel=tolerance, abs=1e-300), key
         else:
             assert fast.summary[key] == single.summary[key], key
@@ -85,8 +85,10 @@ def test_the_one_mode_impact_oscillator_is_the_same_in_blocks(scheme, solver):
      "damping.beta": 1e-5},
 ], ids=["step-load", "varying-load-damped"])
 def test_the_beam_with_static_correction_and_elastic_stop_is_the_same_in_blocks(scheme, changes):
+    """Newmark's contact steps are single steps (the same to round-off); Moreau-Jean's go in compiled blocks too
+    (tests/test_contact_blocks.py: the same to 1e-10, not to the bit)."""
     single, fast = both(beam(scheme, **changes))
-    assert_same_histories(single, fast)
+    assert_same_histories(single, fast, ROUND_OFF if scheme == "newmark" else 1e-10)
     h = single.history
     assert h["stop.force"].max() > 100.0 and h["stop.gap"].min() < 0.0   # the stop was reached and pressed
     assert fast.summary["steps_in_blocks"] >= 300

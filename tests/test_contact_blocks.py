@@ -105,17 +105,31 @@ def test_contacts_that_open_and_close_are_the_same_in_blocks(tmp_path, changes):
     assert fast.summary["steps_in_blocks"] >= 0.9 * fast.summary["steps"]
 
 
-def test_rows_the_compiled_step_does_not_take_step_one_at_a_time():
-    """An elastic stop (its spring's stored energy) and a moving obstacle: the steps with impulses are the
-    integrator's own, as before (B3's beam, whose open steps still go in blocks)."""
-    beam = fi.load_case(CASES / "beam_stop.yaml", ["solver.method=modal", "solver.modes=10", "output.vtk=false",
-                                                   "solver.t_end=0.04"])
+@pytest.mark.parametrize("static_correction", [True, False])
+def test_an_elastic_stop_takes_its_contact_steps_in_blocks(static_correction):
+    """B3's beam (cases/beam_stop.yaml: ten modes, its elastic stop's spring, 1e8 N/m) pressed on its stop: the
+    spring's stored energy booked as the scheme books it, with or without the static correction."""
+    beam = fi.load_case(CASES / "beam_stop.yaml", ["solver.method=modal", "solver.scheme=moreau_jean",
+                                                   "solver.modes=10", "output.vtk=false", "solver.t_end=0.08",
+                                                   f"solver.static_correction={str(static_correction).lower()}"])
     single, fast = both(beam)
-    assert_same_histories(single, fast, 1e-12)
+    assert_same_histories(single, fast)
+    h = single.history
+    assert h["stop.force"].max() > 100.0 and (h["stop.force"] > 0.0).sum() >= 300   # pressed for many steps
+    assert fast.summary["steps_in_blocks"] >= 0.95 * fast.summary["steps"]
+
+
+def test_what_the_compiled_step_does_not_take_steps_one_at_a_time():
+    """A moving obstacle (the rows' gaps move in time) and rigid rows (Carnot's correction: no static
+    correction, no spring): the steps with impulses are the integrator's own, the same to round-off."""
     moving = strip(**{"contacts.0.motion": [0.0, "1e-6*sin(2*pi*100*t)"], "solver.t_end": 0.005})
     single, fast = both(moving)
     assert_same_histories(single, fast, 1e-12)
     assert fast.summary["steps_in_blocks"] == 0
+    rigid = strip(**{"solver.static_correction": False, "solver.t_end": 0.005})
+    single, fast = both(rigid)
+    assert_same_histories(single, fast, 1e-12)
+    assert single.history["stop.force"].max() > 0.0
 
 
 @pytest.mark.parametrize("seed", range(6))

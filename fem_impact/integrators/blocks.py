@@ -268,15 +268,19 @@ class BlockStepper:
             if not self.contact:
                 return None
         # Steps with impulses, compiled (moreau_jean.contact_steps): the rows' gaps less the static offsets
-        taken, steps, impulse = it.contact_steps(loads, self._gaps(t)[0] - pu_static)
+        gaps = self._gaps(t)[0]
+        taken, steps, impulse = it.contact_steps(loads, gaps - pu_static if static is not None else
+                                                 np.broadcast_to(gaps, (t.size, ops.p)))
         self.contact_length = min(MAX_BLOCK, max(MIN_BLOCK, 2 * taken))
         if taken < t.size:
             self._single = True   # (the step the compiled one could not take)
         if not taken:
             return None
-        force = impulse / it.dt
-        pu = steps.PU + pu_static[:taken] - force @ static.compliance.T
-        return self._block(st, t[:taken], steps, pu, loads[:taken + 1], coefficients[:taken + 1], impulse)
+        pu = steps.PU
+        if static is not None:
+            pu = pu + pu_static[:taken] - (impulse / it.dt) @ static.compliance.T
+        return self._block(st, t[:taken], steps, pu, loads[:taken + 1],
+                           coefficients[:taken + 1] if coefficients is not None else None, impulse)
 
     def _open_count(self, st: StepState, t, steps: OpenSteps, pu) -> int:
         """How many of the block's first steps no contact row can act in (module docstring); ``pu``:
@@ -347,9 +351,16 @@ class BlockStepper:
             if it.loaded:
                 load_scale += static.energies_for(coefficients[1:])
         pv0 = np.concatenate((st.normal_velocity[None], steps.PV[:-1])) if impulse is not None else None
-        if impulse is not None:   # the impulses' work with the steps' mean velocities, the static part's share
+        if impulse is not None:   # the impulses' work with the steps' mean velocities, the static part's share,
+            stops = None          # and what the stops' springs store (1/2 c F^2) moved to the strain energy
+            if it._elastic_stops:
+                stored = np.concatenate(([st.force @ (st.force * ops.laws.compliance)],
+                                         (force * force) @ ops.laws.compliance)) * 0.5
+                stops = -(stored[1:] - stored[:-1])
+                strain += stored[1:]
             contact_loss = _accumulate(e0.contact_loss, _rows_dot(impulse, 0.5 * (pv0 + steps.PV)),
-                                       static.contact_losses(coefficients, force0, force))
+                                       static.contact_losses(coefficients, force0, force) if static is not None
+                                       else None, stops)
         numerical = None
         if self.open_step.dissipation:
             V0 = np.concatenate((it.V[None], V[:-1]))
@@ -389,10 +400,11 @@ def _rows_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("ji,ji->j", a, b)
 
 
-def _accumulate(start: float, increments: np.ndarray, more: np.ndarray | None = None) -> np.ndarray:
+def _accumulate(start: float, increments: np.ndarray, *more: np.ndarray | None) -> np.ndarray:
     """The running total after each step, ``start`` plus each step's increments (``increments[j]``,
-    then ``more[j]``), added in the order step by step adds them."""
-    if more is not None:
-        increments = np.column_stack((increments, more)).ravel()
+    then each of ``more[j]`` that is not None), added in the order step by step adds them."""
+    parts = [increments, *(m for m in more if m is not None)]
+    if len(parts) > 1:
+        increments = np.column_stack(parts).ravel()
     total = np.cumsum(np.concatenate(([start], increments)))[1:]
-    return total[1::2] if more is not None else total
+    return total[len(parts) - 1::len(parts)]

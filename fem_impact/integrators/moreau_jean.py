@@ -191,13 +191,13 @@ class MoreauJean(FrictionSteps, ContactScheme):
         return OpenSteps(U, V, A, V * ops.M, np.einsum("ji,ji->j", U, KU), U @ P.T, V @ P.T, {"KU": KU, "KV": KV})
 
     def contact_step(self) -> bool:
-        """Whether its steps with impulses can be taken in compiled blocks (contact_blocks.py): a diagonal
-        replicated system without friction (``open_step``) whose rows all take their gap at the step's
-        end with a compliance of the static part alone (no Carnot correction, no stop's spring, no
-        memory), on fixed obstacles, their work in one loss column, contact_loss."""
+        """Whether its steps with impulses can be taken in compiled blocks (blocks.py, kernels.py): a
+        diagonal replicated system without friction (``open_step``) whose rows all take their gap at the
+        step's end with a compliance (a static part's, an elastic stop's: no Carnot correction), the laws
+        without memory and storing 1/2 c F^2 at most, on fixed obstacles, their work in contact_loss."""
         ops = self.ops
-        return bool(self.open_step() is not None and ops.p and ops.static is not None and self.elastic.all()
-                    and not np.count_nonzero(self.carnot_rows) and not self._elastic_stops
+        return bool(self.open_step() is not None and ops.p and self.elastic.all()
+                    and not np.count_nonzero(self.carnot_rows) and ops.laws.plain
                     and not self.lcp.has_memory and not ops.moving and self._condensed is None
                     and isinstance(self.lcp.matrix, np.ndarray)
                     and set(ops.laws.columns) <= {"contact_loss"})

@@ -190,6 +190,11 @@ class RowLaws:
             out[rows] = value(law)
         return out
 
+    @property
+    def plain(self) -> bool:
+        """Every law keeps the contact loss and stores ``1/2 c F^2`` (an elastic stop's spring, or nothing)."""
+        return self._plain
+
     def terms(self, h: float) -> tuple[np.ndarray, np.ndarray]:
         """(compliance, memory) per row of the one-step problem over a step ``h``."""
         if h not in self._terms:
