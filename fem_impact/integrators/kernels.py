@@ -45,6 +45,42 @@ def _axpy(fused, a, x, y):
     return _fma(a, x, y) if fused else a * x + y
 
 
+@njit(cache=True, inline="always")
+def _rhs(fused, loaded, damped, coef, R0, R1, mv, cv, ku, kv):
+    """A dof's rhs = M V0 + dt R_theta - dt (1 - theta) C V0 - dt K U0 - theta (1 - theta) dt^2 K V0, axpy by
+    axpy as MoreauJean.step forms it."""
+    r = mv
+    if loaded:
+        r = _axpy(fused, coef[0], R0, r)
+        r = _axpy(fused, coef[1], R1, r)
+    if damped:
+        r = _axpy(fused, coef[2], cv, r)
+    r = _axpy(fused, coef[3], ku, r)
+    return _axpy(fused, coef[4], kv, r)
+
+
+@njit(cache=True, inline="always")
+def _finish(fused, damped, identity, coef, r, vi, v0, uh, m, k, d, ku, kv):
+    """A dof's end of step from its velocity V1 (``r``: the step's rhs with the impulses, ``uh``: U0 + dt (1 -
+    theta) V0): (U1, C V1, A, M V1, K U1, K V1); K V1 from theta^2 dt^2 K V1 = rhs - M V1 - theta dt C V1
+    (``identity``), else by products."""
+    ui = _axpy(fused, coef[1], vi, uh)
+    cvi = d * vi if damped else 0.0
+    ai = (vi - v0) * coef[5]
+    mvi = m * vi
+    if identity:
+        kvi = r - mvi
+        if damped:
+            kvi = _axpy(fused, coef[6], cvi, kvi)
+        kvi = kvi * coef[7]
+        kui = _axpy(fused, coef[0], kv, ku)
+        kui = _axpy(fused, coef[1], kvi, kui)
+    else:
+        kvi = k * vi
+        kui = k * ui
+    return ui, cvi, ai, mvi, kui, kvi
+
+
 @njit(cache=True)
 def moreau_jean_steps(first, check_every, fused, loaded, damped, coef, m, k, d, inv_S, R,
                       U0, V0, MV0, KU0, KV0, CV0, U, V, A, KU, KV):
@@ -53,39 +89,18 @@ def moreau_jean_steps(first, check_every, fused, loaded, damped, coef, m, k, d, 
     step's scalars as the integrator forms them, [dt (1 - theta), dt theta, -dt (1 - theta), -dt,
     -theta (1 - theta) dt^2, 1 / dt, -theta dt, 1 / (theta^2 dt^2)]. Writes U, V, A, K U and K V
     after each step (L x n)."""
-    c0, c1, c2, c3, c4, c5, c6, c7 = coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7]
+    c0 = coef[0]
     u, v, mv, ku, kv, cv = U0.copy(), V0.copy(), MV0.copy(), KU0.copy(), KV0.copy(), CV0.copy()
     for j in range(U.shape[0]):
         identity = (first + j + 1) % check_every != 0
         for i in range(u.size):
-            r = mv[i]                              # rhs = M V0 + dt R_theta - dt (1 - theta) C V0 - dt K U0
-            if loaded:                             #       - theta (1 - theta) dt^2 K V0, axpy by axpy
-                r = _axpy(fused, c0, R[j, i], r)
-                r = _axpy(fused, c1, R[j + 1, i], r)
-            if damped:
-                r = _axpy(fused, c2, cv[i], r)
-            r = _axpy(fused, c3, ku[i], r)
-            r = _axpy(fused, c4, kv[i], r)
+            r = _rhs(fused, loaded, damped, coef, R[j, i], R[j + 1, i], mv[i], cv[i], ku[i], kv[i])
             v0 = v[i]
-            ui = _axpy(fused, c0, v0, u[i])        # U0 + dt (1 - theta) V0
             vi = inv_S[i] * r                      # the free velocity: S V1 = rhs
-            ui = _axpy(fused, c1, vi, ui)          # + dt theta V1
-            cvi = d[i] * vi if damped else 0.0
-            ai = (vi - v0) * c5
-            mvi = m[i] * vi
-            if identity:                           # K V1 from theta^2 dt^2 K V1 = rhs - M V1 - theta dt C V1
-                kvi = r - mvi
-                if damped:
-                    kvi = _axpy(fused, c6, cvi, kvi)
-                kvi = kvi * c7
-                kui = _axpy(fused, c0, kv[i], ku[i])
-                kui = _axpy(fused, c1, kvi, kui)
-            else:
-                kvi = k[i] * vi
-                kui = k[i] * ui
+            ui, cvi, ai, mvi, kui, kvi = _finish(fused, damped, identity, coef, r, vi, v0,
+                                                 _axpy(fused, c0, v0, u[i]), m[i], k[i], d[i], ku[i], kv[i])
             u[i], v[i], mv[i], ku[i], kv[i], cv[i] = ui, vi, mvi, kui, kvi, cvi
             U[j, i], V[j, i], A[j, i], KU[j, i], KV[j, i] = ui, vi, ai, kui, kvi
-
 
 @njit(cache=True)
 def newmark_steps(fused, damped, coef, m, k, d, inv_S, R, U0, V0, A0, MV0, MA0, U, V, A, MV, Up, Vp):
@@ -119,14 +134,14 @@ def moreau_jean_contact_steps(first, check_every, fused, loaded, damped, coef, m
                               U0, V0, MV0, KU0, KV0, CV0, P, G, A_lcp, W, gap_free, pu0, pv0, active,
                               U, V, A, KU, KV, X, PV, PU) -> int:
     """MoreauJean.step with its impulses, on rows that all take their gap at the step's end (every row
-    compliant: a static part's), ``U.shape[0]`` times; as ``moreau_jean_steps`` plus the rows: ``P``
-    (p x n), ``G = S^-1 P^T`` (n x p), ``A_lcp`` the one-step problem's matrix, ``W = P S^-1 P^T``;
-    ``gap_free`` (L x p) the obstacles' gaps less the static offsets at the steps' ends; ``pu0``, ``pv0``
-    P U (of the modes) and P V of the state; ``active`` (in/out) the rows with an impulse. Writes as
-    ``moreau_jean_steps`` and the impulses X, P V and P U (of the modes) after each step (L x p).
-    Returns how many steps it took: fewer where the LCP leaves pivoting (lcp_kernel.solve), the
-    step the caller takes itself."""
-    c0, c1, c2, c3, c4, c5, c6, c7 = coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7]
+    compliant: a static part's, a stop's spring), ``U.shape[0]`` times; as ``moreau_jean_steps`` plus the
+    rows: ``P`` (p x n), ``G = S^-1 P^T`` (n x p), ``A_lcp`` the one-step problem's matrix, ``W = P S^-1
+    P^T``; ``gap_free`` (L x p) the obstacles' gaps less the static offsets at the steps' ends; ``pu0``,
+    ``pv0`` P U (of the modes) and P V of the state; ``active`` (in/out) the rows with an impulse. Writes
+    as ``moreau_jean_steps`` and the impulses X, P V and P U (of the modes) after each step (L x p).
+    Returns how many steps it took: fewer where the LCP leaves pivoting (lcp_kernel.solve), the step the
+    caller takes itself."""
+    c0, c1 = coef[0], coef[1]
     n, p = U0.size, P.shape[0]
     u, v, mv, ku, kv, cv = U0.copy(), V0.copy(), MV0.copy(), KU0.copy(), KV0.copy(), CV0.copy()
     pu, pv = pu0.copy(), pv0.copy()
@@ -137,17 +152,9 @@ def moreau_jean_contact_steps(first, check_every, fused, loaded, damped, coef, m
     for j in range(U.shape[0]):
         identity = (first + j + 1) % check_every != 0
         for i in range(n):
-            r = mv[i]
-            if loaded:
-                r = _axpy(fused, c0, R[j, i], r)
-                r = _axpy(fused, c1, R[j + 1, i], r)
-            if damped:
-                r = _axpy(fused, c2, cv[i], r)
-            r = _axpy(fused, c3, ku[i], r)
-            r = _axpy(fused, c4, kv[i], r)
-            rhs[i] = r
+            rhs[i] = _rhs(fused, loaded, damped, coef, R[j, i], R[j + 1, i], mv[i], cv[i], ku[i], kv[i])
             uh[i] = _axpy(fused, c0, v[i], u[i])   # U0 + dt (1 - theta) V0
-            vf[i] = inv_S[i] * r                   # the free velocity
+            vf[i] = inv_S[i] * rhs[i]              # the free velocity
         for a in range(p):                         # the rows' problem at the step's end (MoreauJean._contact_problem)
             s = 0.0
             for i in range(n):
@@ -175,20 +182,8 @@ def moreau_jean_contact_steps(first, check_every, fused, loaded, damped, coef, m
                 vi -= s
                 rhs[i] -= t
             v0 = v[i]
-            ui = _axpy(fused, c1, vi, uh[i])
-            cvi = d[i] * vi if damped else 0.0
-            ai = (vi - v0) * c5
-            mvi = m[i] * vi
-            if identity:
-                kvi = rhs[i] - mvi
-                if damped:
-                    kvi = _axpy(fused, c6, cvi, kvi)
-                kvi = kvi * c7
-                kui = _axpy(fused, c0, kv[i], ku[i])
-                kui = _axpy(fused, c1, kvi, kui)
-            else:
-                kvi = k[i] * vi
-                kui = k[i] * ui
+            ui, cvi, ai, mvi, kui, kvi = _finish(fused, damped, identity, coef, rhs[i], vi, v0, uh[i], m[i], k[i],
+                                                 d[i], ku[i], kv[i])
             u[i], v[i], mv[i], ku[i], kv[i], cv[i] = ui, vi, mvi, kui, kvi, cvi
             U[j, i], V[j, i], A[j, i], KU[j, i], KV[j, i] = ui, vi, ai, kui, kvi
         for a in range(p):
