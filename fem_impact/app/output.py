@@ -415,6 +415,8 @@ class ImpactLog:
         return float(np.clip(when.min(), self._t_prev, t))
 
     def write(self, state: StepState) -> None:
+        if self._t_prev is not None and state.t <= self._t_prev:   # (a restart's first state: written before)
+            return
         for c in self.cons.contacts:
             impulse = state.impulse[c.rows]
             carrying = impulse > 0.0

@@ -51,6 +51,8 @@ class PeriodLog:
         self._partial = False         # the period under way started with the run, not at its start (a restart)
 
     def write(self, state: StepState) -> None:
+        if self._t is not None and state.t <= self._t:   # (a restart's first state: written before its checkpoint)
+            return
         e = state.energy
         impulse = np.array([state.impulse[c.rows].sum() for c in self.contacts]) if self.contacts else np.zeros(0)
         self._advance(np.array([state.t]), self.momenta.values(state)[None, :],

@@ -159,7 +159,8 @@ class StepBlock:
         """The block's first k steps."""
         cut = {name: getattr(self, name)[:k] for name in ("step", "t", "U", "V", "A", "gap", "force", "impulse",
                                                           "normal_displacement", "normal_velocity")}
-        return StepBlock(**cut, energy=BlockEnergy(*(getattr(self.energy, name)[:k] for name in _ENERGY), losses=self.energy.losses),
+        energy = BlockEnergy(**{name: getattr(self.energy, name)[:k] for name in _ENERGY}, losses=self.energy.losses)
+        return StepBlock(**cut, energy=energy,
                          previous=self.previous,
                          coefficients=self.coefficients[:k] if self.coefficients is not None else None,
                          carry={name: value[:k] for name, value in self.carry.items()})
