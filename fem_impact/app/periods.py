@@ -49,6 +49,7 @@ class PeriodLog:
         self._impulse = None          # per contact, summed over the period's steps
         self._k = 0                   # the period under way (0: [0, T))
         self._partial = False         # the period under way started with the run, not at its start (a restart)
+        self._seen = 0                # the impacts ImpactLog had finished at the last step written
 
     def write(self, state: StepState) -> None:
         if self._t is not None and state.t <= self._t:   # (a restart's first state: written before its checkpoint)
@@ -57,24 +58,48 @@ class PeriodLog:
         impulse = np.array([state.impulse[c.rows].sum() for c in self.contacts]) if self.contacts else np.zeros(0)
         self._advance(np.array([state.t]), self.momenta.values(state)[None, :],
                       np.array([[e.external_work, lost(e)]]), impulse[None, :])
-        if self.impacts is not None:   # the impacts that start at this step, by their contact times
-            for i, c in enumerate(self.contacts):
-                event = self.impacts._open.get(c.name)
-                if event is not None and event[0] == state.t:
-                    if event[-1] >= self._k * self.period * (1.0 - 1e-12) or not self.rows:
-                        self._count[i] += 1
-                    else:   # (it closed before the period that began within this step)
-                        self.rows[-1][2 + self._n_velocity + len(self.contacts) + i] += 1
+        for i, t_contact in self._impacts_from(state.t, state.t):   # the impacts that start at this step
+            self._count_impact(i, t_contact)
 
     def write_block(self, block) -> None:
+        """The block's steps; the impacts that start within it (steps with impulses: compiled contact steps)
+        counted at their steps, as ``write`` counts them."""
         e = block.energy
         shape = block.t.shape
+        t = np.asarray(block.t, float)
         cum = np.column_stack([np.broadcast_to(e.external_work, shape), np.broadcast_to(lost(e), shape)])
         impulse = (np.column_stack([block.impulse[:, c.rows].sum(axis=1) for c in self.contacts])
                    if self.contacts else np.zeros((len(block), 0)))
-        self._advance(np.asarray(block.t, float), self.momenta.values_block(block), cum, impulse)
+        p = self.momenta.values_block(block)
+        done = 0
+        starts = self._impacts_from(float(t[0]), float(t[-1])) if np.count_nonzero(block.impulse) else []
+        for j, i, t_contact in sorted((int(np.searchsorted(t, t0)), i, tc) for (t0, i, tc) in starts):
+            self._advance(t[done:j + 1], p[done:j + 1], cum[done:j + 1], impulse[done:j + 1])
+            done = max(done, j + 1)
+            self._count_impact(i, t_contact)
+        self._advance(t[done:], p[done:], cum[done:], impulse[done:])
+
+    def _impacts_from(self, t0: float, t1: float) -> list:
+        """The impacts (``ImpactLog``'s) whose first step ends in [t0, t1]: (that time, contact index, contact
+        time) each; with ``t0 == t1`` as (contact index, contact time) of the step's."""
+        if self.impacts is None:
+            return []
+        index = {c.name: i for i, c in enumerate(self.contacts)}
+        events = self.impacts.events[self._seen:] + list(self.impacts._open.values())
+        self._seen = len(self.impacts.events)
+        found = [(e[0], index[e[1]], e[-1]) for e in events if e[1] in index and t0 <= e[0] <= t1]
+        return [(i, tc) for _, i, tc in found] if t0 == t1 else found
+
+    def _count_impact(self, i: int, t_contact: float) -> None:
+        """An impact of contact i in the period its contact time falls in."""
+        if t_contact >= self._k * self.period * (1.0 - 1e-12) or not self.rows:
+            self._count[i] += 1
+        else:   # (it closed before the period that began within its first step)
+            self.rows[-1][2 + self._n_velocity + len(self.contacts) + i] += 1
 
     def _advance(self, t: np.ndarray, p: np.ndarray, cum: np.ndarray, impulse: np.ndarray) -> None:
+        if not t.size:
+            return
         if self._t is None:   # the first state (t0): the period it falls in starts here
             self._t, self._p, self._cum = float(t[0]), p[0].copy(), cum[0].copy()
             self._k = int(np.floor(self._t / self.period + 1e-9))

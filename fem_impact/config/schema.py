@@ -442,7 +442,8 @@ def _positive_time(period) -> float:
 class OutputSection(Section):
     """``output``: what the run writes, and how often."""
 
-    every: Integer = key("-", "steps between rows of history.csv and fields' frames", 10, ge=1, le=2**53)
+    every: Integer = key("-", "steps between the fields' frames (history.csv has a row every step)", 10, ge=1,
+                         le=2**53)
     probes: mapping_of(vector(Real), CsvName) = key("m", "named points whose displacement and velocity history.csv "
                                                          "records", {})
     vtk: bool = Field(True, description="write the fields for ParaView (format)")

@@ -58,6 +58,8 @@ class OpenStep:
     # the scheme's own dissipation that its budget books, this times dV.M dV + dU.K dU a step
     # (Moreau-Jean: theta - 1/2, EnergyBudget.numerical_loss); 0: none booked
     dissipation: float = 0.0
+    # the weight of the step's end in the loads' work on a static part (None: ``weight``; Moreau-Jean: 1/2)
+    static_weight: float | None = None
 
 
 @dataclass
@@ -347,7 +349,8 @@ class BlockStepper:
         static_work = contact_loss = None
         if static is not None:
             strain += static.energies_for(coefficients[1:], None if impulse is None else force)
-            static_work = static.works_for(coefficients[:-1], coefficients[1:], w,
+            static_work = static.works_for(coefficients[:-1], coefficients[1:],
+                                           w if self.open_step.static_weight is None else self.open_step.static_weight,
                                            *((None, None) if impulse is None else (force0, force)))
             if it.loaded:
                 load_scale += static.energies_for(coefficients[1:])

@@ -118,9 +118,11 @@ class _ReductionKeys(BaseModel):
     tolerance: float = _number("-", "modes: auto: the largest neglected flexibility per contact row, as a "
                                     "fraction of the row's static flexibility", 0.01, gt=0, lt=1)
     blocks: Annotated[bool | str, PlainValidator(_flag_or_auto)] = Field(
-        "auto", description="take the steps between contacts many at a time (the same results to round-off; "
-                            "Numba); auto: when the run has at least 4000 steps (below, loading the compiled "
-                            "steps costs more than they save); false: one at a time")
+        "auto", description="take the steps between contacts many at a time (the same results to round-off), "
+                            "and the contact steps of compliant rows (the static correction's, an elastic "
+                            "stop's: the same to 1e-10) with Moreau-Jean (Numba); auto: when the run has at "
+                            "least 4000 steps (below, loading the compiled steps costs more than they save); "
+                            "false: one at a time")
 
     def _written(self) -> set[str]:
         keys = super()._written()
