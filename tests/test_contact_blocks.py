@@ -159,7 +159,8 @@ def test_periods_count_the_impacts_that_start_in_a_block(tmp_path):
     case = strip(**{"loads.1.acceleration": [0.0, "-500*sin(2*pi*40*t)"], "loads.0.force": [0.0, 0.0],
                     "solver.t_end": 0.05, "output.period": "1/40"})
     single, fast = both(case, tmp_path)
-    a, b = (np.genfromtxt(tmp_path / str(blocks) / "periods.csv", delimiter=",", names=True) for blocks in (False, True))
+    a, b = (np.genfromtxt(tmp_path / str(blocks) / "periods.csv", delimiter=",", names=True)
+            for blocks in (False, True))
     assert a.size == b.size == 2 and a["stopimpacts"].sum() >= 4
     np.testing.assert_array_equal(b["stopimpacts"], a["stopimpacts"])
     np.testing.assert_allclose(b["stopimpulse"], a["stopimpulse"], rtol=TOLERANCE)

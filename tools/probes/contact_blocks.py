@@ -231,7 +231,7 @@ def _impacts_differ(a_folder, b_folder, tol: float = TOL) -> str | None:
         return f"impacts.csv columns {list(b[0])} against {list(a[0])}"
     for name in a[0] if a else ():
         if name in ("contact", "rows"):
-            for i, (x, y) in enumerate(zip(a, b)):
+            for i, (x, y) in enumerate(zip(a, b, strict=False)):
                 if x[name] != y[name]:
                     return f"impacts.csv row {i + 1} {name}: {y[name]} against {x[name]}"
             continue
@@ -741,7 +741,7 @@ def _stopped_as_single(changes: dict, needle: str):
             if r.traceback:
                 return Verdict("traceback", r.tail())
             results[blocks] = (r, out)
-        (a, a_out), (b, b_out) = results[False], results[True]
+        (a, _), (b, b_out) = results[False], results[True]
         if a.status != 3:
             return Verdict("error", f"single steps: status {a.status}, not the stop this probe expects: {a.tail()}")
         if b.status != 3 or b.lines() != a.lines():
