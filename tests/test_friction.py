@@ -302,13 +302,19 @@ def plate_sliding(cells, courant, level="position", t_end=12.0):
     return fi.run(case.with_changes(changes))
 
 
-@pytest.mark.parametrize("courant", [5.0, 50.0])
-def test_a_plate_landing_while_sliding_far_above_courant_one_holds_its_gaps_and_gives_no_energy(courant):
+@pytest.mark.parametrize("courant, iterative", [(5.0, False), (50.0, False), (50.0, True)],
+                         ids=["5", "50", "50-gmres-newton"])
+def test_a_plate_landing_while_sliding_far_above_courant_one_holds_its_gaps_and_gives_no_energy(courant, iterative,
+                                                                                               monkeypatch):
     """121 rows with friction landing while they slide, at Courant numbers 5 and 50: with friction the
     gaps close at the end of every step as without it (round-off of the displacement scale; the velocity
     level leaves the face up to 1.4 of it inside the floor at Courant 5), E <= E0 + W_ext at every step,
     every loss grows, the balance closes, and the contact stays the cone problem's (every solve within
-    its tolerance)."""
+    its tolerance). At Courant 50 the sweeps crawl and Newton's method takes over: its direction by dense LU
+    here, and by GMRES (the path of 1500 unknowns and more, FrictionProblem._newton_iterative) with the
+    threshold lowered to these 363."""
+    if iterative:
+        monkeypatch.setattr(FrictionProblem, "ITERATIVE_FROM", 300)
     result = plate_sliding(2, courant)
     h, summary = result.history, result.summary
     assert summary["constraints"] == 121
@@ -321,6 +327,43 @@ def test_a_plate_landing_while_sliding_far_above_courant_one_holds_its_gaps_and_
     assert summary["max_friction_residual"] <= FrictionProblem.TOLERANCE
     if courant == 5.0:
         assert plate_sliding(2, courant, "velocity").history["floor.gap"].min() < -0.1
+    if courant == 50.0:   # (the sweeps did not solve it alone)
+        assert summary["friction_retries"] > 0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_newtons_direction_by_gmres_solves_a_nearly_rigid_face_as_the_dense_one(seed, monkeypatch):
+    """A nearly rigid body on 600 rows (1800 unknowns: W = H B M^-1 B^T H^T of a rigid block, rank 6, plus a
+    compliance 1e-4 of it), landing while it slides, mu 0.3: the sweeps crawl; Newton's method with its direction
+    by GMRES (FrictionProblem._newton_iterative) and by dense LU reach the tolerance, with the same impulses
+    (unique here: W positive definite) to 1e-7 of their size, and the rows' velocities obey Coulomb's law."""
+    rng = np.random.default_rng(seed)
+    p = 600
+    points = np.column_stack([rng.uniform(-1, 1, p), rng.uniform(-1, 1, p), np.zeros(p)])
+    H = np.zeros((3 * p, 6))   # rows in the caller's order: normals first, then each row's two tangents
+    frames = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    for k, axis in enumerate(frames):
+        rows = np.arange(p) if k == 0 else p + 2 * np.arange(p) + (k - 1)
+        H[rows, :3] = axis
+        H[rows, 3:] = np.cross(points, axis)   # (axis . (w x x) = w . (x x axis))
+    mass, inertia = 1.0, np.diag([0.3, 0.3, 0.6])
+    B = np.linalg.inv(np.block([[mass * np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), inertia]]))
+    L = rng.standard_normal((3 * p, 3 * p)) / np.sqrt(3 * p)
+    W = H @ B @ H.T + 1e-4 * (L @ L.T + np.eye(3 * p))
+    tangent_of = np.repeat(np.arange(p), 2)
+    q = np.concatenate([np.full(p, -1.0), np.tile([0.5, 0.3], p)])   # approaching at 1, sliding at (0.5, 0.3)
+    mu = np.full(p, 0.3)
+    solutions = {}
+    for name, threshold in (("gmres", 1500), ("dense", 10 ** 9)):
+        monkeypatch.setattr(FrictionProblem, "ITERATIVE_FROM", threshold)
+        sol = FrictionProblem(W, tangent_of, mu).solve(q, np.ones(p, dtype=bool))
+        assert sol.converged and sol.residual <= FrictionProblem.TOLERANCE, name
+        assert sol.newton > 0, name   # (the sweeps did not solve it alone)
+        solutions[name] = sol
+    a, b = solutions["gmres"].r, solutions["dense"].r
+    assert np.abs(a - b).max() <= 1e-7 * np.abs(b).max()
+    y = W @ a + q   # Coulomb's law on the solution: y_N >= 0, r_N >= 0, r_N y_N = 0, slip against r_T
+    assert a[:p].min() >= 0.0 and y[:p].min() >= -1e-9 * np.abs(q).max()
 
 
 @pytest.mark.parametrize("solver", [{"theta": 1.0}, {"theta": 0.7, "level": "velocity"}],

@@ -476,3 +476,46 @@ def alart_curnier(W, q, r, starts, sizes, rho, mu, jacobian):
                 if jacobian:
                     J[k + 1 + a, k + 1 + a] = 1.0
     return F, J
+
+
+@njit(cache=True)
+def alart_curnier_blocks(y, r, starts, sizes, rho, mu):
+    """``alart_curnier``'s ``F`` and its Jacobian as per-row blocks, ``J = (I - Q) + rho Q W`` (``y = W r + q``
+    given): ``Q`` (rows x 3 x 3, a row of m unknowns in its leading m x m) is the derivative of the row's
+    projection, ``F = r - proj(r - rho y)``: 1 on a pressed row's normal, the identity on a sticking row's
+    tangents, ``mu u`` and ``radius / |z_T| (I - u u^T)`` on a slipping one's (FrictionProblem._newton_iterative)."""
+    n = r.size
+    F = np.empty(n)
+    Q = np.zeros((starts.size, 3, 3))
+    for b in range(starts.size):
+        k, m, rh, friction = starts[b], sizes[b], rho[b], mu[b]
+        z_n = r[k] - rh * y[k]
+        F[k] = r[k] - max(z_n, 0.0)
+        if z_n > 0.0:
+            Q[b, 0, 0] = 1.0
+        if m == 1:
+            continue
+        nt = m - 1
+        norm = 0.0
+        for a in range(nt):
+            z = r[k + 1 + a] - rh * y[k + 1 + a]
+            norm += z * z
+        norm = np.sqrt(norm)
+        radius = friction * max(z_n, 0.0)
+        if norm <= radius:   # stick
+            for a in range(nt):
+                F[k + 1 + a] = rh * y[k + 1 + a]
+                Q[b, 1 + a, 1 + a] = 1.0
+        elif radius > 0.0:   # slip on the disk's edge
+            scale = radius / norm
+            for a in range(nt):
+                u_a = (r[k + 1 + a] - rh * y[k + 1 + a]) / norm
+                F[k + 1 + a] = r[k + 1 + a] - radius * u_a
+                Q[b, 1 + a, 0] = friction * u_a
+                for c in range(nt):
+                    u_c = (r[k + 1 + c] - rh * y[k + 1 + c]) / norm
+                    Q[b, 1 + a, 1 + c] = scale * ((1.0 if a == c else 0.0) - u_a * u_c)
+        else:                # open
+            for a in range(nt):
+                F[k + 1 + a] = r[k + 1 + a]
+    return F, Q

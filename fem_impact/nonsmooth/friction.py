@@ -86,6 +86,17 @@ def _kernels():
 
 
 EPS = np.finfo(float).eps
+
+
+def _gmres_tolerance() -> str:
+    """scipy's name of GMRES's relative tolerance: ``tol`` (Debian 12's 1.10), ``rtol`` from 1.12."""
+    import inspect
+
+    from scipy.sparse.linalg import gmres
+    return "rtol" if "rtol" in inspect.signature(gmres).parameters else "tol"
+
+
+_GMRES_TOLERANCE = _gmres_tolerance()
 # |W_ij - W_ji| above this many times the round-off bound s_i s_j of the two entries: not round-off (a
 # backward-stable solve stays below the bound itself).
 ASYMMETRY_MARGIN = 100.0
@@ -132,6 +143,9 @@ class FrictionProblem:
     # (a handful of rows coupled through the block) crawls for the 100 sweeps and then needs Newton anyway
     SMALL, NEWTON_AFTER_SMALL = 60, 8
     NEWTON_SIZE = 6000   # unknowns up to which it may (its steps are dense LU solves)
+    # From this many unknowns Newton's direction comes from GMRES preconditioned by J's row blocks (no dense
+    # J, no LU: _newton_iterative), after this many sweeps
+    ITERATIVE_FROM, NEWTON_AFTER_ITERATIVE = 1500, 20
     LEAST_SQUARES_SIZE = 600   # ... and least-squares ones where J is singular
     SINGLE_FROM = 2000   # unknowns from which W is kept as two float32 parts (the sweeps are memory-bound)
     __checkpoint__ = ("_last",)   # the warm start: part of a run's state (fem_impact/app/checkpoint/)
@@ -254,19 +268,24 @@ class FrictionProblem:
         # With W split (float32 parts), the sweeps converge to a problem perturbed at float32's
         # round-off: a first round to 1e-7, y made exact, a second from there to the tolerance (its
         # changes are small: so is their round-off). The residual is always judged on y = W r + q.
+        small = 1 < idx.size <= self.SMALL
+        # Many unknowns: Newton's direction by GMRES (no dense J), so it takes over from the sweeps sooner.
+        iterative = idx.size >= self.ITERATIVE_FROM
+        after = (self.NEWTON_AFTER_SMALL if small else self.NEWTON_AFTER_ITERATIVE if iterative else
+                 self.NEWTON_AFTER)
         for target in ((self.SINGLE_TARGET, self.TOLERANCE) if split else ()):
-            sweep(target, self.NEWTON_AFTER, True)
+            sweep(target, after, True)
             if residual <= self.TOLERANCE:
                 break
-        small = 1 < idx.size <= self.SMALL
-        after = self.NEWTON_AFTER_SMALL if small else self.NEWTON_AFTER
 
         def newton_step() -> bool:
             """Newton's method from r; kept where it lowers the residual. Whether it reached the tolerance."""
             nonlocal residual, worst, exact
-            ra_n = self._newton(self.dense(idx), q[idx], r[idx], rows, self._where(rows))
-            trial = np.zeros(n)
-            trial[idx] = ra_n
+            if iterative:
+                trial = self._newton_iterative(q, r, rows, idx)
+            else:
+                trial = np.zeros(n)
+                trial[idx] = self._newton(self.dense(idx), q[idx], r[idx], rows, self._where(rows))
             y_n = self.product(trial) + q
             res_n, worst_n = cone.residual(trial, y_n, q, rows, self.start, self.sizes, self.mu, self.rho)
             if res_n < residual:
@@ -281,7 +300,7 @@ class FrictionProblem:
             sweep(self.TOLERANCE, min(after, self.MAX_SWEEPS - sweeps), False)
             if residual <= self.TOLERANCE or sweeps >= self.MAX_SWEEPS:
                 break
-            if 1 < idx.size <= self.NEWTON_SIZE:
+            if 1 < idx.size <= self.NEWTON_SIZE or iterative:
                 # Gauss-Seidel crawls where the rows are strongly coupled (a stiff body on many rows at a
                 # large step: W nearly singular): Newton's method from where it got to (a retry).
                 newton += 1
@@ -376,6 +395,98 @@ class FrictionProblem:
         change = np.zeros(self.p)
         change[rows] = self._normal_factor(rows)(-y_n[rows])
         return change
+
+    def _row_blocks(self) -> np.ndarray:
+        """W's diagonal block of each row (rows x 3 x 3, a row of m unknowns in its leading m x m), float64."""
+        if getattr(self, "_blocks_of_rows", None) is None:
+            at = self.start[:, None] + np.arange(3)
+            inside = np.arange(3) < self.sizes[:, None]
+            at = np.where(inside, at, self.start[:, None])
+            pick = (at[:, :, None], at[:, None, :])
+            blocks = self.upper[pick].astype(float)
+            if self.lower.size:
+                blocks += self.lower[pick]
+            self._blocks_of_rows = blocks * (inside[:, :, None] & inside[:, None, :])
+        return self._blocks_of_rows
+
+    def _newton_iterative(self, q: np.ndarray, r: np.ndarray, rows: np.ndarray, idx: np.ndarray,
+                          iterations: int = 30) -> np.ndarray:
+        """Alart and Curnier's Newton method (``_newton``) on many unknowns without a dense Jacobian: per row
+        ``J = (I - Q) + rho Q W`` (cone.alart_curnier_blocks), its direction by GMRES on products with W (its
+        float32 part where W is split: a direction need not be exact), preconditioned by the inverse of J's
+        row blocks ``(I - Q) + rho Q W_ii``; the tolerance of each solve follows |F| (a loose direction far
+        from the solution, a tight one near it), the step the largest of 1, 1/2, ... that lowers |F|.
+        ``q``, ``r``: every unknown, in row order; returns the new r (those of other rows zero)."""
+        from scipy.sparse.linalg import LinearOperator, gmres
+
+        cone = _kernels()
+        n = r.size
+        starts, sizes = self.start[rows], self.sizes[rows]
+        rho, mu = self.rho[rows], self.mu[rows]
+        at = starts[:, None] + np.arange(3)
+        inside = np.arange(3) < sizes[:, None]
+        at = np.where(inside, at, starts[:, None])
+        D = self._row_blocks()[rows]
+        pad = np.where(inside, 0.0, 1.0)[:, :, None] * np.eye(3)   # (identity on a short row's padding)
+
+        def rows_of(x):   # a vector of every unknown as rows x 3 (zero in the padding)
+            return np.where(inside, x[at], 0.0)
+
+        def to_vector(blocks, out):
+            out[at[inside]] = blocks[inside]
+            return out
+
+        def product(x, exact):
+            y = np.zeros(n)
+            cone.add_product(y, self.upper, x)
+            if exact and self.lower.size:
+                cone.add_product(y, self.lower, x)
+            return y
+
+        def evaluate(x):
+            y = product(x, True) + q
+            F, Q = cone.alart_curnier_blocks(y, x, starts, sizes, rho, mu)
+            return F[idx], Q
+
+        r = np.where(np.isin(np.arange(n), idx), r, 0.0)
+        F, Q = evaluate(r)
+        size = float(F.dot(F))
+        scale = max(float(np.abs(r).max(initial=0.0)), float(np.abs(np.repeat(rho, sizes) * q[idx]).max(initial=0.0)),
+                    1e-300)
+        whole = np.zeros(n)
+        for _ in range(iterations):
+            if size == 0.0 or np.abs(F).max() <= 1e-3 * self.TOLERANCE * scale:
+                break
+            A, B = np.eye(3) - Q, rho[:, None, None] * Q
+            E_inv = np.linalg.inv(A + B @ D + pad)
+
+            def jacobian(v, A=A, B=B):
+                whole[idx] = v
+                Wv = product(whole, False)
+                out = np.einsum("bij,bj->bi", A, rows_of(whole)) + np.einsum("bij,bj->bi", B, rows_of(Wv))
+                return to_vector(out, np.zeros(n))[idx]
+
+            def preconditioner(v, E_inv=E_inv):
+                whole[idx] = v
+                return to_vector(np.einsum("bij,bj->bi", E_inv, rows_of(whole)), np.zeros(n))[idx]
+
+            J = LinearOperator((idx.size, idx.size), matvec=jacobian)
+            M = LinearOperator((idx.size, idx.size), matvec=preconditioner)
+            forcing = min(1e-2, max(float(np.abs(F).max()) / scale, 1e-12))
+            d = gmres(J, -F, M=M, restart=min(200, idx.size), maxiter=10, atol=0.0,
+                      **{_GMRES_TOLERANCE: forcing})[0]
+            step = 1.0
+            while step >= 1e-6:
+                trial = r.copy()
+                trial[idx] += step * d
+                F_trial, Q_trial = evaluate(trial)
+                if F_trial.dot(F_trial) < size:
+                    break
+                step *= 0.5
+            else:
+                break
+            r, F, Q, size = trial, F_trial, Q_trial, float(F_trial.dot(F_trial))
+        return r
 
     @staticmethod
     def _newton_direction(J: np.ndarray, F: np.ndarray) -> np.ndarray:
