@@ -331,39 +331,47 @@ def test_a_plate_landing_while_sliding_far_above_courant_one_holds_its_gaps_and_
         assert summary["friction_retries"] > 0
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_newtons_direction_by_gmres_solves_a_nearly_rigid_face_as_the_dense_one(seed, monkeypatch):
-    """A nearly rigid body on 600 rows (1800 unknowns: W = H B M^-1 B^T H^T of a rigid block, rank 6, plus a
-    compliance 1e-4 of it), landing while it slides, mu 0.3: the sweeps crawl; Newton's method with its direction
-    by GMRES (FrictionProblem._newton_iterative) and by dense LU reach the tolerance, with the same impulses
-    (unique here: W positive definite) to 1e-7 of their size, and the rows' velocities obey Coulomb's law."""
+@pytest.mark.parametrize("dim, seed", [(3, 0), (3, 1), (2, 0)])
+def test_newtons_direction_by_gmres_solves_a_nearly_rigid_face_as_the_dense_one(dim, seed, monkeypatch):
+    """A nearly rigid body on many rows (1800 unknowns in 3D, 1600 in 2D; W = H B M^-1 B^T H^T of a rigid
+    block, plus a compliance 1e-4 of it), landing while it slides, mu 0.3, a tenth of its rows open (not
+    active): the sweeps crawl; Newton's method with its direction by GMRES (FrictionProblem._newton_iterative)
+    and by dense LU reach the tolerance, with the same impulses (unique here: W positive definite) to 1e-7
+    of their size, none on the open rows, and Coulomb's law on the solution."""
     rng = np.random.default_rng(seed)
-    p = 600
-    points = np.column_stack([rng.uniform(-1, 1, p), rng.uniform(-1, 1, p), np.zeros(p)])
-    H = np.zeros((3 * p, 6))   # rows in the caller's order: normals first, then each row's two tangents
+    p = 600 if dim == 3 else 800
+    nt = dim - 1
+    x = np.column_stack([rng.uniform(-1, 1, p), rng.uniform(-1, 1, p), np.zeros(p)])
     frames = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    if dim == 2:   # (the plane x, z: normal -z, tangent x, rotation about y)
+        frames = frames[:2]
+    full = np.zeros((p * dim, 6))   # rows in the caller's order: normals first, then each row's tangents
     for k, axis in enumerate(frames):
-        rows = np.arange(p) if k == 0 else p + 2 * np.arange(p) + (k - 1)
-        H[rows, :3] = axis
-        H[rows, 3:] = np.cross(points, axis)   # (axis . (w x x) = w . (x x axis))
-    mass, inertia = 1.0, np.diag([0.3, 0.3, 0.6])
-    B = np.linalg.inv(np.block([[mass * np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), inertia]]))
-    L = rng.standard_normal((3 * p, 3 * p)) / np.sqrt(3 * p)
-    W = H @ B @ H.T + 1e-4 * (L @ L.T + np.eye(3 * p))
-    tangent_of = np.repeat(np.arange(p), 2)
-    q = np.concatenate([np.full(p, -1.0), np.tile([0.5, 0.3], p)])   # approaching at 1, sliding at (0.5, 0.3)
+        rows = np.arange(p) if k == 0 else p + nt * np.arange(p) + (k - 1)
+        full[rows, :3] = axis
+        full[rows, 3:] = np.cross(x, axis)   # (axis . (w x x) = w . (x x axis))
+    H = full if dim == 3 else full[:, [0, 2, 4]]
+    M = np.diag([1.0, 1.0, 1.0, 0.3, 0.3, 0.6]) if dim == 3 else np.diag([1.0, 1.0, 0.3])
+    L = rng.standard_normal((p * dim, p * dim)) / np.sqrt(p * dim)
+    W = H @ np.linalg.inv(M) @ H.T + 1e-4 * (L @ L.T + np.eye(p * dim))
+    tangent_of = np.repeat(np.arange(p), nt)
+    q = np.concatenate([np.full(p, -1.0), np.tile([0.5, 0.3][:nt], p)])   # approaching at 1, sliding
     mu = np.full(p, 0.3)
+    active = rng.random(p) > 0.1
     solutions = {}
     for name, threshold in (("gmres", 1500), ("dense", 10 ** 9)):
         monkeypatch.setattr(FrictionProblem, "ITERATIVE_FROM", threshold)
-        sol = FrictionProblem(W, tangent_of, mu).solve(q, np.ones(p, dtype=bool))
+        sol = FrictionProblem(W, tangent_of, mu).solve(q, active)
         assert sol.converged and sol.residual <= FrictionProblem.TOLERANCE, name
         assert sol.newton > 0, name   # (the sweeps did not solve it alone)
         solutions[name] = sol
     a, b = solutions["gmres"].r, solutions["dense"].r
     assert np.abs(a - b).max() <= 1e-7 * np.abs(b).max()
-    y = W @ a + q   # Coulomb's law on the solution: y_N >= 0, r_N >= 0, r_N y_N = 0, slip against r_T
-    assert a[:p].min() >= 0.0 and y[:p].min() >= -1e-9 * np.abs(q).max()
+    assert not np.count_nonzero(a[:p][~active]) and not np.count_nonzero(a[p:][np.repeat(~active, nt)])
+    y = W @ a + q   # Coulomb's law on the solution: y_N >= 0 where pressed, r_N >= 0, |r_T| <= mu r_N
+    assert a[:p].min() >= 0.0 and y[:p][a[:p] > 0].min() >= -1e-9 * np.abs(q).max()
+    r_t = np.sqrt(np.bincount(tangent_of, weights=a[p:] ** 2, minlength=p))
+    assert (r_t <= mu * a[:p] * (1 + 1e-9) + 1e-12 * a[:p].max()).all()
 
 
 @pytest.mark.parametrize("solver", [{"theta": 1.0}, {"theta": 0.7, "level": "velocity"}],
