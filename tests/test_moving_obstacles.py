@@ -234,7 +234,7 @@ def test_the_response_study_sweeps_the_shaken_tables_amplitude_with_event_driven
     from fem_impact.app.studies.response import response_study
 
     case = fi.load_case(CASES / name)
-    result = response_study(case, "parameters.Gamma=1.3,1.5,1.55", tmp_path, settle=300, periods=4, flight="events",
+    result = response_study(case, "parameters.Gamma=1.3,1.5,1.55", tmp_path, settle=100, periods=4, flight="events",
                             frequency="f", quiet=True)
     periods = {row["parameters.Gamma"]: row["period"] for row in result["rows"]}
     assert periods == {1.3: 1, 1.5: 1, 1.55: 2}

@@ -78,6 +78,7 @@ def test_serial_and_two_ranks_agree(tmp_path, dim, cells, method):
 
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
 def test_reduced_contact_steps_in_compiled_blocks_agree_on_two_ranks(tmp_path):
     """The face on its stop, ten modes with the static correction, its steps with impulses in compiled blocks
