@@ -19,24 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..fem.model import load_factor
+from ..fem.reduced import ModalLoad
 from ..rigid.bodies import NodalMap
 
 ARM = 1e-9   # of the body's size: a row's (or a load's) moment arm about the centre below this is none
-
-
-class TranslationLoad:
-    """``B_t^T R(t) / sqrt(m)``: the rigid body's load on its translation coordinates."""
-
-    def __init__(self, constant: np.ndarray, varying: list):
-        self.constant, self.varying = constant, varying
-        self.time_dependent = bool(varying)
-
-    def evaluate(self, t: float, out: np.ndarray) -> np.ndarray:
-        out[:] = self.constant
-        for f, b in self.varying:
-            out += load_factor(f, t) * b
-        return out
 
 
 def rigid_system(built, system_class, error):
@@ -68,8 +54,8 @@ def rigid_system(built, system_class, error):
                         "it in translation (a body acceleration, or forces through its centre); --flight scheme "
                         "integrates its rotation")
     translation = B[:, :dim]
-    modal = TranslationLoad(translation.T @ parts[0] / root,
-                            [(f, translation.T @ b.array_r / root) for f, b in load.varying])
+    # (the load on the translation, B_t^T R(t) / sqrt(m): as the modes' Y1^T R(t))
+    modal = ModalLoad(translation.T @ parts[0] / root, [(f, translation.T @ b.array_r / root) for f, b in load.varying])
 
     V0 = np.asarray(built.V0, dtype=float)
     nu0 = np.linalg.lstsq(B, V0, rcond=None)[0]
