@@ -16,7 +16,8 @@ from pathlib import Path
 
 from ..._version import __version__
 from ...errors import OutputFolderError
-from .interruption import TAKE_OVER, ignore_signals, install_signal_handlers
+from .interruption import (TAKE_OVER, Interrupted, ignore_signals, install_signal_handlers, received_since,
+                           signals_so_far)
 from .manifest import foreign_entries, foreign_refusal, is_result, remove_result, tree, write_marker_data
 from .policy import OutputFolderChanged, _keep_beside, _real, _refusal, check
 from .writes import CHECKPOINT, OutputWriteError, write_error
@@ -225,6 +226,7 @@ class OutputFolder:
         """
         comm = self.comm
         install_signal_handlers()   # again: PETSc, imported meanwhile, installs its own
+        signals = signals_so_far()
         stage = self.path.parent / f".{self.path.name}.partial-{os.getpid()}"
         error = None
         if comm.rank == 0:
@@ -241,6 +243,8 @@ class OutputFolder:
         self.checkpoints = stage.parent / stage.name.replace(".partial-", ".checkpoint-", 1)
         try:
             yield stage
+            if received_since(signals) is not None:   # (its KeyboardInterrupt lost where Python ignores them)
+                raise Interrupted(received_since(signals))
             comm.barrier()
             failure = None
             if comm.rank == 0:

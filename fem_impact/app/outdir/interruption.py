@@ -33,6 +33,19 @@ def _raise(signum, frame):
     raise Interrupted(signum)
 
 
+def signals_so_far() -> int:
+    """How many signals have interrupted this process so far (``received_since``'s mark)."""
+    return len(_RECEIVED)
+
+
+def received_since(mark: int) -> int | None:
+    """The signal that interrupted this process since ``mark`` (``signals_so_far``), or None. Python runs a
+    signal's handler between bytecodes, also inside a weakref callback or a ``__del__``: the KeyboardInterrupt
+    raised there is printed as "Exception ignored" and lost, and the run would go on to its end as if never
+    interrupted. A command asks this before it puts its result in place."""
+    return _RECEIVED[-1] if len(_RECEIVED) > mark else None
+
+
 def received() -> int | None:
     """The signal that interrupted this process (a library may have turned the KeyboardInterrupt raised in
     its code into an error of its own: an extension's import fails), or None."""
