@@ -16,8 +16,14 @@ from pathlib import Path
 
 from ..._version import __version__
 from ...errors import OutputFolderError
-from .interruption import (TAKE_OVER, Interrupted, ignore_signals, install_signal_handlers, received_since,
-                           signals_so_far)
+from .interruption import (
+    TAKE_OVER,
+    Interrupted,
+    ignore_signals,
+    install_signal_handlers,
+    received_since,
+    signals_so_far,
+)
 from .manifest import foreign_entries, foreign_refusal, is_result, remove_result, tree, write_marker_data
 from .policy import OutputFolderChanged, _keep_beside, _real, _refusal, check
 from .writes import CHECKPOINT, OutputWriteError, write_error
