@@ -85,6 +85,7 @@ def test_the_vibromotor_characteristic_falls_with_the_load_to_a_stall(tmp_path, 
     assert 2.0 < out["stall"] < 4.0
 
 
+@pytest.mark.slow   # (11 s: the default tier's budget)
 def test_vibromotor_zone_shows_the_zone_open_at_its_ends_and_sticking_at_the_reversals(tmp_path, monkeypatch):
     """examples/vibromotor_zone.py (cases/vibromotor_surface.yaml, 1 mm, 0.004 s): in the last two periods
     the tip's open nodes are always a run from one end of the tip (it rocks, lifting off at its ends),

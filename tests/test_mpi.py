@@ -112,6 +112,7 @@ def test_the_explicit_plate_with_441_face_rows_agrees_on_two_ranks(tmp_path):
         assert np.abs(a[name] - b[name]).max() <= 1e-10 * np.abs(a[name]).max(), name
     assert a["floor_impulse"].sum() > 0.9 * 2 * 25.0      # the face hit the floor (2 rho c A v0 = 50)
 
+@pytest.mark.slow   # (10 s: the default tier's budget)
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
 def test_axisymmetric_binary_fields_and_impacts_agree_on_two_ranks(tmp_path):
     """The axisymmetric horn (cases/vibroconverter_axi.yaml, 3.9 periods: its first four impacts), written as XDMF:
