@@ -17,7 +17,7 @@ method (Moreau-Jean), 150 steps a period: ``fem_impact.run`` of the same case wi
 each, their ratio (target: at least 20x), the steps taken in blocks and the largest difference
 of any history column (relative to the column's largest value).
 
-The strip on its stop (issue 34, cases/strip_on_stop.yaml): a clamped steel strip (1 x 0.1 m, 200 x 20
+The strip on its stop (cases/strip_on_stop.yaml): a clamped steel strip (1 x 0.1 m, 200 x 20
 cells, 8442 unknowns) whose end section (21 rows) rests on a stop at zero gap, pressed onto it by a force
 of 1000 N on the section and a body load that varies (50 (1 + 0.5 sin(2 pi 300 t)) m/s^2): every row
 closed every step.

@@ -1,5 +1,5 @@
 """The reduced model's steps with impulses in compiled blocks (fem_impact/integrators/kernels.py,
-nonsmooth/lcp_kernel.py, docs/theory.md s. 8.8; issue 34): on rows the static correction makes compliant,
+nonsmooth/lcp_kernel.py, docs/theory.md s. 8.8): on rows the static correction makes compliant,
 every history column, impacts.csv and the summary as single steps give them, to 1e-10 of each column's
 scale; the compiled LCP as ``Delassus.solve``; what the compiled step does not take (Carnot's
 correction, elastic stops, moving obstacles) stepped one at a time as before."""
@@ -14,7 +14,7 @@ from conftest import CASES
 from fem_impact.nonsmooth import lcp_kernel
 from fem_impact.nonsmooth.lcp import Delassus
 
-TOLERANCE = 1e-10   # of each column's scale (issue 34: histories as today's to 1e-10)
+TOLERANCE = 1e-10   # of each column's scale: blocks against single steps
 
 
 def strip(cells=60, steps=1500, **changes):

@@ -228,9 +228,9 @@ def test_event_driven_flights_meet_the_shaken_table_exactly():
 def test_the_response_study_sweeps_the_shaken_tables_amplitude_with_event_driven_flights(tmp_path, name):
     """``study response --flight events`` over Gamma at the fixed drive frequency: period 1 below the
     period doubling, period 2 above it, and the doubling located (from the shooting's multipliers) within
-    0.1 % of sqrt((pi (1 - e) / (1 + e))^2 + (2 (1 + e^2) / (1 + e)^2)^2) = 1.5268 (measured 0.012 %): the ball as
+    0.1 % of sqrt((pi (1 - e) / (1 + e))^2 + (2 (1 + e^2) / (1 + e)^2)^2) = 1.5268: the ball as
     the reduced model's rigid mode, and as a rigid disk (bodies: model: rigid, struck under its centre: flown
-    in translation, periodic/rigid.py; issue 32 done-when 1)."""
+    in translation, periodic/rigid.py)."""
     from fem_impact.app.studies.response import response_study
 
     case = fi.load_case(CASES / name)

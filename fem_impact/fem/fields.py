@@ -83,7 +83,7 @@ class StateFields:
         """``_static_and_rate`` for each step of a block: (L x k) each, for the rows XR, XP (k x nl, k x p);
         ``last`` keeps the last step's value in ``shape``."""
         now = block.coefficients @ XR.T
-        if np.count_nonzero(block.force):   # (steps with impulses: contact_blocks)
+        if np.count_nonzero(block.force):   # (steps with impulses: compiled contact steps)
             now -= block.force @ XP.T
         rate = np.empty_like(now)
         t = block.t

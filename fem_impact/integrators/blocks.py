@@ -16,7 +16,10 @@ no contact problem, no solve, nothing that couples the dofs. From a state the in
    with the contact terms zero), with numpy over the block.
 
 The step that may close, and every step of a contact, goes through the integrator itself, which
-resumes from the block's last state (``resume``). The kept steps come as a :class:`StepBlock`:
+resumes from the block's last state (``resume``); except where the scheme compiles its steps with
+impulses too (``contact_step``: Moreau-Jean on rows that are all compliant, docs/theory.md s. 8.8):
+those blocks run through the contact, the impulses' terms added to the budget. The kept steps come as
+a :class:`StepBlock`:
 what a ``StepState`` holds, as arrays over the steps; observers that accept a block
 (``write_block``) read it at once, others get its ``StepState``s one by one (``integrate``).
 """

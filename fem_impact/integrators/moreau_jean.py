@@ -54,7 +54,7 @@ LEVELS = ("velocity", "position")
 # The loads' work on a static part (the reduced model's) with the trapezoidal weights whatever theta: the
 # static part's energy, the contact loss's share of it (_static_contact_loss) and that work then balance
 # exactly, its energy being quadratic (with theta's weight they left (theta - 1/2) (dc G dc - d(L c) . dF)
-# a step: 4.5e-7 of the energy scale on cases/strip_on_stop.yaml at theta = 0.7 in 1500 steps).
+# a step unbooked).
 STATIC_WEIGHT = 0.5
 
 

@@ -1,5 +1,5 @@
 """The exact LCP of ``Delassus.solve`` (lcp.py) compiled for small symmetric positive definite matrices,
-for steps taken in compiled blocks (fem_impact/integrators/contact_blocks.py).
+for steps taken in compiled blocks (fem_impact/integrators/kernels.py, blocks.py).
 
 Block principal pivoting with the rules, tolerances and retries of ``Delassus.solve``; the active
 block by its Cholesky factor, kept between calls while the active set stays (a persisting contact:

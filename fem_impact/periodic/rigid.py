@@ -40,8 +40,7 @@ def rigid_system(built, system_class, error):
     m = float(bodies.mass[0])
     root = np.sqrt(m)
     extent = max(float(np.abs(bodies.offset).max(initial=0.0)), 1e-300)
-    P_local = ops.P_local.toarray() if hasattr(ops.P_local, "toarray") else np.asarray(ops.P_local)
-    H = P_local.T @ B   # (P_local: the rows as columns, n x p)
+    H = np.asarray(ops.P_local.T @ B)   # (P_local: the rows as columns, n x p, sparse: H is p x (dim + rotations))
     arms = np.abs(H[:, dim:]).max(axis=1, initial=0.0)
     spins = arms > ARM * extent * np.maximum(np.abs(H[:, :dim]).max(axis=1, initial=0.0), 1e-300)
 

@@ -1,4 +1,4 @@
-"""Class ``contact-blocks``: the reduced model's steps with impulses in compiled blocks (issue 34;
+"""Class ``contact-blocks``: the reduced model's steps with impulses in compiled blocks (
 fem_impact/integrators/kernels.py ``moreau_jean_contact_steps``, nonsmooth/lcp_kernel.py, docs/theory.md
 s. 8.8 "Steps with impulses, compiled"): Moreau-Jean's contact steps on rows that are all compliant (the
 static correction's, an elastic stop's spring), as a user meets them through the command line.
@@ -46,7 +46,7 @@ import yaml
 from . import CASES, Verdict, history, ok, probe, run_case, wrong
 
 CLS = "contact-blocks"
-TOL = 1e-10      # of each column's scale: issue 34's agreement of blocks with single steps
+TOL = 1e-10      # of each column's scale: the agreement of blocks with single steps
 SAME = 1e-12     # where the contact steps stay single steps (their open steps may still go in blocks)
 DT = 1e-5
 ENERGY = ("kinetic", "strain", "external_work", "damping_loss", "impact_loss", "contact_loss", "energy_error",
