@@ -45,18 +45,26 @@ def project(z_n, z_t, mu, out_t):
 @njit(cache=True)
 def row_residual(r, y, mu, rho):
     """``|r - proj_K(r - rho (y + mu |y_T| e_N))|`` for one row (normal first)."""
-    k = r.size - 1
+    k = r.size
+    return _row_residual_at(r, y, 0, k, mu, rho, np.empty(max(k - 1, 0)), np.empty(max(k - 1, 0)))
+
+
+@njit(cache=True)
+def _row_residual_at(r, y, s, k, mu, rho, z_t, p_t):
+    """``row_residual`` of the row whose k unknowns are at s on, with scratch ``z_t``, ``p_t`` (k - 1 each, or
+    any size where k = 1)."""
     norm_yt = 0.0
-    for a in range(k):
-        norm_yt += y[1 + a] * y[1 + a]
-    z_t = np.empty(k)
-    for a in range(k):
-        z_t[a] = r[1 + a] - rho * y[1 + a]
-    p_t = np.empty(k)
-    p_n = project(r[0] - rho * (y[0] + mu * np.sqrt(norm_yt)), z_t, mu, p_t)
-    out = (r[0] - p_n) ** 2
-    for a in range(k):
-        out += (r[1 + a] - p_t[a]) ** 2
+    for a in range(1, k):
+        norm_yt += y[s + a] * y[s + a]
+    if k == 1:   # (a row without friction: the half line)
+        p_n = max(r[s] - rho * y[s], 0.0)
+        return abs(r[s] - p_n)
+    for a in range(k - 1):
+        z_t[a] = r[s + 1 + a] - rho * y[s + 1 + a]
+    p_n = project(r[s] - rho * (y[s] + mu * np.sqrt(norm_yt)), z_t, mu, p_t)
+    out = (r[s] - p_n) ** 2
+    for a in range(k - 1):
+        out += (r[s + 1 + a] - p_t[a]) ** 2
     return np.sqrt(out)
 
 
@@ -259,11 +267,13 @@ def residual(r, y, q, rows, start, sizes, mu, rho):
     """The natural-map residual over ``rows`` divided by the size of the data (friction.py):
     returns (that, the row where it is largest). Row i's unknowns are ``start[i]`` on, ``sizes[i]``."""
     worst, worst_row, scale = 0.0, -1, 0.0
+    scratch = np.empty(2 * (ROW - 1) + 2)   # (z_t and p_t of a row of one tangent, then of two: no slices)
+    z_1, p_1, z_2, p_2 = scratch[0:1], scratch[1:2], scratch[2:4], scratch[4:6]
     for i in rows:
         s, k = start[i], sizes[i]
         for j in range(s, s + k):
             scale = max(scale, abs(r[j]), rho[i] * abs(q[j]))
-        res = row_residual(r[s:s + k], y[s:s + k], mu[i], rho[i])
+        res = _row_residual_at(r, y, s, k, mu[i], rho[i], z_1 if k == 2 else z_2, p_1 if k == 2 else p_2)
         if res > worst:
             worst, worst_row = res, i
     return worst / max(scale, 1e-300), worst_row
@@ -427,6 +437,16 @@ def alart_curnier(W, q, r, starts, sizes, rho, mu, jacobian):
     y = W @ r + q
     F = np.empty(n)
     J = np.zeros((n, n)) if jacobian else np.zeros((1, 1))
+    alart_curnier_into(W, y, r, starts, sizes, rho, mu, F, J, jacobian, np.empty((3, ROW - 1)))
+    return F, J
+
+
+@njit(cache=True)
+def alart_curnier_into(W, y, r, starts, sizes, rho, mu, F, J, jacobian, scratch):
+    """``alart_curnier``'s F and J written into ``F`` and ``J`` (J zero on entry) from ``y = W r + q``, with
+    ``scratch`` (3 x 2): no allocation (small_kernel.py calls it many times a solve)."""
+    n = r.size
+    z_t, u, dz = scratch[0], scratch[1], scratch[2]
     for b in range(starts.size):
         k, m, rh, friction = starts[b], sizes[b], rho[b], mu[b]
         z_n = r[k] - rh * y[k]
@@ -440,7 +460,6 @@ def alart_curnier(W, q, r, starts, sizes, rho, mu, jacobian):
         if m == 1:
             continue
         nt = m - 1
-        z_t = np.empty(nt)
         norm = 0.0
         for a in range(nt):
             z_t[a] = r[k + 1 + a] - rh * y[k + 1 + a]
@@ -454,18 +473,16 @@ def alart_curnier(W, q, r, starts, sizes, rho, mu, jacobian):
                     for j in range(n):
                         J[k + 1 + a, j] = rh * W[k + 1 + a, j]
         elif radius > 0.0:   # slip on the disk's edge
-            u = z_t / norm
             for a in range(nt):
+                u[a] = z_t[a] / norm
                 F[k + 1 + a] = r[k + 1 + a] - radius * u[a]
             if jacobian:
                 scale = radius / norm
                 for j in range(n):
                     dz_n = -rh * W[k, j] + (1.0 if j == k else 0.0)
-                    dz = np.empty(nt)
-                    for a in range(nt):
-                        dz[a] = -rh * W[k + 1 + a, j] + (1.0 if j == k + 1 + a else 0.0)
                     u_dz = 0.0
                     for a in range(nt):
+                        dz[a] = -rh * W[k + 1 + a, j] + (1.0 if j == k + 1 + a else 0.0)
                         u_dz += u[a] * dz[a]
                     for a in range(nt):   # -(u mu dz_n + radius/norm (I - u u^T) dz) + I on the row's own
                         value = -(u[a] * friction * dz_n + scale * (dz[a] - u[a] * u_dz))
@@ -475,7 +492,6 @@ def alart_curnier(W, q, r, starts, sizes, rho, mu, jacobian):
                 F[k + 1 + a] = r[k + 1 + a]
                 if jacobian:
                     J[k + 1 + a, k + 1 + a] = 1.0
-    return F, J
 
 
 @njit(cache=True)

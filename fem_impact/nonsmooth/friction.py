@@ -85,6 +85,20 @@ def _kernels():
     return cone
 
 
+_NONE = np.zeros(0)   # (no warm start, to the compiled small path)
+
+
+def _small():
+    """small_kernel.py (compiled; loaded on the first small solve)."""
+    global _SMALL_KERNEL
+    if _SMALL_KERNEL is None:
+        from . import small_kernel as _SMALL_KERNEL
+    return _SMALL_KERNEL
+
+
+_SMALL_KERNEL = None
+
+
 EPS = np.finfo(float).eps
 
 
@@ -160,7 +174,7 @@ class FrictionProblem:
         and stalls short of round-off, where the sweeps settle the rows' velocities)."""
         self.newton_first = newton_first
         _kernels()   # (fails here, and clearly, without Numba)
-        self.p, self.mu = mu.size, np.asarray(mu, dtype=float)
+        self.p, self.mu = mu.size, np.ascontiguousarray(mu, dtype=float)
         self.blocks = [np.array([i] + [self.p + k for k in np.flatnonzero(tangent_of == i)])
                        for i in range(self.p)]
         # Inside, the unknowns are in row order: row i's normal and tangents at start[i] on, so that
@@ -204,6 +218,11 @@ class FrictionProblem:
         self._normal_factors = None   # (rows, the solve with their W_NN's factor): _normal_factor
         self.tangent_of = np.asarray(tangent_of, dtype=np.int64)
         self._layout = (None, None)   # (the active rows, the sweeps' blocks of them: cone.blocks_of)
+        # small_kernel.solve's data (with W in float64 and Newton first): mu, rho; order, start, sizes
+        self._small_numbers = self._small_layout = None
+        if newton_first and not self.lower.size:
+            self._small_numbers = np.concatenate([self.mu, self.rho])
+            self._small_layout = np.concatenate([self.order, self.start, self.sizes]).astype(np.int64)
 
     def product(self, x: np.ndarray) -> np.ndarray:
         """``W x`` (in row order)."""
@@ -230,8 +249,21 @@ class FrictionProblem:
     def solve(self, q: np.ndarray, active: np.ndarray, guess: np.ndarray | None = None) -> FrictionSolution:
         """Solve on the ``active`` normal rows (and their tangent rows); the others carry nothing.
         ``y = W r + q`` on every row (a row that is not active may show where it would go)."""
+        newton_done = False
+        if self._small_numbers is not None:
+            # A small problem solved whole in one compiled call (small_kernel.py: Newton's method from the
+            # warm start); what it does not finish goes on below, from Newton's best where it has one.
+            q = np.ascontiguousarray(q, dtype=float)
+            n = q.size
+            out = _small().solve(self.upper, q, _NONE if guess is None else np.ascontiguousarray(guess, dtype=float),
+                                 np.asarray(active, dtype=np.bool_), self._small_numbers, self._small_layout,
+                                 self.TOLERANCE, self.SMALL)
+            outcome = out[2 * n + 2]
+            if outcome == 0.0:   # (small_kernel.DONE)
+                return FrictionSolution(out[:n], out[n:2 * n], float(out[2 * n]), 0, True, int(out[2 * n + 1]))
+            if outcome == 2.0:   # (SHORT)
+                guess, newton_done = out[:n], True
         cone = _kernels()
-
         n = q.size
         rows = np.flatnonzero(active).astype(np.int64)
         if not rows.size:
@@ -294,7 +326,7 @@ class FrictionProblem:
 
         # A small problem (a block's rows on its floor, coupled through the block): Newton's method first,
         # from the warm start (a few dense steps, where the sweeps crawl); the sweeps if it falls short.
-        if small and self.newton_first and not split and newton_step():
+        if small and self.newton_first and not split and not newton_done and newton_step():
             sweeps = 0
         while sweeps < self.MAX_SWEEPS and residual > self.TOLERANCE:
             sweep(self.TOLERANCE, min(after, self.MAX_SWEEPS - sweeps), False)
