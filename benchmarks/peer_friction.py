@@ -18,8 +18,9 @@ run made it (warm-started from the previous step), then solves the same problem 
 zero (r = 0), for fairness with Siconos, which starts from zero too.
 Peer: each problem as a FrictionContactProblem (dimension 3, dense M, u = M r + q, the same
 law) through fc3d_driver with NSGS (its default local solver), NSN_AC, NSN_FB and ADMM,
-tolerance 1e-10, OPENBLAS_NUM_THREADS=1 in both processes; only the solve is timed.
-Columns: Siconos error = fc3d_compute_error on each solution (|natural map, rho = 1|_2 / |q|_2);
+tolerance 1e-10, OPENBLAS_NUM_THREADS=1 in both processes; only the solve is timed, a solve under 1 ms as the
+best of 20 (each from zero; the same rule on both sides).
+Columns: Siconos error = fc3d_compute_error's formula on each solution (|natural map, rho = 1|_2 / |q|_2; 2D too);
 fem-impact residual = the measure of friction.py's docstring (max over rows of the natural map
 with rho_i = 1 / W_NN,i, over max(|r|_inf, max_i rho_i |q_i|_inf)), recomputed here on every
 solution; conv = the solver's own verdict. Goal: fem-impact's residual equal or better (or both
@@ -47,6 +48,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import contact_scale  # noqa: E402  (the plate's setup: contact_scale.measure)
 
 TOLERANCE = 1e-10
+SOLVED = 10.0   # a peer's solve with Siconos' error under SOLVED x TOLERANCE solved the problem (the summary)
 PEER_PYTHON = "/usr/bin/python3"
 # Siconos solver: iteration cap (NSGS: fem-impact's MAX_SWEEPS; Newton steps are dense and few; ADMM at
 # 1681 rows: 20000 iterations, 5 to 12 min a problem, still 2e-6, so capped lower).
@@ -56,32 +58,48 @@ SOLVERS = {"NSGS": 2000, "NSN_AC": 200, "NSN_FB": 200, "ADMM": 5000}
 # block's 27 unknowns)
 SOLVERS_2D = {"NSGS": 2000, "CPG": 2000, "LEMKE": 2000}
 
+# A solve under FAST seconds is timed as the best of REPEATS (the same rule on both sides, each from zero): a single
+# call of a few microseconds measures the caches and the clock more than the solver.
+REPEATS, FAST = 20, 1e-3
+
+
+def best_of(solve):
+    """(the result of ``solve()``, its best time over REPEATS calls while they take under FAST seconds)."""
+    best = np.inf
+    for _ in range(REPEATS):
+        t0 = time.perf_counter()
+        result = solve()
+        best = min(best, time.perf_counter() - t0)
+        if best > FAST:
+            break
+    return result, best
+
+
 PEER = r'''
 import json, sys, time
 import numpy as np
 import siconos.numerics as sn
 d = np.load(sys.argv[1]); solvers = json.loads(sys.argv[2]); tol = float(sys.argv[3]); out = {}
+REPEATS, FAST = json.loads(sys.argv[5])
 dim = int(d["dim"]) if "dim" in d else 3
 prefix, driver = ("SICONOS_FRICTION_2D_", sn.fc2d_driver) if dim == 2 else ("SICONOS_FRICTION_3D_", sn.fc3d_driver)
 for j in range(int(d["count"])):
     W, q, mu = d[f"W{int(d['w_of'][j])}"], d[f"q{j}"], d[f"mu{j}"]
     fcp = sn.FrictionContactProblem(dim, W, q, mu)
-    if dim == 3:   # (Siconos' Python API has no fc2d error: in 2D each solver's own final error is shown)
-        error = lambda r: sn.fc3d_compute_error(fcp, r, W @ r + q, tol, sn.SolverOptions(sn.SICONOS_FRICTION_3D_NSGS),
-                                                np.linalg.norm(q))[1]
-        out[f"ferr_warm{j}"], out[f"ferr_zero{j}"] = error(d[f"r_warm{j}"]), error(d[f"r_zero{j}"])
-    else:
-        out[f"ferr_warm{j}"] = out[f"ferr_zero{j}"] = float("nan")
     for name, cap in solvers.items():
         options = sn.SolverOptions(getattr(sn, prefix + name))
         options.dparam[sn.SICONOS_DPARAM_TOL], options.iparam[sn.SICONOS_IPARAM_MAX_ITER] = tol, cap
-        r, u = np.zeros(q.size), np.zeros(q.size)
-        t0 = time.perf_counter()
-        info = driver(fcp, r, u, options)
-        out[f"t_{name}{j}"] = time.perf_counter() - t0
+        best = np.inf
+        for _ in range(REPEATS):   # (from zero each time; repeated only while a solve is fast: best_of's rule)
+            r, u = np.zeros(q.size), np.zeros(q.size)
+            t0 = time.perf_counter()
+            info = driver(fcp, r, u, options)
+            best = min(best, time.perf_counter() - t0)
+            if best > FAST:
+                break
+        out[f"t_{name}{j}"] = best
         out[f"r_{name}{j}"], out[f"info_{name}{j}"] = r, info
         out[f"it_{name}{j}"] = options.iparam[sn.SICONOS_IPARAM_ITER_DONE]
-        out[f"err_{name}{j}"] = error(r) if dim == 3 else options.dparam[sn.SICONOS_DPARAM_RESIDU]
 np.savez(sys.argv[4], **out)
 '''
 
@@ -127,11 +145,10 @@ def export(run, dim: int, steps: list[int], out: Path) -> None:
         if key not in blocks:   # W is the same over the steps while the closed rows are: saved once
             blocks[key] = len(blocks)
             data[f"W{blocks[key]}"] = W[np.ix_(order, order)]
-        t1 = time.perf_counter()
-        zero = solve(self, q, active, None)
+        zero, t_zero = best_of(lambda: solve(self, q, active, None))
         data.setdefault("step", []).append(step[0])
         data.update({f"q{j}": q[order], f"mu{j}": mus[rows], f"r_warm{j}": sol.r[order], f"r_zero{j}": zero.r[order]})
-        for name, value in (("w_of", blocks[key]), ("t_warm", wall), ("t_zero", time.perf_counter() - t1),
+        for name, value in (("w_of", blocks[key]), ("t_warm", wall), ("t_zero", t_zero),
                             ("res_warm", sol.residual), ("res_zero", zero.residual), ("sw_warm", sol.sweeps),
                             ("sw_zero", zero.sweeps), ("conv_warm", sol.converged), ("conv_zero", zero.converged)):
             data.setdefault(name, []).append(value)
@@ -172,6 +189,20 @@ def fem_residual(W: np.ndarray, q: np.ndarray, mu: np.ndarray, r: np.ndarray, di
     return float(row.max() / max(size, np.finfo(float).tiny))
 
 
+def siconos_error(W: np.ndarray, q: np.ndarray, mu: np.ndarray, r: np.ndarray, dim: int) -> float:
+    """Siconos' measure, fc3d_compute_error's formula (its Python API has none for fc2d): the natural map with
+    rho = 1, ``|r - proj_K(r - (u + mu |u_T| e_N))|_2 / |q|_2``, ``u = W r + q``, in 2D as in 3D."""
+    u, rc = (W @ r + q).reshape(-1, dim), r.reshape(-1, dim)
+    z = rc - u
+    z[:, 0] -= mu * np.linalg.norm(u[:, 1:], axis=1)
+    nt = np.linalg.norm(z[:, 1:], axis=1)
+    inside, polar = nt <= mu * z[:, 0], mu * nt <= -z[:, 0]
+    pn = np.where(inside, z[:, 0], np.where(polar, 0.0, (z[:, 0] + mu * nt) / (1.0 + mu * mu)))
+    scale_t = np.where(inside, 1.0, np.where(polar, 0.0, mu * pn / np.maximum(nt, np.finfo(float).tiny)))
+    gap = np.sqrt((rc[:, 0] - pn) ** 2 + np.sum((rc[:, 1:] - scale_t[:, None] * z[:, 1:]) ** 2, axis=1))
+    return float(np.linalg.norm(gap) / max(np.linalg.norm(q), np.finfo(float).tiny))
+
+
 def compare(cells, args, tmp: Path) -> list[dict]:
     """Export one problem family in a child process (a plate size, or a small scene's name), run the peer on
     it; the table's rows."""
@@ -184,7 +215,8 @@ def compare(cells, args, tmp: Path) -> list[dict]:
                  f"{child.stderr[-3000:]}")
     dim = int(np.load(problems)["dim"])
     solvers = ({name: SOLVERS[name] for name in args.solvers} if dim == 3 else dict(SOLVERS_2D))
-    proc = subprocess.run([PEER_PYTHON, "-c", PEER, str(problems), json.dumps(solvers), str(TOLERANCE), str(peer)],
+    proc = subprocess.run([PEER_PYTHON, "-c", PEER, str(problems), json.dumps(solvers), str(TOLERANCE), str(peer),
+                           json.dumps([REPEATS, FAST])],
                           capture_output=True, text=True)
     if proc.returncode:
         sys.exit(f"peer_friction: the Siconos run failed (status {proc.returncode}):\n{proc.stderr[-3000:]}")
@@ -197,11 +229,11 @@ def compare(cells, args, tmp: Path) -> list[dict]:
             if abs(mine - d[f"res_{start}"][j]) > 1e-2 * mine + 1e-14:   # this formula against friction.py's own
                 print(f"note: residual formula {mine:.3e} against fem-impact's reported {d[f'res_{start}'][j]:.3e}")
             rows.append(dict(cells=cells, rows=mu.size, step=int(d["step"][j]), solver=f"fem-impact {start}",
-                             t=d[f"t_{start}"][j], err=float(s[f"ferr_{start}{j}"]), res=mine,
+                             t=d[f"t_{start}"][j], err=siconos_error(W, q, mu, d[f"r_{start}{j}"], dim), res=mine,
                              it=int(d[f"sw_{start}"][j]), conv=bool(d[f"conv_{start}"][j])))
         for name in solvers:
             rows.append(dict(cells=cells, rows=mu.size, step=int(d["step"][j]), solver=f"Siconos {name}",
-                             t=float(s[f"t_{name}{j}"]), err=float(s[f"err_{name}{j}"]),
+                             t=float(s[f"t_{name}{j}"]), err=siconos_error(W, q, mu, s[f"r_{name}{j}"], dim),
                              res=fem_residual(W, q, mu, s[f"r_{name}{j}"], dim), it=int(s[f"it_{name}{j}"]),
                              conv=int(s[f"info_{name}{j}"]) == 0))
     return rows
@@ -210,7 +242,8 @@ def compare(cells, args, tmp: Path) -> list[dict]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", type=int, nargs="*", default=[2, 4],
-                        help="cells through the plate's thickness: (5 n + 1)^2 rows (default 2 4; 8: 1681 rows; --sizes alone: none)")
+                        help="cells through the plate's thickness: (5 n + 1)^2 rows (default 2 4; 8: 1681 rows; "
+                             "--sizes alone: none)")
     parser.add_argument("--steps", type=int, nargs="+", default=[3, 4, 5, 6],
                         help="the steps whose problems are exported (default 3 4 5 6: all rows closed)")
     parser.add_argument("--mu", type=float, default=0.3, help="Coulomb's coefficient on every row (default 0.3)")
@@ -242,7 +275,7 @@ def main() -> None:
               f"{'iters':>7}  conv")
     print(f"mu = {args.mu} on the plates (the small scenes: their own), tolerance {TOLERANCE:g}; fem-impact warm: "
           "started from the previous step's impulses (as in the run), all others from zero; Siconos error: "
-          "fc3d_compute_error in 3D, each fc2d solver's own final error in 2D")
+          "fc3d_compute_error's formula on each solution (siconos_error), in 2D as in 3D")
     print(header + "\n" + "-" * len(header))
     table = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -253,18 +286,23 @@ def main() -> None:
                       f"{row['res']:>16.2e}{row['it']:>7}  {'yes' if row['conv'] else 'NO'}", flush=True)
     # The goal, per problem: fem-impact's residual equal or better (both under the tolerance: equal) in less time.
     problems = sorted({(r["cells"], r["step"]) for r in table})
-    wins, ratios = {start: 0 for start in ("warm", "zero")}, []
+    # A second count leaves out the peers' solves that did not solve the problem: their error by Siconos' own
+    # measure above SOLVED times the tolerance (such solves end at 1e-4 to 3e-1: the factor decides nothing).
+    wins, ratios = {(start, kind): 0 for start in ("warm", "zero") for kind in ("every", "solved")}, []
     for key in problems:
         group = {r["solver"]: r for r in table if (r["cells"], r["step"]) == key}
         peers = [r for name, r in group.items() if name.startswith("Siconos")]
-        for start in wins:
+        for start, kind in wins:
             mine = group[f"fem-impact {start}"]
-            wins[start] += all(mine["t"] < r["t"] and mine["res"] <= max(r["res"], TOLERANCE) for r in peers)
+            wins[start, kind] += all(mine["t"] < r["t"] and mine["res"] <= max(r["res"], TOLERANCE) for r in peers
+                                     if kind == "every" or r["err"] <= SOLVED * TOLERANCE)
         ratios.append(group["fem-impact zero"]["t"] / min(r["t"] for r in peers))
     if not problems:
         sys.exit("peer_friction: no problem was exported (no row closed at the steps asked for)")
     print(f"summary: fem-impact reached an equal or better residual in less time than every Siconos solver on "
-          f"{wins['zero']} of {len(problems)} problems from zero, {wins['warm']} warm-started; its time from zero is "
+          f"{wins['zero', 'every']} of {len(problems)} problems from zero, {wins['warm', 'every']} warm-started; "
+          f"than every Siconos solve that solved the problem (its error under {SOLVED:g} x the tolerance) on "
+          f"{wins['zero', 'solved']} from zero, {wins['warm', 'solved']} warm-started; its time from zero is "
           f"{min(ratios):.2f} to {max(ratios):.2f} x the fastest Siconos solver's")
 
 
