@@ -12,10 +12,11 @@ the states are the integrator's own to the last bit. That is why the integrators
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, types
+from numba import types
 from numba.extending import intrinsic
 from scipy.linalg.blas import daxpy
 
+from ..compiled import njit
 from ..nonsmooth.lcp_kernel import solve as lcp_solve
 
 

@@ -11,7 +11,8 @@ many times the frictionless step.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from ..compiled import njit
 
 ROW = 3   # at most a normal and two tangents
 BLOCK = 64   # rows of a block of the sweeps (192 unknowns in 3D: their part of W stays in cache)
@@ -274,8 +275,12 @@ def residual(r, y, q, rows, start, sizes, mu, rho):
         for j in range(s, s + k):
             scale = max(scale, abs(r[j]), rho[i] * abs(q[j]))
         res = _row_residual_at(r, y, s, k, mu[i], rho[i], z_1 if k == 2 else z_2, p_1 if k == 2 else p_2)
+        if not np.isfinite(res):   # (a value not finite: no solution, never a residual of 0)
+            return np.nan, i
         if res > worst:
             worst, worst_row = res, i
+    if not np.isfinite(scale):
+        return np.nan, worst_row
     return worst / max(scale, 1e-300), worst_row
 
 

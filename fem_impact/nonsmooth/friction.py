@@ -253,11 +253,15 @@ class FrictionProblem:
         if self._small_numbers is not None:
             # A small problem solved whole in one compiled call (small_kernel.py: Newton's method from the
             # warm start); what it does not finish goes on below, from Newton's best where it has one.
-            q = np.ascontiguousarray(q, dtype=float)
+            q, active = np.ascontiguousarray(q, dtype=float), np.asarray(active, dtype=np.bool_)
+            guess = None if guess is None else np.ascontiguousarray(guess, dtype=float)
             n = q.size
-            out = _small().solve(self.upper, q, _NONE if guess is None else np.ascontiguousarray(guess, dtype=float),
-                                 np.asarray(active, dtype=np.bool_), self._small_numbers, self._small_layout,
-                                 self.TOLERANCE, self.SMALL)
+            if n != self.upper.shape[0] or active.size != self.p or (guess is not None and guess.size != n):
+                raise ValueError(f"FrictionProblem.solve: q ({n}), active ({active.size}) and guess "
+                                 f"({'none' if guess is None else guess.size}) do not fit W ({self.upper.shape[0]} "
+                                 f"unknowns, {self.p} rows)")   # (the kernel reads them unchecked)
+            out = _small().solve(self.upper, q, _NONE if guess is None else guess, active, self._small_numbers,
+                                 self._small_layout, self.TOLERANCE, self.SMALL)
             outcome = out[2 * n + 2]
             if outcome == 0.0:   # (small_kernel.DONE)
                 return FrictionSolution(out[:n], out[n:2 * n], float(out[2 * n]), 0, True, int(out[2 * n + 1]))

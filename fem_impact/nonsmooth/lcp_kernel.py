@@ -11,7 +11,8 @@ end), ``solve`` returns False and the caller takes that step in Python.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from ..compiled import njit
 
 TINY = np.finfo(float).tiny
 RETRIES = 3   # as Delassus.RETRIES

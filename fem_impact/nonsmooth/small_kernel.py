@@ -15,8 +15,8 @@ above the tolerance, more unknowns than it takes) it hands back, and the general
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from ..compiled import njit
 from .cone import alart_curnier_into, residual
 
 DONE, SINGULAR, SHORT, TOO_MANY = 0, 1, 2, 3   # the outcome: solved; J singular; above the tolerance; not small

@@ -1,0 +1,46 @@
+"""Numba's cache keyed on every kernel module's source (fem_impact/compiled.py): a kernel that calls another
+module's must not load machine code compiled against that module's old source."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+from fem_impact import compiled
+
+PACKAGE = Path(compiled.__file__).parent
+
+
+def test_every_module_with_kernels_takes_njit_from_compiled_and_is_keyed():
+    users = {str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py")
+             if re.search(r"^\s*(from numba import .*\bnjit\b|@(numba\.)?njit)", p.read_text(), re.M)}
+    assert users - {"compiled.py"} == set(compiled.KERNELS)
+    for name in compiled.KERNELS:
+        text = (PACKAGE / name).read_text()
+        assert "from ..compiled import njit" in text and not re.search(r"^from numba import .*\bnjit\b", text, re.M)
+
+
+def test_the_cache_directory_changes_with_any_kernel_source(tmp_path):
+    copies = []
+    for name in compiled.KERNELS:
+        copy = tmp_path / name.replace("/", "_")
+        copy.write_bytes((PACKAGE / name).read_bytes())
+        copies.append(copy)
+    before = compiled.source_key(copies)
+    assert compiled.source_key(copies) == before
+    copies[0].write_text(copies[0].read_text() + "\n# changed\n")   # (cone.py: small_kernel.py calls it)
+    assert compiled.source_key(copies) != before
+
+
+def test_the_kernels_cache_goes_to_the_keyed_directory_unless_the_user_sets_one(tmp_path):
+    code = ("import numba, fem_impact.nonsmooth.cone as c; from fem_impact import compiled; "
+            "print(numba.config.CACHE_DIR); print(compiled.source_key(compiled.PACKAGE / k for k in compiled.KERNELS))")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout.split()
+    assert out[0] == str(PACKAGE / "__pycache__" / "numba" / out[1])
+    env["NUMBA_CACHE_DIR"] = str(tmp_path)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout.split()
+    assert out[0] == str(tmp_path)
