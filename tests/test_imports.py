@@ -161,7 +161,7 @@ LAYERS = (
     ("fem", ("fem_impact.fem",)),                        # dolfinx: meshes, assembly, modes, the reduced model
     ("linalg", ("fem_impact.linalg",)),                  # algebra backends, factorizations, PETSc/MUMPS calls
     ("base", ("fem_impact.errors", "fem_impact.parallel", "fem_impact.expressions", "fem_impact.cache",
-              "fem_impact._version", "fem_impact.mpi_start", "fem_impact.references")),
+              "fem_impact._version", "fem_impact.mpi_start", "fem_impact.references", "fem_impact.compiled")),
 )
 
 

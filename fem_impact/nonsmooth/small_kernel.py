@@ -1,9 +1,9 @@
 """A small frictional contact problem solved whole in one compiled call (friction.py's small path).
 
-On a few closed rows (a block on its floor: 2 to 30 rows, at most ``FrictionProblem.SMALL``
-unknowns) the arithmetic of a solve is a few microseconds; done from Python around compiled
-pieces (the layout, the dense block, Newton's loop and its line search) it cost about 0.1 ms
-whatever the size. Here the whole of ``FrictionProblem.solve``'s small path runs in one call:
+On a few closed rows (a block on its floor, at most ``FrictionProblem.SMALL`` unknowns) the
+arithmetic of a solve is far less than the Python around compiled pieces (the layout, the dense
+block, Newton's loop and its line search) that it took (docs/performance.md has the figures).
+Here the whole of ``FrictionProblem.solve``'s small path runs in one call:
 the closed rows' unknowns gathered, Alart and Curnier's Newton method on their dense block
 (``cone.alart_curnier``; each direction by an LU factorization with partial pivoting, the step
 the largest of 1, 1/2, ... that lowers |F|, only full steps once |F| is far below the tolerance:
