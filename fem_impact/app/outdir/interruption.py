@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import time
 
 # Under MPI, how long a rank other than 0 waits for rank 0 to clean up after an interruption before it does.
@@ -96,6 +97,16 @@ def _running(pid: int) -> bool:
 
 
 _IGNORED_AT_START: frozenset | None = None
+_PLAIN_UNRAISABLE_HOOK = None
+
+
+def _quiet_unraisable(unraisable) -> None:
+    """An Interrupted raised where Python cannot raise it (a weakref callback, a ``__del__``) is lost, and was
+    printed as "Exception ignored" with a traceback: it is recorded (``received_since``, which the command
+    asks), so nothing is printed; anything else as Python would."""
+    if isinstance(unraisable.exc_value, Interrupted):
+        return
+    _PLAIN_UNRAISABLE_HOOK(unraisable)
 
 
 def install_signal_handlers() -> None:
@@ -104,7 +115,9 @@ def install_signal_handlers() -> None:
     A signal the process was started with ignored stays ignored (``nohup`` ignores SIGHUP, a shell script's
     background command SIGINT): the run goes on, as the one who started it asked. (Noted at the first call;
     PETSc, imported later, installs handlers of its own, which the next call replaces.)"""
-    global _IGNORED_AT_START
+    global _IGNORED_AT_START, _PLAIN_UNRAISABLE_HOOK
+    if _PLAIN_UNRAISABLE_HOOK is None:
+        _PLAIN_UNRAISABLE_HOOK, sys.unraisablehook = sys.unraisablehook, _quiet_unraisable
     if _IGNORED_AT_START is None:
         _IGNORED_AT_START = frozenset(sig for sig in (*HANDLED, signal.SIGINT)
                                       if signal.getsignal(sig) == signal.SIG_IGN)
