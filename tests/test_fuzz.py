@@ -490,10 +490,13 @@ def test_cases_at_the_edges_of_the_numeric_range_run_or_stop_with_one_line_long(
 
 # The command line itself: fuzzed --set values in a fresh interpreter each (about 1.5 s), a few by default.
 SET_VALUES = ["1e308", "-1e308", "1e-320", "5e-324", "-0.0", ".nan", ".inf", "9" * 5000, "1e400", "[1e308]",
-              "{a: 1}", "", "~", "0x10", "[]", "'a\\nb'", "2147483648", "1e150", "1e-150", "newmark", "b1"]
-# (A command line cannot hold a NUL byte: the operating system refuses it before the program starts.)
+              "{a: 1}", "", "~", "0x10", "[]", "'a\\nb'", "2147483648", "1e150", "1e-150", "newmark", "b1", "\udcff"]
+# (A command line cannot hold a NUL byte: the operating system refuses it before the program starts. It holds
+# bytes: one that is not UTF-8 reaches Python as a surrogate escape, "\udcff" above; a lone surrogate of any other
+# kind cannot be on it, and the test could not pass one to the child.)
 set_options = st.lists(st.tuples(st.sampled_from(API_KEYS), st.one_of(
-    st.sampled_from(SET_VALUES), st.text(st.characters(blacklist_characters="\x00"), max_size=12))),
+    st.sampled_from(SET_VALUES), st.text(st.characters(blacklist_characters="\x00", blacklist_categories=("Cs",)),
+                                         max_size=12))),
     min_size=1, max_size=3)
 
 
