@@ -39,8 +39,10 @@ def test_the_kernels_cache_goes_to_the_keyed_directory_unless_the_user_sets_one(
     code = ("import numba, fem_impact.nonsmooth.cone as c; from fem_impact import compiled; "
             "print(numba.config.CACHE_DIR); print(compiled.source_key(compiled.PACKAGE / k for k in compiled.KERNELS))")
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout.split()
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                         check=True).stdout.split()
     assert out[0] == str(PACKAGE / "__pycache__" / "numba" / out[1])
     env["NUMBA_CACHE_DIR"] = str(tmp_path)
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout.split()
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                         check=True).stdout.split()
     assert out[0] == str(tmp_path)
