@@ -77,7 +77,6 @@ def test_serial_and_two_ranks_agree(tmp_path, dim, cells, method):
         assert json.loads((tmp_path / "mpi" / "summary.json").read_text())["reused_from_cache"] == []
 
 
-
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
 def test_reduced_contact_steps_in_compiled_blocks_agree_on_two_ranks(tmp_path):
@@ -111,6 +110,7 @@ def test_the_explicit_plate_with_441_face_rows_agrees_on_two_ranks(tmp_path):
     for name in ("left_ux", "right_ux", "left_vx", "right_vx", "kinetic", "strain"):   # (the momentum is round-off)
         assert np.abs(a[name] - b[name]).max() <= 1e-10 * np.abs(a[name]).max(), name
     assert a["floor_impulse"].sum() > 0.9 * 2 * 25.0      # the face hit the floor (2 rho c A v0 = 50)
+
 
 @pytest.mark.slow   # (10 s: the default tier's budget)
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")

@@ -101,16 +101,6 @@ _SMALL_KERNEL = None
 
 EPS = np.finfo(float).eps
 
-
-def _gmres_tolerance() -> str:
-    """scipy's name of GMRES's relative tolerance: ``tol`` (Debian 12's 1.10), ``rtol`` from 1.12."""
-    import inspect
-
-    from scipy.sparse.linalg import gmres
-    return "rtol" if "rtol" in inspect.signature(gmres).parameters else "tol"
-
-
-_GMRES_TOLERANCE = _gmres_tolerance()
 # |W_ij - W_ji| above this many times the round-off bound s_i s_j of the two entries: not round-off (a
 # backward-stable solve stays below the bound itself).
 ASYMMETRY_MARGIN = 100.0
@@ -453,7 +443,9 @@ class FrictionProblem:
         row blocks ``(I - Q) + rho Q W_ii``; the tolerance of each solve follows |F| (a loose direction far
         from the solution, a tight one near it), the step the largest of 1, 1/2, ... that lowers |F|.
         ``q``, ``r``: every unknown, in row order; returns the new r (those of other rows zero)."""
-        from scipy.sparse.linalg import LinearOperator, gmres
+        from scipy.sparse.linalg import LinearOperator
+
+        from ..linalg.scipy_api import gmres
 
         cone = _kernels()
         n = r.size
@@ -509,8 +501,7 @@ class FrictionProblem:
             J = LinearOperator((idx.size, idx.size), matvec=jacobian)
             M = LinearOperator((idx.size, idx.size), matvec=preconditioner)
             forcing = min(1e-2, max(float(np.abs(F).max()) / scale, 1e-12))
-            d = gmres(J, -F, M=M, restart=min(200, idx.size), maxiter=10, atol=0.0,
-                      **{_GMRES_TOLERANCE: forcing})[0]
+            d = gmres(J, -F, forcing, M=M, restart=min(200, idx.size), maxiter=10, atol=0.0)[0]
             step = 1.0
             while step >= 1e-6:
                 trial = r.copy()
