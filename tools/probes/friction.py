@@ -521,3 +521,25 @@ FAILS = [
 ]
 for _what, _sets, _needles, _never in FAILS:
     probe("friction", f"a run that cannot go on says why: {_what}")(_fails(_sets, _needles, _never))
+
+
+# -- the compiled small solve (nonsmooth/small_kernel.py) at its size limit --------------------
+def _block_sliding(dim, cells, mu=0.3, v0=1.0):
+    pad = [0.0] * (dim - 2)
+    mesh = {"shape": "bar", "dim": dim, "length": 0.2, "height": 0.05, "cells": cells, "elements": "hex"}
+    if dim == 3:
+        mesh["width"] = 0.2
+    return {"name": "slider", "mesh": mesh,
+            "material": {"E": 1e7, "rho": 1000.0, "nu": 0.3, **({"area": 1.0} if dim == 2 else {})},
+            "initial": {"velocity": [v0, 0.0] + pad}, "loads": [{"body": "all", "acceleration": [0.0, -G] + pad}],
+            "contacts": [{"name": "floor", "type": "obstacle", "nodes": "bottom", "normal": [0.0, -1.0] + pad,
+                          "gap": 0.0, "friction": mu}],
+            "solver": {"dt": 2e-3, "t_end": 1.3 * v0 / (mu * G)}, "output": {"vtk": False}}
+
+
+for _dim, _cells in ((2, 28), (2, 29), (2, 30), (3, 3), (3, 4)):
+    # (floor unknowns: 2D 58, 60, 62; 3D 48, 75: the compiled solve takes at most 60, the sweeps the rest)
+    def _at_limit(ctx, dim=_dim, cells=_cells):
+        return _checked(_run(ctx, _write(ctx, _block_sliding(dim, cells))), _slides("bar.px", 1.0, 0.3))
+    probe("friction", f"{_dim}D block on {_cells} cells sliding at 1 m/s, mu 0.3 (the small solve's size limit): "
+                      "slides v0^2 / (2 mu g)")(_at_limit)
