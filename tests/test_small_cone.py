@@ -114,3 +114,18 @@ def test_no_closed_row_and_too_many_unknowns():
     sol = problem.solve(q, few)
     assert sol.converged and sol.sweeps == 0
     assert_coulomb(W, tangent_of, mu, q, few, sol)
+
+
+def test_the_2d_row_residual_in_scalars_is_the_cone_projections():
+    """cone._row_residual_at takes a 2D row in scalars: against the natural map through project_on_cone, on
+    every branch (inside the cone, in its polar cone, on its edge; mu = 0; sliding either way)."""
+    from fem_impact.nonsmooth.friction import project_on_cone, row_residual
+
+    rng = np.random.default_rng(5)
+    for _ in range(2000):
+        r, y = rng.normal(size=2) * rng.choice([0.0, 1.0], size=2), rng.normal(size=2)
+        mu, rho = float(rng.choice([0.0, 0.2, 1.0, 3.0])), float(rng.uniform(0.1, 10.0))
+        z_n, z_t = r[0] - rho * (y[0] + mu * abs(y[1])), np.array([r[1] - rho * y[1]])
+        p_n, p_t = project_on_cone(z_n, z_t, mu)
+        expected = np.hypot(r[0] - p_n, r[1] - p_t[0])
+        assert row_residual(r, y, mu, rho) == pytest.approx(expected, rel=1e-12, abs=1e-14)

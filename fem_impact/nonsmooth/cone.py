@@ -52,14 +52,26 @@ def row_residual(r, y, mu, rho):
 
 @njit(cache=True)
 def _row_residual_at(r, y, s, k, mu, rho, z_t, p_t):
-    """``row_residual`` of the row whose k unknowns are at s on, with scratch ``z_t``, ``p_t`` (k - 1 each, or
-    any size where k = 1)."""
+    """``row_residual`` of the row whose k unknowns are at s on, with scratch ``z_t``, ``p_t`` (k - 1 each; any
+    size where k <= 2)."""
     norm_yt = 0.0
     for a in range(1, k):
         norm_yt += y[s + a] * y[s + a]
     if k == 1:   # (a row without friction: the half line)
         p_n = max(r[s] - rho * y[s], 0.0)
         return abs(r[s] - p_n)
+    if k == 2:   # (a 2D row, in scalars: project's arrays cost more than its arithmetic here)
+        z_n, z_1 = r[s] - rho * (y[s] + mu * abs(y[s + 1])), r[s + 1] - rho * y[s + 1]
+        if mu == 0.0:
+            p_n, p_1 = max(z_n, 0.0), 0.0
+        elif abs(z_1) <= mu * z_n:
+            p_n, p_1 = z_n, z_1
+        elif mu * abs(z_1) <= -z_n:
+            p_n, p_1 = 0.0, 0.0
+        else:
+            p_n = (z_n + mu * abs(z_1)) / (1.0 + mu * mu)
+            p_1 = mu * p_n * (1.0 if z_1 > 0.0 else -1.0)
+        return np.sqrt((r[s] - p_n) ** 2 + (r[s + 1] - p_1) ** 2)
     for a in range(k - 1):
         z_t[a] = r[s + 1 + a] - rho * y[s + 1 + a]
     p_n = project(r[s] - rho * (y[s] + mu * np.sqrt(norm_yt)), z_t, mu, p_t)
@@ -268,13 +280,15 @@ def residual(r, y, q, rows, start, sizes, mu, rho):
     """The natural-map residual over ``rows`` divided by the size of the data (friction.py):
     returns (that, the row where it is largest). Row i's unknowns are ``start[i]`` on, ``sizes[i]``."""
     worst, worst_row, scale = 0.0, -1, 0.0
-    scratch = np.empty(2 * (ROW - 1) + 2)   # (z_t and p_t of a row of one tangent, then of two: no slices)
-    z_1, p_1, z_2, p_2 = scratch[0:1], scratch[1:2], scratch[2:4], scratch[4:6]
+    z_t = p_t = r[:0]   # (a 3D row's scratch, allocated at the first: a small problem's solve calls this often)
     for i in rows:
         s, k = start[i], sizes[i]
         for j in range(s, s + k):
-            scale = max(scale, abs(r[j]), rho[i] * abs(q[j]))
-        res = _row_residual_at(r, y, s, k, mu[i], rho[i], z_1 if k == 2 else z_2, p_1 if k == 2 else p_2)
+            scale = max(scale, abs(r[j]))
+            scale = max(scale, rho[i] * abs(q[j]))
+        if k == ROW and not z_t.size:
+            z_t, p_t = np.empty(ROW - 1), np.empty(ROW - 1)
+        res = _row_residual_at(r, y, s, k, mu[i], rho[i], z_t, p_t)
         if not np.isfinite(res):   # (a value not finite: no solution, never a residual of 0)
             return np.nan, i
         if res > worst:
