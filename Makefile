@@ -18,7 +18,10 @@ APT_PACKAGES := python3-dolfinx-real python3-petsc4py-real python3-slepc4py-real
 
 .PHONY: setup system-packages run test test-all benchmark docs figures study-charts clean
 
+# The Numba kernels compiled into their cache once here (quick when it is there), not by each test worker or
+# run that reaches them first.
 setup: system-packages $(VENV)/.installed
+	@$(PY) -m fem_impact.app.warm
 
 system-packages:
 	@missing=$$(for p in $(APT_PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \

@@ -46,3 +46,25 @@ def test_the_kernels_cache_goes_to_the_keyed_directory_unless_the_user_sets_one(
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                          check=True).stdout.split()
     assert out[0] == str(tmp_path)
+
+
+def test_warm_removes_only_the_caches_of_earlier_kernel_sources(tmp_path, monkeypatch):
+    """fem_impact.app.warm.prune: the caches beside this version's go, this version's stays; a cache directory
+    the user set (NUMBA_CACHE_DIR) is never touched."""
+    import numba
+
+    from fem_impact import compiled
+    from fem_impact.app import warm
+
+    root = tmp_path / "__pycache__" / "numba"
+    current, old, other = root / "0123456789abcdef", root / "fedcba9876543210", root / "aaaaaaaaaaaaaaaa"
+    for path in (current, old, other):
+        path.mkdir(parents=True)
+        (path / "kernel.nbi").write_text("x")
+    monkeypatch.setattr(compiled, "PACKAGE", tmp_path)
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(current))
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(current))
+    assert warm.prune() == [] and old.exists() and other.exists()
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    assert sorted(warm.prune()) == sorted([old, other])
+    assert current.exists() and (current / "kernel.nbi").exists() and not old.exists() and not other.exists()
