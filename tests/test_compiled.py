@@ -58,11 +58,13 @@ def test_warm_removes_only_the_caches_of_earlier_kernel_sources(tmp_path, monkey
 
     root = tmp_path / "__pycache__" / "numba"
     current, old, other = root / "0123456789abcdef", root / "fedcba9876543210", root / "aaaaaaaaaaaaaaaa"
+    monkeypatch.setattr(compiled, "PACKAGE", tmp_path)
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(current))
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    assert warm.prune() == [] and not root.exists()   # (a fresh clone: no cache folder yet)
     for path in (current, old, other):
         path.mkdir(parents=True)
         (path / "kernel.nbi").write_text("x")
-    monkeypatch.setattr(compiled, "PACKAGE", tmp_path)
-    monkeypatch.setattr(numba.config, "CACHE_DIR", str(current))
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(current))
     assert warm.prune() == [] and old.exists() and other.exists()
     monkeypatch.delenv("NUMBA_CACHE_DIR")

@@ -67,7 +67,8 @@ def prune() -> list[Path]:
     from .. import compiled
 
     current = Path(numba.config.CACHE_DIR)
-    if os.environ.get("NUMBA_CACHE_DIR") or current.parent != compiled.PACKAGE / "__pycache__" / "numba":
+    if os.environ.get("NUMBA_CACHE_DIR") or current.parent != compiled.PACKAGE / "__pycache__" / "numba" or \
+            not current.parent.is_dir():   # (a fresh clone: no cache at all yet)
         return []
     stale = [path for path in current.parent.iterdir() if path.is_dir() and path != current]
     for path in stale:
