@@ -94,6 +94,12 @@ def build_system(case: Case, comm: MPI.Comm | None = None, *, check_initial: boo
     found = find_probes(case.output.probes, model) if probes else None
     if any(model == "rigid" for model in case.bodies.values()):
         system = rigid_system(case, model, cons)
+    elif any(model == "modal" for model in case.bodies.values()):
+        from .errors import ModelInputError
+
+        name = next(name for name, kind in case.bodies.items() if kind == "modal")
+        raise ModelInputError(("bodies", name, "model"), "a modal body is taken beside rigid bodies only, for now "
+                                                         "(the whole model reduced: solver.method: modal)")
     else:
         system = (reduced_system if is_reduced(case.solver) else full_system)(case, model, cons)
     system.probes = found
@@ -113,6 +119,7 @@ def rigid_system(case: Case, model: Model, cons: Constraints) -> System:
         raise ModelInputError(("bodies", unknown[0]), f"no body {unknown[0]} in the mesh (its bodies: "
                                                       f"{', '.join(names)})")
     rigid = [name for name in names if case.bodies.get(name, "elastic") == "rigid"]
+    modal = [name for name in names if case.bodies.get(name) == "modal"]
     mixed = len(rigid) < len(names)
     refusals = [
         (case.supports and not mixed, ("supports",),
@@ -133,13 +140,27 @@ def rigid_system(case: Case, model: Model, cons: Constraints) -> System:
         (any(c.stiffness is not None or c.law not in ("newton",) for c in case.contacts), ("contacts",),
          "rigid bodies take Newton's law (restitution) and friction, for now"),
     ]
+    if modal:
+        plain = [name for name in names if name not in rigid and name not in modal]
+        refusals += [
+            (bool(plain), ("bodies", modal[0], "model"),
+             f"a modal body beside a body modelled in full ({', '.join(plain)}) is not available yet: make "
+             "those modal or rigid too"),
+            (len(modal) > 1, ("bodies", modal[-1], "model"), "one modal body per scene, for now"),
+            (bool(cons.pt), ("contacts",), "friction with a modal body is not available yet (its static correction "
+                                           "with friction): use model: elastic for it"),
+        ]
     for refused, key, message in refusals:
         if refused:
             raise ModelInputError(key, message)
     system = full_system(case, model, cons)
     system.rigid = bodies = rigid_bodies(model, rigid, ("bodies",))
     _refuse_pairs_within_a_body(case, model, cons, bodies)
-    if mixed:
+    if modal:
+        system.elastic, system.reduced, summary = modal_part(case, model, cons, bodies, modal[0])
+        system.summary.update(summary)
+        system.summary["modal_body"] = modal[0]
+    elif mixed:
         system.elastic = elastic_operators(model, cons, bodies)
     system.summary["rigid_bodies"] = {name: {"mass": float(m), "centre": [float(x) for x in c],
                                              "inertia": (float(j) if bodies.dim == 2 else j.tolist())}
@@ -198,6 +219,57 @@ def elastic_operators(model: Model, cons: Constraints, bodies) -> Operators:
                      cons.restitution, stop_compliance=cons.compliance,
                      friction=cons.friction if cons.pt else None, tangents=tangents, tangent_of=cons.tangent_of,
                      laws=cons.laws, relations=cons.relations)
+
+
+def modal_part(case: Case, model: Model, cons: Constraints, bodies, name: str):
+    """The modal body of a scene with rigid bodies: the model with the rigid bodies' dofs held as supports hold
+    theirs, reduced (its lowest ``bodies.NAME.modes`` modes plus the static correction of the others at the
+    contact rows, fem/reduced.py), and its modal equations as the elastic part's operators (rigid/mixed.py).
+    Returns (those operators, the reduced model, the reduction's summary)."""
+    import dataclasses
+
+    import numpy as np
+    from scipy import sparse
+
+    from .errors import ModelInputError
+    from .fem.model import LoadVector
+    from .fem.reduced import prepare_reduced
+
+    on = np.flatnonzero(bodies.body >= 0)
+    if model.comm.allreduce(int(np.intersect1d(on, model.fixed).size)):
+        raise ModelInputError(("supports",), "a support holds a rigid body's node (hold a rigid body by contacts, "
+                                             "or move an obstacle)")
+    rows = (on + model.first_node * model.bs).astype(np.int32)
+    held = []
+    for matrix, diagonal in ((model.M, 1.0), (model.K, 0.0), (model.C, 0.0)):
+        if matrix is not None:
+            matrix = matrix.copy()
+            matrix.zeroRowsColumns(rows, diag=diagonal)
+        held.append(matrix)
+
+    def without_rigid(vector):
+        out = vector.copy()
+        out.array[on] = 0.0
+        return out
+
+    load = LoadVector(without_rigid(model.load.constant), [(f, without_rigid(b)) for f, b in model.load.varying])
+    elastic_model = dataclasses.replace(
+        model, M=held[0], K=held[1], C=held[2], fixed=np.union1d(model.fixed, on).astype(np.int64), load=load,
+        U0=without_rigid(model.U0), V0=without_rigid(model.V0),
+        momentum_rows={body: rows_of for body, rows_of in model.momentum_rows.items() if body == name})
+    keep = np.ones(model.U0.getLocalSize())
+    keep[on] = 0.0
+    keep = sparse.diags(keep)
+    elastic_cons = dataclasses.replace(cons, P_local=sparse.csr_matrix(keep @ sparse.csr_matrix(cons.P_local)))
+    solver = case.solver
+    spec = ReductionSpec(case.body_modes[name], 0.01, True, solver.dt, solver.t_end, case.output.every,
+                         case.damping.alpha, case.damping.beta)
+    try:
+        red, summary = prepare_reduced(spec, elastic_model, elastic_cons)
+    except ModelInputError as err:   # (its keys are solver.modes': this body's)
+        raise ModelInputError(("bodies", name, "modes") if err.key and err.key[-1] == "modes" else err.key,
+                              str(err.message)) from None
+    return reduced_operators(red, elastic_cons), red, summary
 
 
 class HeldLoad:
@@ -269,15 +341,17 @@ def reduced_operators(red: ReducedModel, cons: Constraints) -> Operators:
                      **friction)
 
 
-def make_integrator(case: Case, operators: Operators, rigid=None, elastic: Operators | None = None):
+def make_integrator(case: Case, operators: Operators, rigid=None, elastic: Operators | None = None,
+                    reduced=None):
     """The time integrator of ``solver.method`` (the reduced model: of its ``solver.scheme``; ``rigid``, a
-    system's rigid bodies: Moreau-Jean on them, with ``elastic``, the elastic bodies beside them, if any)."""
+    system's rigid bodies: Moreau-Jean on them, with ``elastic``, the elastic bodies beside them, if any:
+    the modal equations of ``reduced``, a modal body's reduced model, where it is given)."""
     from .integrators import integrator_class, scheme_of
 
     if rigid is not None and elastic is not None:
         from .rigid.mixed import MixedMoreauJean
 
-        return MixedMoreauJean(operators, elastic, rigid, case.solver.dt)
+        return MixedMoreauJean(operators, elastic, rigid, case.solver.dt, modal=reduced)
     if rigid is not None:
         from .rigid.scheme import RigidMoreauJean
 

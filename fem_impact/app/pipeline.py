@@ -246,7 +246,8 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
     meshdata = model.meshdata
     if changed:   # a restart under other loads: from the checkpoint's load at its time to the case's after it
         system.operators.load = checkpoint.ChangedLoad(system.operators.load)
-    integrator = make_integrator(case, system.operators, system.rigid, system.elastic)
+    integrator = make_integrator(case, system.operators, system.rigid, system.elastic,
+                                 system.reduced if system.rigid is not None else None)
     if not is_reduced(solver) and system.rigid is None:
         _restitution_advice(case, system.operators)
     fields = system.fields

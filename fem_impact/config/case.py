@@ -53,7 +53,8 @@ class Case:
     lines: dict[tuple, int] = field(default_factory=dict)
     overrides: dict[tuple, str] = field(default_factory=dict)
     reference: str | None = None   # name of a known exact solution (fem_impact.references)
-    bodies: dict[str, str] = field(default_factory=dict)   # per body named in the case: its model (elastic, rigid)
+    bodies: dict[str, str] = field(default_factory=dict)   # per body named in the case: its model (elastic, rigid, modal)
+    body_modes: dict[str, int] = field(default_factory=dict)   # per modal body: its kept modes
     source: dict = field(default_factory=dict, repr=False)   # the data as given (with the changes), unvalidated
     base_dir: Path = field(default_factory=Path.cwd, repr=False)   # where relative paths in `source` start
 
@@ -181,7 +182,8 @@ class Case:
                          for load in self.loads]
         data["contacts"] = [_contact_data(c) for c in self.contacts]
         if self.bodies:
-            data["bodies"] = {name: {"model": model} for name, model in self.bodies.items()}
+            data["bodies"] = {name: {"model": model, **({"modes": self.body_modes[name]} if model == "modal" else {})}
+                              for name, model in self.bodies.items()}
         data["solver"] = self.solver.as_case()
         data["output"] = self.output.model_dump()
         return data

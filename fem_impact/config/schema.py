@@ -497,9 +497,20 @@ def _solver(value):
 class BodySection(Section):
     """An entry of ``bodies``: how a body of the mesh is modelled."""
 
-    model: choice("elastic", "rigid") = Field("elastic", description=(
+    model: choice("elastic", "rigid", "modal") = Field("elastic", description=(
         "elastic: the finite-element model (the default); rigid: its rigid motion in large rotations, mass, "
-        "centre and inertia from its mesh and material (beside elastic bodies or not)"))
+        "centre and inertia from its mesh and material (beside elastic bodies or not); modal: this body alone "
+        "reduced to its lowest modes plus the static correction of the others at its contact rows, beside "
+        "rigid bodies"))
+    modes: Integer = key("-", "modal: the body's kept eigenmodes (required there)", None, ge=1, le=2**31 - 1)
+
+    @model_validator(mode="after")
+    def _modes_with_modal(self):
+        if self.model == "modal" and self.modes is None:
+            raise _Invalid(("modes",), "a modal body needs its count of kept modes: modes: N (an integer >= 1)")
+        if self.model != "modal" and self.modes is not None:
+            raise _Invalid(("modes",), f"applies to model: modal only (this body is {self.model}): remove it")
+        return self
 
 
 class CaseFile(Section):
@@ -556,6 +567,7 @@ def validate_case(data: dict, folder: Path) -> dict:
         "initial": Initial() if case.initial is None else case.initial.spec(),
         "supports": [s.spec() for s in case.supports], "loads": [load.spec() for load in case.loads],
         "contacts": case.contacts, "bodies": {name: body.model for name, body in case.bodies.items()},
+        "body_modes": {name: body.modes for name, body in case.bodies.items() if body.model == "modal"},
         "solver": case.solver, "output": case.output, "parameters": parameters,
         "reference": case.reference}
 

@@ -37,11 +37,18 @@ SHARED = "shared with the rigid bodies"   # ElasticPart.friction: its rows' cone
 @dataclass
 class ElasticShare:
     """The elastic bodies' share of a step's rows ([P; P_T] with friction): their velocities at the
-    step's start and without the step's impulses, and their Delassus matrix ``P_e S^-1 P_e^T``."""
+    step's start and without the step's impulses, and their Delassus matrix ``P_e S^-1 P_e^T``. A modal
+    body's static part makes rows compliant: ``position`` marks them (they take the gap condition at the
+    step's end), ``compliance`` is its C (p x p), ``force0`` the force at the step's start and ``moved`` its
+    offset's change over the step (docs/theory.md s. 12.6)."""
 
     start: np.ndarray
     free: np.ndarray
     W: np.ndarray
+    position: np.ndarray | None = None
+    compliance: np.ndarray | None = None
+    force0: np.ndarray | None = None
+    moved: np.ndarray | None = None
 
 
 class ElasticPart(MoreauJean):
@@ -114,13 +121,17 @@ class MixedMoreauJean:
     scheme_energy = False
     unconditionally_stable = True
     takes_friction = True
-    __checkpoint__ = ("t0", "U", "V", "A", "elastic", "rigid", "rigid_energy", "state")
+    __checkpoint__ = ("t0", "U", "V", "A", "elastic", "rigid", "rigid_energy", "state", "static_before")
 
-    def __init__(self, ops, elastic_ops, bodies: RigidBodies, dt: float):
+    def __init__(self, ops, elastic_ops, bodies: RigidBodies, dt: float, modal=None):
+        """``modal``: the reduced model (fem/reduced.py) whose modal equations ``elastic_ops`` are (a modal
+        body), or None (elastic bodies in full)."""
         self.ops, self.dt, self.alg = ops, dt, ops.algebra
         self.rigid = RigidMoreauJean(ops, bodies, dt)
         self.elastic = ElasticPart(elastic_ops, dt)
         self.elastic.share = self._share
+        self.modal = modal
+        self.static_before = None   # a modal body's static part: (t, force) of the last state, for its velocity
         new = self.alg.vector
         self.U, self.V, self.A = new(), new(), new()
         self.rigid_dofs = self.rigid.map.on
@@ -144,6 +155,8 @@ class MixedMoreauJean:
         own = [np.array(x.array_r if hasattr(x, "array_r") else x, dtype=float) for x in (U0, V0)]
         for x in own:
             x[on] = 0.0
+        if self.modal is not None:   # (its modal coordinates: Z0 = Y1^T M U0 on the body's own dofs)
+            own = [self.modal.Z0, self.modal.Zdot0]
         self.elastic.start(*own, t0)
         st_r = self.rigid.start(U0, V0, t0)
         self.rigid_energy = st_r.energy.copy()
@@ -177,18 +190,39 @@ class MixedMoreauJean:
 
     def _share(self, free: np.ndarray) -> np.ndarray:
         """The step's impulses on every row, given the elastic bodies' free velocities of the rows."""
-        elastic = ElasticShare(self.elastic.start_rates(), free, self.elastic.W_all)
+        e = self.elastic
+        elastic = ElasticShare(e.start_rates(), free, e.W_all)
+        static = e.ops.static
+        if static is not None and np.any(e.position_rows):
+            elastic.position, elastic.compliance, elastic.force0 = e.position_rows, e.lcp.compliance, e.state.force
+            elastic.moved = static.offset(self._t1) - static.offset(self.state.t)
         self._found = self.rigid.settle(self.state, self._step, self._t1, elastic)
         return self._found[1] if self.ops.pt else self._found[1][:self.ops.p]
+
+    def _modal_fields(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A modal body's nodal U, V, A now: ``Y1 Z`` plus its static part ``X_R c(t) - X_P F`` (massless: its
+        velocity is its change over the last step, no acceleration; docs/theory.md s. 8.5)."""
+        fields, st = self.modal.fields, self.elastic.state
+        U, V, A = fields.Y1 @ st.U, fields.Y1 @ st.V, fields.Y1 @ st.A
+        if fields.static is not None:
+            part = lambda t, force: fields.XR @ fields.static.coefficients(t) - fields.XP @ force   # noqa: E731
+            now = part(st.t, st.force)
+            U += now
+            if self.static_before is not None and self.static_before[0] < st.t:
+                t0, force0 = self.static_before
+                V += (now - part(t0, force0)) / (st.t - t0)
+            self.static_before = (st.t, st.force.copy())
+        return U, V, A
 
     def _state(self, step: int, t: float, impulse_all: np.ndarray, rigid_energy: EnergyBudget) -> StepState:
         """The scene's state: the parts' nodal fields summed (each is zero on the other's dofs), the rows
         from them, the budgets summed."""
         ops, p, pt, dt = self.ops, self.ops.p, self.ops.pt, self.dt
         e, r = self.elastic, self.rigid
-        np.add(e.U, r.U, out=self.U)
-        np.add(e.V, r.V, out=self.V)
-        np.add(e.A, r.A, out=self.A)
+        U_e, V_e, A_e = (e.U, e.V, e.A) if self.modal is None else self._modal_fields()
+        np.add(U_e, r.U, out=self.U)
+        np.add(V_e, r.V, out=self.V)
+        np.add(A_e, r.A, out=self.A)
         pu, pv = (ops.project_many(self.U, self.V) if p else (np.zeros(0), np.zeros(0)))
         normal, tangent = impulse_all[:p], impulse_all[p:]
         state = StepState(step=step, t=t, U=self.U, V=self.V, A=self.A, gap=ops.gap0(t) - pu, force=normal / dt,

@@ -355,12 +355,25 @@ class RigidMoreauJean:
         e = np.where(rel0 >= 0.0, ops.restitution, 1.0)
         q = -ops.relative(rates_free[:p], t1) - e * rel0
         active = st.gap - 0.5 * h * rel0 <= AT_OBSTACLE * self.extent
+        compliant = elastic is not None and elastic.position is not None
+        if compliant:
+            # A modal body's compliant rows take the gap at the step's end, g1 = g_free + (h/2) W r + C r / h
+            # >= 0 (C: its static part's compliance, lam = r / h), divided by h/2 as the velocity rows are:
+            # the gap at the start (its static part's C lam0 in it) moved by the obstacles, by both parts'
+            # mean free velocity and by the static part's offset (docs/theory.md s. 12.6).
+            position = elastic.position
+            g_free = (st.gap + (ops.gap0(t1) - ops.gap0(st.t)) - 0.5 * h * (rates0[:p] + rates_free[:p])
+                      - elastic.moved - elastic.compliance @ elastic.force0)
+            q = np.where(position, g_free / (0.5 * h), q)
+            active = active | position
         out = np.zeros(p + pt)
         if not np.count_nonzero(active):
             return out
         W = H @ inv @ H.T
         if elastic is not None:
             W = W + elastic.W
+        if compliant:
+            W[:p, :p] += elastic.compliance / (0.5 * h * h)
         if not pt:
             a = np.flatnonzero(active)
             out[a] = solve_lcp(W[np.ix_(a, a)], q[a])[0]
