@@ -119,3 +119,28 @@ def test_a_modal_scene_agrees_on_two_ranks(tmp_path):
         assert np.abs(a[name] - b[name]).max() <= 1e-10, name
     assert_same_history(a[[n for n in a.dtype.names if n not in spins]], b[[n for n in a.dtype.names
                                                                             if n not in spins]], 1e-10)
+
+
+def test_an_initial_velocity_the_kept_modes_miss_is_said_with_its_share(caplog):
+    """The modal rod's 2 bending modes hold none of an axial initial velocity (the static correction has no
+    velocity of its own): the run says so, naming initial.velocity, with the share kept."""
+    import logging
+
+    case = heavy_hammer({"model": "modal", "modes": 2}, 8e-6, t_end=8e-5, **{   # (the hammer at rest)
+        "parameters": {}, "initial.velocity": [{"body": "rod", "value": [-1.0, 0.0, 0.0]}]})
+    with caplog.at_level(logging.WARNING, logger="fem_impact.fem.reduced"):
+        result = fi.run(case)
+    said = [r.getMessage() for r in caplog.records if "initial.velocity" in r.getMessage()]
+    assert len(said) == 1 and "the kept modes hold" in said[0]
+    assert result.history["kinetic"][0] <= 1e-12 * 0.5 * RHO * A * L   # (what the reduced model keeps: nothing)
+
+
+def test_a_free_modal_body_with_too_few_modes_is_told_its_rigid_modes_count():
+    """The hammer modal and free (the rod rigid, without its support): 6 rigid-body modes in 3D; keeping 4 is
+    refused with the count itself (the first 5 modes computed are all rigid: the count needs more)."""
+    data = {"bodies": {"hammer": {"model": "modal", "modes": 4}, "rod": {"model": "rigid"}}, "supports": [],
+            "output.vtk": False, "solver.t_end": 1e-5}
+    with pytest.raises(CaseError) as err:
+        fi.run(fi.load_case(CASES / "hammer_rod.yaml").with_changes(data))
+    assert "bodies.hammer.modes" in str(err.value) and "in 6 rigid-body modes" in str(err.value)
+    assert "(modes >= 6)" in str(err.value)

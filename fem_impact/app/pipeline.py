@@ -477,7 +477,8 @@ def _open_restart(restart, case: Case, comm) -> tuple:
             checkpoint.unknowns_keys(state["model"], checkpoint.reduced_of(state)),
             checkpoint.unknowns_keys(checkpoint.model_keys(case), is_reduced(case.solver)))
         hint = (f"; to start the changed case from the checkpoint's state, give it initial: {{from: {saved.folder}}}"
-                if same_unknowns and not all(key.startswith("initial.") for key in differ) else "")
+                if same_unknowns and not all(key.startswith("initial.") for key in differ)
+                and not any(model == "rigid" for model in case.bodies.values()) else "")   # (rigid: no initial.from)
         raise CaseError(where, None, None, f"the checkpoint does not fit this case: its state depends on keys the "
                                            f"case changes: {', '.join(differ)}. A restart continues the saved run "
                                            f"under the case's loads, solver.t_end and output only{hint}")

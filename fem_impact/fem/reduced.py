@@ -32,6 +32,7 @@ if TYPE_CHECKING:   # (type hints only: the contact rows this model is built for
 log = logging.getLogger(__name__)
 
 RIGID_ROW = 1e-9   # neglected flexibility ratio below which a row counts as rigid (no compliance)
+INITIAL_KEPT = 1e-3   # the share of the initial kinetic energy the kept modes may miss without a warning
 AUTO_LIMIT = 400   # most modes `modes: auto` will consider
 # Static solves of free bodies: the shift is FLEX_SHIFT times the first elastic w^2, and each of
 # the FLEX_SWEEPS sweeps divides the error by 1 + w_1^2/shift = 1001 (converged: the shift does not
@@ -257,6 +258,7 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
     model.M.mult(model.V0, M_V0)
     Z0 = allsum(comm, Y1.T @ M_U0.array_r)
     Zdot0 = allsum(comm, Y1.T @ M_V0.array_r)
+    _initial_velocity_kept(model, Zdot0, M_V0)
 
     # Residual flexibility of the truncated modes, from static solves on the elastic subspace.
     elastic = ~modes.rigid
@@ -331,9 +333,10 @@ def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tup
                 raise ModelInputError(("solver", "modes"), str(err).replace(str(n1 + 1), str(n1), 1)) from None
             modes = _modes(model, n1, scene, reused)   # all modes of a small model
         if modes.n > n1 and modes.rigid[n1]:
-            raise ModelInputError(("solver", "modes"), f"keeps {n1} modes but the model moves freely in at least "
-                                                       f"{int(modes.rigid.sum())} rigid-body modes: keep them all "
-                                                       f"(modes >= {int(modes.rigid.sum())}), or add supports")
+            rigid = _rigid_mode_count(model, modes, scene, reused)
+            raise ModelInputError(("solver", "modes"), f"keeps {n1} modes but the model moves freely in "
+                                                       f"{rigid} rigid-body modes: keep them all "
+                                                       f"(modes >= {rigid}), or add supports")
         columns = _flexibility(model, cons, modes, scene, reused)
     warn_if_split(modes, n1)
     red = build_reduced(model, cons, modes, n1, spec.static_correction, spec.alpha, spec.beta, spec.dt, columns)
@@ -346,6 +349,30 @@ def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tup
         "reused_from_cache": sorted(reused),
     }
     return red, summary
+
+
+def _rigid_mode_count(model: Model, modes: Modes, scene: str, reused: set) -> int:
+    """How many rigid-body modes the model has (``modes``, the first few, may end among them): more modes until
+    one is elastic, or there are no more."""
+    available = free_dof_count(model)
+    while modes.rigid.all() and modes.n < available:
+        modes = _modes(model, min(available, 2 * modes.n), scene, reused)
+    return int(modes.rigid.sum())
+
+
+def _initial_velocity_kept(model: Model, Zdot0: np.ndarray, M_V0) -> float | None:
+    """The share of the initial velocity's kinetic energy the kept modes hold (None: at rest); a warning
+    where they miss more than INITIAL_KEPT of it (the static correction has no velocity of its own: the
+    rest is lost at the start)."""
+    kinetic = float(allsum(model.comm, np.array([model.V0.array_r @ M_V0.array_r]))[0])
+    if not kinetic > 0.0:
+        return None
+    kept = float(Zdot0 @ Zdot0) / kinetic
+    if kept < 1.0 - INITIAL_KEPT:
+        log.warning("initial.velocity: the kept modes hold %.4g of its kinetic energy; the rest is lost at the "
+                    "start (the static correction has no velocity): keep more modes, or model the body in full",
+                    kept)
+    return kept
 
 
 def static_settings() -> dict:
