@@ -61,13 +61,17 @@ def reduced(modes, **extra):
 def budget(h, balance=1e-10):
     """E <= E0 + W_ext, the friction and contact losses >= 0 at every step (to 1e-15 of the scale: round-off),
     and the balance closed to ``balance`` of the energy scale. Returns (balance residual, largest excess) on
-    the scale."""
+    the scale. (For theta > 1/2 the contact loss with the scheme's own dissipation: the impulses' work is
+    booked with the step's mean velocity, the rest of it on the compliant rows in numerical_loss,
+    MoreauJean._numerical_loss; each alone dips, by 3e-8 of the scale on the sliding block at theta = 1, as
+    without friction.)"""
     energy = h["kinetic"] + h["strain"]
     scale = max(energy[0] + h["external_work"].max(), 1e-300)
     excess = float((energy - energy[0] - h["external_work"]).max()) / scale
     assert excess <= 1e-12
     assert np.diff(h["friction_loss"]).min() >= -1e-15 * scale
-    assert np.diff(h["contact_loss"]).min() >= -1e-15 * scale
+    numerical = h["numerical_loss"] if "numerical_loss" in h else 0.0
+    assert np.diff(h["contact_loss"] + numerical).min() >= -1e-15 * scale
     residual = float(np.abs(h["energy_error"]).max()) / scale
     assert residual <= balance
     return residual, excess
@@ -106,13 +110,16 @@ def test_the_rows_static_compliance_over_normal_and_tangent_rows_is_the_truncate
     np.testing.assert_allclose(static.rows_offsets[:, 0], offsets, rtol=0, atol=1e-8 * np.abs(offsets).max())
 
 
-@pytest.mark.parametrize("modes", [4, 10])
-def test_a_reduced_block_with_the_static_correction_slides_v0_squared_over_2_mu_g_and_stops(modes):
+@pytest.mark.parametrize("modes, scheme", [(4, {}), (10, {}), (4, {"theta": 1.0}), (4, {"level": "velocity"})],
+                         ids=["4", "10", "4-theta-1", "4-velocity"])
+def test_a_reduced_block_with_the_static_correction_slides_v0_squared_over_2_mu_g_and_stops(modes, scheme):
     """4 modes (3 rigid) and 10, fewer than the 18 contact unknowns: without the static correction W is singular
     there (its impulses not unique); with it every row is compliant and the cone problem solves to round-off.
-    Measured: the slide within 8e-7 of v0^2 / (2 mu g) at both counts, the block still to 1e-8 m after."""
+    Measured: the slide within 8e-7 of v0^2 / (2 mu g) at both counts (1e-6 at theta = 1, whose own
+    dissipation is booked: numerical_loss), the block still to 1e-8 m after. The velocity level is the same
+    problem here (a compliant row keeps its gap condition at the step's end)."""
     v0 = 2.0
-    result = fi.run(block_case(reduced(modes), v0=v0))
+    result = fi.run(block_case(reduced(modes, **scheme), v0=v0))
     h, summary = result.history, result.summary
     assert summary["modes"] == modes and summary["static_correction"] is True
     v, x = travel(h, summary["body_mass"]["bar"])
