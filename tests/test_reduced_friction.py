@@ -136,6 +136,20 @@ def test_a_reduced_block_with_the_static_correction_slides_v0_squared_over_2_mu_
     assert summary["max_friction_residual"] <= FrictionProblem.TOLERANCE
 
 
+def test_modes_auto_keeps_nearly_every_mode_and_slides_the_block():
+    """``modes: auto`` (the tolerance 0.01 on the floor rows' neglected flexibility) keeps 53 of the block's 54
+    modes: one truncated mode for 9 rows, so the static compliance is singular. The run starts (no row closed:
+    no static force, where the LCP on that compliance has no positive definite block) and slides the block
+    v0^2 / (2 mu g) within 1 % (measured 4e-4), its budget closed; without friction it starts as well."""
+    v0 = 2.0
+    result = fi.run(block_case(reduced("auto"), v0=v0))
+    h, summary = result.history, result.summary
+    assert summary["modes"] == 53
+    assert travel(h, summary["body_mass"]["bar"])[1][-1] == pytest.approx(v0 ** 2 / (2 * MU * G), rel=0.01)
+    budget(h)
+    assert fi.run(block_case(reduced(53), v0=v0, mu=0.0, t_end=0.05)).summary["steps"] == 25
+
+
 def test_the_reduced_block_slides_and_settles_as_the_full_one():
     """The block of the test above, full (Moreau-Jean) and reduced to 4 modes with the static correction: the
     same slide (measured 3.5e-4 apart), both at rest after it, and the same static sag of the top under the

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..nonsmooth.lcp import solve_lcp
+from ..nonsmooth.lcp import compliant_forces
 from ..nonsmooth.problem import OneStepProblem, carnot_projection
 from .blocks import OpenStep, OpenSteps, diagonal
 from ..linalg.dense import axpy
@@ -258,7 +258,7 @@ class MoreauJean(FrictionSteps, ContactScheme):
         force = np.zeros(ops.p)
         if ops.static:   # forces of the compliant rows that the initial state already loads
             c = ~ops.static.rigid_rows
-            force[c] = solve_lcp(ops.static.compliance[c][:, c], (ops.gap0(t0) - ops.static.offset(t0) - pu)[c])[0]
+            force[c] = compliant_forces(ops.static.compliance[c][:, c], (ops.gap0(t0) - ops.static.offset(t0) - pu)[c])
             pu = pu + ops.static.offset(t0) - ops.static.compliance @ force
         energy = EnergyBudget()
         energy.kinetic, energy.strain = self._quadratic_energies()

@@ -10,7 +10,7 @@ import numpy as np
 from scipy import sparse
 
 from ..nonsmooth.laws import RowLaws
-from ..nonsmooth.lcp import TINY, Delassus, delassus_solver, solve_lcp
+from ..nonsmooth.lcp import TINY, Delassus, compliant_forces, delassus_solver
 from ..nonsmooth.problem import ImpactResult, impact_correction
 from ..linalg.backends import owned_values
 from ..linalg.condensed import CondensedFactor
@@ -383,7 +383,7 @@ class ContactScheme:
         force = np.zeros(p)
         if static:  # forces of the compliant rows that the initial state already loads
             c = ~static.rigid_rows
-            force[c] = solve_lcp(static.compliance[c][:, c], (ops.gap0(t0) - static.offset(t0) - pu)[c])[0]
+            force[c] = compliant_forces(static.compliance[c][:, c], (ops.gap0(t0) - static.offset(t0) - pu)[c])
             if force.any():
                 self.H.subtract_from(self.A, force)
                 pa = pa - self.D @ force
