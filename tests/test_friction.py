@@ -391,7 +391,7 @@ def test_theta_above_one_half_slides_the_block_and_books_its_own_dissipation(sol
 
 
 def test_the_reduced_model_slides_the_block_as_the_full_one():
-    """Friction on the modes alone (no static correction yet): 30 modes (3 rigid) of the sliding block."""
+    """Friction on the modes alone (without the static correction): 30 modes (3 rigid) of the sliding block."""
     mu, v0 = 0.3, 2.0
     h, v, summary = block(2, mu, (0.0, -G), v0=v0, t_end=0.9,
                           solver={"method": "modal", "modes": 30, "static_correction": False})
@@ -455,8 +455,8 @@ def test_friction_is_refused_where_it_cannot_be_solved():
                                         r"use solver.scheme: moreau_jean"):
         fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "modal", "modes": 4,
                                               "static_correction": False, "scheme": "newmark"}})
-    with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: friction is not available with the reduced model's static"):
-        fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "modal", "modes": 4}})
+    # (the reduced model's static correction takes friction: tests/test_reduced_friction.py)
+    fi.Case.from_dict({**base, "solver": {"dt": 0.01, "t_end": 0.1, "method": "modal", "modes": 4}})
     with pytest.raises(CaseError, match=r"contacts\[0\]\.friction: must be >= 0"):
         fi.Case.from_dict({**base, "contacts": [{**base["contacts"][0], "friction": -0.1}]})
     one_d = {**base, "mesh": {"shape": "bar", "length": 1.0, "cells": 4},

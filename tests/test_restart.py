@@ -29,6 +29,9 @@ RUNS = {
     "modal_static_correction_elastic_stop": ("beam_stop.yaml", ["solver.method=modal", "solver.modes=10",
                                                                 "solver.t_end=0.06"]),
     "friction": ("sliding_block.yaml", ["solver.t_end=0.3"]),
+    # the static correction's forces on the tangent rows, and the probes' static part under them
+    "friction_static_correction": ("sliding_block.yaml", ["solver.method=modal", "solver.modes=6",
+                                                          "solver.t_end=0.3"]),
     # the steps between impacts in blocks (integrators/blocks.py), checkpoints within the run stopping them
     "modal_blocks": ("impact_oscillator.yaml", ["solver.blocks=true", "solver.t_end=40",
                                                 "output.checkpoint_every=1234"]),

@@ -104,7 +104,8 @@ class FrictionColumns:
     def values(self, state: StepState) -> list[float]:
         cons, p = self.cons, self.cons.p
         f = state.tangential
-        per_row_speed = np.sqrt(np.bincount(cons.tangent_of, weights=state.tangential_velocity ** 2, minlength=p))
+        speed = state.tangential_velocity if state.sliding is None else state.sliding
+        per_row_speed = np.sqrt(np.bincount(cons.tangent_of, weights=speed ** 2, minlength=p))
         on_body = -(f[:, None] * cons.tangent_dirs)   # the friction force on the body, per tangent row
         states = row_states(cons, state, self.dt)
         loaded, sticking = states != OPEN, states == STUCK

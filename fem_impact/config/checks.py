@@ -69,15 +69,12 @@ def _check_section(case: Case) -> None:
 
 
 def _check_friction(case: Case) -> None:
-    """Friction needs a method that solves the cone problem (Moreau-Jean on the full model); the method's
-    schema says whether it does (the integrator, and PETSc, are not loaded to validate a case)."""
+    """Friction needs a method that solves the cone problem (Moreau-Jean, on the full model or the reduced one,
+    with or without its static correction); the method's schema says whether it does (the integrator, and
+    PETSc, are not loaded to validate a case)."""
     for i, contact in enumerate(case.contacts):
         if not contact.friction:
             continue
-        if is_reduced(case.solver) and case.solver.static_correction:
-            raise case.error(("contacts", i, "friction"), "friction is not available with the reduced model's static "
-                                                          "correction yet: use solver.static_correction: false (modes "
-                                                          "alone) or solver.method: moreau_jean")
         if not SCHEMAS[scheme_of(case.solver)].takes_friction:
             # (the reduced model's time scheme is the cause: the model itself takes friction)
             key, use = (("solver.scheme", "solver.scheme: moreau_jean") if is_reduced(case.solver) else

@@ -48,10 +48,17 @@ class StateFields:
                                  [None, None])
         return self._blocks[key]
 
+    def _force(self, state: StepState) -> np.ndarray:
+        """The forces the static part takes: the normal ones, and with friction ``[F_N, F_T]`` (its
+        columns X_P are then ``S_k [P^T, P_T^T]``)."""
+        if self.XP is None or self.XP.shape[1] == state.force.size:
+            return state.force
+        return np.concatenate([state.force, state.tangential])
+
     def _static_and_rate(self, XR, XP, state: StepState, last: list | None = None):
         """The static part ``X_R c(t) - X_P F`` seen through (XR, XP), and its change over the last
         step divided by dt (0 on the first). ``last``: [t, value] of the previous call, reused."""
-        now = XR @ self.static.coefficients(state.t) - XP @ state.force
+        now = XR @ self.static.coefficients(state.t) - XP @ self._force(state)
         rate = 0.0
         reference = self._previous
         if reference is not None and reference[0] >= state.t:
@@ -131,7 +138,7 @@ class StateFields:
         """Owned values of u, v, a and the contact force on the structure (-P^T F_N, and -P_T^T F_T
         with friction: normal and tangential parts in one vector, as ParaView's arrows show it)."""
         force = -(self.cons.P_local @ state.force)
-        if state.tangential is not None:   # friction (the reduced model: without static correction)
+        if state.tangential is not None:   # friction
             force -= self.cons.tangent_local @ state.tangential
         if not self.replicated:
             return {"u": state.U, "v": state.V, "a": state.A, "contact_force": force}
@@ -198,7 +205,7 @@ class StateFields:
             return
         if self._previous is None or self._previous[0] < state.t:
             self._before = self._previous
-        self._previous = (state.t, state.force.copy())
+        self._previous = (state.t, self._force(state).copy())
 
     def write_block(self, block) -> None:
         if not self.replicated:

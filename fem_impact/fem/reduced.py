@@ -33,6 +33,9 @@ log = logging.getLogger(__name__)
 
 RIGID_ROW = 1e-9   # neglected flexibility ratio below which a row counts as rigid (no compliance)
 INITIAL_KEPT = 1e-3   # the share of the initial kinetic energy the kept modes may miss without a warning
+# Friction with the static correction: the rows' compliance H S_k H^T must be symmetric positive
+# semi-definite to this fraction of the rows' flexibility (round-off of S_k = K^+ - kept modes' part).
+PSD_TOLERANCE = 1e-9
 AUTO_LIMIT = 400   # most modes `modes: auto` will consider
 # Static solves of free bodies: the shift is FLEX_SHIFT times the first elastic w^2, and each of
 # the FLEX_SWEEPS sweeps divides the error by 1 + w_1^2/shift = 1001 (converged: the shift does not
@@ -112,13 +115,20 @@ class ModalLoad:
 
 @dataclass
 class StaticCorrection:
-    """The quasi-static part ``S_k (R(t) - P^T lam)`` seen from the contact rows (``StaticPart``)."""
+    """The quasi-static part ``S_k (R(t) - H^T lam)`` seen from the contact rows (``StaticPart``).
+
+    Without friction ``H = P``. With friction ``H = [P; P_T]``: the rows' compliance is the whole block
+    ``H S_k H^T``, normal and tangent rows coupled, and the forces passed to ``energy``, ``work`` and
+    ``displacement`` are then either the normal ones (p: no tangential force) or all (p + pt).
+    """
 
     compliance: np.ndarray         # P S_k P^T
     rigid_rows: np.ndarray
     load_offsets: np.ndarray       # P S_k [R_c, b_1, ...]           (p x nl)
     load_gram: np.ndarray          # [R_c, b_i]^T S_k [R_c, b_i]      (nl x nl)
     functions: list                # the time functions of b_1, ... (R_c has 1)
+    rows_compliance: np.ndarray | None = None   # H S_k H^T with friction ((p + pt)^2), else None
+    rows_offsets: np.ndarray | None = None      # H S_k [R_c, b_1, ...] with friction ((p + pt) x nl)
     _recent: dict = field(default_factory=dict, repr=False)   # t -> coefficients, last two times
 
     def coefficients(self, t: float) -> np.ndarray:
@@ -133,28 +143,64 @@ class StaticCorrection:
     def __post_init__(self):
         # Constant loads only (the common case): the load terms are constants, computed once.
         self._constant = not self.functions
+        self.p = self.compliance.shape[0]
+        if self.rows_compliance is None:   # (without friction the rows are the normal ones)
+            self.rows_compliance, self.rows_offsets = self.compliance, self.load_offsets
         self._offset0 = self.load_offsets[:, 0].copy()
+        self._rows_offset0 = self.rows_offsets[:, 0].copy()
         self._energy0 = 0.5 * float(self.load_gram[0, 0])
+
+    @property
+    def tangents(self) -> bool:
+        """Whether the rows include tangent rows (friction: ``H = [P; P_T]``)."""
+        return self.rows_compliance.shape[0] > self.p
+
+    def _on(self, force: np.ndarray):
+        """(offsets, their constant column, compliance) of the rows ``force`` acts on: normal or all."""
+        if force.size == self.p:
+            return self.load_offsets, self._offset0, self.compliance
+        return self.rows_offsets, self._rows_offset0, self.rows_compliance
 
     def offset(self, t: float) -> np.ndarray:
         if self._constant:
             return self._offset0
         return self.load_offsets @ self.coefficients(t)
 
-    def energy(self, t: float, force: np.ndarray) -> float:
-        """1/2 f^T S_k f with f = R(t) - P^T force."""
+    def rows_offset(self, t: float) -> np.ndarray:
+        """``H S_k R(t)`` on every row, normal and tangent (``offset`` without friction)."""
         if self._constant:
-            return self._energy0 - force @ self._offset0 + 0.5 * force @ (self.compliance @ force)
+            return self._rows_offset0
+        return self.rows_offsets @ self.coefficients(t)
+
+    def displacement(self, t: float, force: np.ndarray) -> np.ndarray:
+        """The static part's displacement on the rows ``force`` acts on, ``H S_k (R(t) - H^T force)``."""
+        offsets, offset0, C = self._on(force)
+        return (offset0 if self._constant else offsets @ self.coefficients(t)) - C.dot(force)
+
+    def energy(self, t: float, force: np.ndarray) -> float:
+        """1/2 f^T S_k f with f = R(t) - H^T force."""
+        offsets, offset0, C = self._on(force)
+        if self._constant:
+            return self._energy0 - force @ offset0 + 0.5 * force @ (C @ force)
         c = self.coefficients(t)
-        return 0.5 * (c @ self.load_gram @ c) - force @ (self.load_offsets @ c) + 0.5 * force @ self.compliance @ force
+        return 0.5 * (c @ self.load_gram @ c) - force @ (offsets @ c) + 0.5 * force @ C @ force
 
     def work(self, t0: float, t1: float, f0: np.ndarray, f1: np.ndarray, gamma: float) -> float:
-        """Work of the loads on the static displacement over a step: R_mean^T S_k (f1 - f0)."""
+        """Work of the loads on the static displacement over a step: R_mean^T S_k H^T (f1 - f0)."""
+        offsets, offset0, _ = self._on(f1)
         if self._constant:
-            return -float(self._offset0 @ (f1 - f0))
+            return -float(offset0 @ (f1 - f0))
         c0, c1 = self.coefficients(t0), self.coefficients(t1)
         c_mean = (1.0 - gamma) * c0 + gamma * c1
-        return c_mean @ self.load_gram @ (c1 - c0) - c_mean @ self.load_offsets.T @ (f1 - f0)
+        return c_mean @ self.load_gram @ (c1 - c0) - c_mean @ offsets.T @ (f1 - f0)
+
+    def contact_loss(self, t0: float, t1: float, f0: np.ndarray, f1: np.ndarray) -> float:
+        """What the forces lose on the static part over a step, ``mean(f) . Delta(H U_s)``: with the static
+        part's energy and the loads' work on it (trapezoidal weights) an exact identity (C symmetric)."""
+        C = self._on(f1)[2]
+        offset = self.offset if f1.size == self.p else self.rows_offset
+        loss = 0.5 * float((f0 + f1).dot(offset(t1) - offset(t0)))
+        return loss - 0.5 * float(f1.dot(C.dot(f1)) - f0.dot(C.dot(f0)))
 
     # -- the same for a block of steps without contact force (fem_impact/integrators/blocks.py) --
     def coefficients_block(self, times: np.ndarray) -> np.ndarray:
@@ -228,11 +274,13 @@ class ReducedModel:
     flexibility_columns: np.ndarray     # K^+ [P^T, R_c, b_1, ...] (owned rows): reusable
 
 
-def static_load_columns(model: Model, cons: Constraints) -> np.ndarray:
-    """[P^T, R_c, b_1, ...]: the load patterns whose static response the reduction needs (owned rows)."""
+def static_load_columns(model: Model, cons: Constraints, tangents: bool = False) -> np.ndarray:
+    """[P^T, R_c, b_1, ...]: the load patterns whose static response the reduction needs (owned rows);
+    with ``tangents`` (friction with the static correction) the tangent rows' P_T^T after them."""
     load = model.load
     R_cols = [load.constant.array_r.copy()] + [b.array_r.copy() for _, b in load.varying]
-    return np.column_stack([cons.P_local.toarray()] + R_cols)
+    T_cols = [cons.tangent_local.toarray()] if tangents and cons.pt else []
+    return np.column_stack([cons.P_local.toarray()] + R_cols + T_cols)
 
 
 def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correction: bool, alpha: float,
@@ -248,8 +296,10 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
     P_local = cons.P_local
     Pr = allsum(comm, (P_local.T @ Y1))                       # P Y1 (p x n1)
     load = model.load
-    columns = static_load_columns(model, cons)
-    R_cols = [columns[:, k] for k in range(cons.p, columns.shape[1])]
+    static_tangents = static_correction and cons.pt > 0   # (friction: the static part on the tangent rows too)
+    columns = static_load_columns(model, cons, static_tangents)
+    nl = 1 + len(load.varying)
+    R_cols = [columns[:, k] for k in range(cons.p, cons.p + nl)]
     R_modal = [allsum(comm, Y1.T @ r) for r in R_cols]
     modal_load = ModalLoad(R_modal[0], [(f, r) for (f, _), r in zip(load.varying, R_modal[1:], strict=True)])
 
@@ -267,7 +317,7 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
     Y1e, w1e = Y1[:, kept_elastic], w2[kept_elastic]
     P_dense = columns[:, : cons.p]
     X = full - Y1e @ (allsum(comm, Y1e.T @ columns) / w1e[:, None])
-    XP, XR = X[:, : cons.p], X[:, cons.p:]
+    XP, XR, XT = X[:, : cons.p], X[:, cons.p: cons.p + nl], X[:, cons.p + nl:]
     flex_full = np.diag(allsum(comm, P_dense.T @ full[:, : cons.p])) if cons.p else np.zeros(0)
     compliance = allsum(comm, P_dense.T @ XP)
     compliance = 0.5 * (compliance + compliance.T)
@@ -278,22 +328,65 @@ def build_reduced(model: Model, cons: Constraints, modes, n1: int, static_correc
     static = None
     if static_correction:
         rigid_rows = neglected <= RIGID_ROW
-        static = StaticCorrection(
-            compliance=np.where(np.outer(rigid_rows, rigid_rows), 0.0, compliance),
-            rigid_rows=rigid_rows,
-            load_offsets=allsum(comm, P_dense.T @ XR).reshape(cons.p, XR.shape[1]),
-            load_gram=allsum(comm, np.column_stack(R_cols).T @ XR),
-            functions=[f for f, _ in load.varying],
-        )
+        load_offsets = allsum(comm, P_dense.T @ XR).reshape(cons.p, XR.shape[1])
+        load_gram = allsum(comm, np.column_stack(R_cols).T @ XR)
+        if static_tangents:
+            static = _static_with_tangents(comm, cons, full, columns, X, nl, neglected, load_offsets, load_gram,
+                                           [f for f, _ in load.varying])
+        else:
+            static = StaticCorrection(
+                compliance=np.where(np.outer(rigid_rows, rigid_rows), 0.0, compliance),
+                rigid_rows=rigid_rows, load_offsets=load_offsets, load_gram=load_gram,
+                functions=[f for f, _ in load.varying],
+            )
     # The modal equations are diagonal: M = I, K = diag(w1^2), C = diag(alpha + beta w1^2).
     C = (alpha + beta * w2) if (alpha or beta) else None
-    # tangent rows on the modes (friction: the case allows it without the static correction)
+    # tangent rows on the modes (friction)
     tangents = allsum(comm, cons.tangent_local.T @ Y1).T.copy() if cons.pt else None
-    fields = StateFields(cons, Y1, XR if static else None, XP if static else None, static, dt)
+    # (with friction the static part's columns S_k [P^T, P_T^T]: the fields read it under [F_N, F_T])
+    XH = np.hstack([XP, XT]) if static_tangents else XP
+    fields = StateFields(cons, Y1, XR if static else None, XH if static else None, static, dt)
     cutoff = float(np.sqrt(w2[-1]) / (2 * np.pi))
     log.info("reduced model: %d modes (cut-off %.4g Hz), static correction %s", n1, cutoff, static_correction)
     return ReducedModel(w2.copy(), C, modal_load, Pr.T.copy(), tangents, static, fields, Z0, Zdot0, n1, cutoff,
                         neglected, full)
+
+
+def _static_with_tangents(comm, cons: Constraints, full: np.ndarray, columns: np.ndarray, X: np.ndarray, nl: int,
+                          neglected: np.ndarray, load_offsets: np.ndarray, load_gram: np.ndarray,
+                          functions: list) -> StaticCorrection:
+    """The static part on the rows ``H = [P; P_T]`` (friction): the compliance ``H S_k H^T`` over normal and
+    tangent rows, coupled, and the offsets ``H S_k R``. A row is rigid when its normal and its tangents all
+    are (neglected flexibility at most RIGID_ROW); a rigid row's unknowns take no compliance at all (their
+    rows and columns zero: a principal block of a positive semi-definite matrix stays so). A compliance that
+    is not symmetric positive semi-definite beyond round-off is refused: its energy would have no sign."""
+    p = cons.p
+    H = np.hstack([columns[:, :p], columns[:, p + nl:]])
+    XH = np.hstack([X[:, :p], X[:, p + nl:]])
+    C = allsum(comm, H.T @ XH)
+    flex = np.diag(allsum(comm, H.T @ np.hstack([full[:, :p], full[:, p + nl:]])))
+    scale = max(float(np.abs(flex).max()), float(np.abs(C).max()), 1e-300)
+    asymmetry = float(np.abs(C - C.T).max())
+    C = 0.5 * (C + C.T)
+    try:   # (a Cholesky factor of C shifted by the tolerance exists iff no eigenvalue is below -tolerance)
+        np.linalg.cholesky(C + PSD_TOLERANCE * scale * np.eye(C.shape[0]))
+        smallest = 0.0
+    except np.linalg.LinAlgError:
+        smallest = float(np.linalg.eigvalsh(C).min())
+    if asymmetry > PSD_TOLERANCE * scale or smallest < 0.0:
+        raise ModelInputError(("solver", "static_correction"),
+                              f"the static correction's compliance on the rows with friction is not symmetric "
+                              f"positive semi-definite (asymmetry {asymmetry / scale:.2g}, smallest eigenvalue "
+                              f"{smallest / scale:.2g} of the rows' flexibility): friction cannot act through it; "
+                              "set solver.static_correction: false or use solver.method: moreau_jean")
+    tangent = np.divide(np.diag(C)[p:], flex[p:], out=np.zeros(cons.pt), where=flex[p:] > 0)
+    soft = np.bincount(cons.tangent_of, weights=(tangent > RIGID_ROW).astype(float), minlength=p) > 0
+    rigid_rows = (neglected <= RIGID_ROW) & ~soft
+    compliant = ~np.concatenate([rigid_rows, rigid_rows[cons.tangent_of]])
+    C = np.where(np.outer(compliant, compliant), C, 0.0)
+    offsets = allsum(comm, H.T @ X[:, p: p + nl]).reshape(p + cons.pt, nl)   # (its normal rows: load_offsets)
+    return StaticCorrection(compliance=C[:p, :p].copy(), rigid_rows=rigid_rows, load_offsets=load_offsets,
+                            load_gram=load_gram, functions=functions, rows_compliance=C, rows_offsets=offsets)
 
 
 def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tuple[ReducedModel, dict]:
@@ -307,6 +400,7 @@ def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tup
                                                    "damping only (alpha): set beta to 0, or use the full model")
     scene = cache.key(comm, model.K, model.M, model.fixed)
     reused = set()
+    tangents = spec.static_correction and cons.pt > 0   # (friction: the tangent rows' static solves too)
     if spec.modes == "auto":
         available = free_dof_count(model)
         cap = max(1, min(available - 1, AUTO_LIMIT))
@@ -314,7 +408,7 @@ def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tup
         f_scene, scene_why = scene_frequency(spec, model)
         while True:
             modes = _modes(model, n_try, scene, reused)
-            columns = _flexibility(model, cons, modes, scene, reused)
+            columns = _flexibility(model, cons, modes, scene, reused, tangents)
             n1, reason = choose_mode_count(modes, cons, columns, spec.tolerance, f_scene, scene_why)
             if n1 is not None:
                 break
@@ -337,7 +431,7 @@ def prepare_reduced(spec: ReductionSpec, model: Model, cons: Constraints) -> tup
             raise ModelInputError(("solver", "modes"), f"keeps {n1} modes but the model moves freely in "
                                                        f"{rigid} rigid-body modes: keep them all "
                                                        f"(modes >= {rigid}), or add supports")
-        columns = _flexibility(model, cons, modes, scene, reused)
+        columns = _flexibility(model, cons, modes, scene, reused, tangents)
     warn_if_split(modes, n1)
     red = build_reduced(model, cons, modes, n1, spec.static_correction, spec.alpha, spec.beta, spec.dt, columns)
     if reused:
@@ -395,9 +489,10 @@ def _modes(model: Model, n: int, scene: str, reused: set) -> Modes:
     return modes
 
 
-def _flexibility(model: Model, cons: Constraints, modes: Modes, scene: str, reused: set) -> np.ndarray:
-    """K^+ applied to the load and contact patterns (static solves), cached."""
-    comm, columns = model.comm, static_load_columns(model, cons)
+def _flexibility(model: Model, cons: Constraints, modes: Modes, scene: str, reused: set,
+                 tangents: bool = False) -> np.ndarray:
+    """K^+ applied to the load and contact patterns (static solves; ``tangents``: the tangent rows' too), cached."""
+    comm, columns = model.comm, static_load_columns(model, cons, tangents)
     name = f"static-{cache.key(comm, scene, modes.Y_local[:, modes.rigid], columns, static_settings())}"
     stored = cache.load(name, comm)
     if stored is not None:

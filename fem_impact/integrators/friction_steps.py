@@ -48,8 +48,17 @@ class FrictionSteps:
         # The one-step problem's compliance on the normal block (in place: W is (p + pt)^2, the largest
         # array of a frictional run); the step's products W r come from the solution's y = W r + q.
         # (kept only where some row is compliant: a p x p product per step otherwise for nothing)
-        self.compliance = self.lcp.shift_normal_block(shifted, ops.p)
-        self._degenerate = self.alg.sizes[1] < ops.p + ops.pt
+        # A reduced model's static part acts on the tangent rows too: its compliance H S_k H^T over all
+        # rows, normal and tangent coupled (_static_rows).
+        static = ops.static
+        self._soft_t = None   # tangent rows a static part makes compliant (their law on the whole slip)
+        if static is not None and static.tangents:
+            self.compliance = self._static_rows(shifted)
+        else:
+            self.compliance = self.lcp.shift_normal_block(shifted, ops.p)
+        # (fewer modes than contact unknowns: W singular, unless a static part makes every row compliant)
+        self._degenerate = self.alg.sizes[1] < ops.p + ops.pt and not (
+            self._soft_t is not None and not np.count_nonzero(static.rigid_rows))
         if self._degenerate:
             # More contact unknowns than the motion has (a reduced model with fewer modes): W is
             # singular, its impulses not unique; the shift selects the smallest (as lcp.regularized,
@@ -69,6 +78,45 @@ class FrictionSteps:
             self.timings["D with tangents"] = time.perf_counter() - clock
 
     takes_new_rows = True
+
+    def _static_rows(self, shifted: np.ndarray) -> np.ndarray:
+        """The reduced model's static part on the rows ``H = [P; P_T]`` (docs/theory.md s. 11): its compliance
+        ``C = H S_k H^T / (theta dt^2)`` added to W over all rows (in place), with the laws' on the normal
+        diagonal; returns that shift. The rows' gaps at the step's end and their slips over it then hold the
+        static displacement ``H S_k (R - H^T lam)`` with ``lam = r / dt`` (W stays symmetric: both conditions
+        are divided by theta dt); the compliant rows take Coulomb's law on that whole slip."""
+        ops, static, p = self.ops, self.ops.static, self.ops.p
+        scale = self.theta * self.dt * self.dt
+        shift = static.rows_compliance / scale
+        shift[:p, :p] = self.lcp.compliance / scale   # (the static part's normal block and the laws' c)
+        shifted += shift
+        self._soft_t = ~static.rigid_rows[ops.tangent_of]
+        return shift
+
+    def _static_slip(self, st: StepState, t1: float) -> np.ndarray:
+        """The compliant tangent rows' q from the static part: with ``Delta(P_T U_s) = Delta(P_T S_k R) -
+        C_T (lam1 - lam0)`` (C_T the tangent rows of H S_k H^T) the slip over the step, divided by
+        theta dt, holds ``-(Delta(P_T S_k R) + C_T lam0) / (theta dt)``; its ``C_T lam1`` is in W."""
+        static, p = self.ops.static, self.ops.p
+        lam0 = np.concatenate([st.force, st.tangential])
+        change = static.rows_offset(t1)[p:] - static.rows_offset(st.t)[p:] + static.rows_compliance[p:].dot(lam0)
+        return np.where(self._soft_t, -change / (self.theta * self.dt), 0.0)
+
+    def _static_terms(self, st: StepState, force: np.ndarray, tangential: np.ndarray, t1: float):
+        """The static part's share of a frictional step (``tangential``: the step's tangential impulses): the
+        normal rows' static displacement at t1, the rows' forces at t0 and t1 (``[F_N, F_T]``), and the
+        static part's contact loss split as booked: the friction's work on the static slip, ``F_T1 .
+        Delta(P_T U_s)`` (with the kept modes' part, the friction's work on the whole slip: >= 0 by
+        Coulomb's law), and the rest, ``mean(F) . Delta(H U_s) - F_T1 . Delta(P_T U_s)`` (the normal
+        rows' share, and 1/2 dF . C dF >= 0 for constant loads: the end-point rule on a convex spring)."""
+        static, p = self.ops.static, self.ops.p
+        f0 = np.concatenate([st.force, st.tangential])
+        f1 = np.concatenate([force, tangential / self.dt])
+        u1 = static.displacement(t1, f1)
+        slip = u1[p:] - static.displacement(st.t, f0)[p:]
+        friction = float(f1[p:].dot(slip))
+        rest = static.contact_loss(st.t, t1, f0, f1) - friction
+        return u1[:p], f0, f1, friction, rest, slip
 
     def _friction_velocity(self, pt0: np.ndarray, pt1: np.ndarray) -> np.ndarray:
         """The tangential velocity a step's friction impulses are booked with: the step's mean (an
@@ -112,8 +160,10 @@ class FrictionSteps:
             return r[:p], r[p:], pv_free, pt_free, 0.0
         self.G_all.subtract_from(V, r)
         self.rows.subtract_transpose(rhs, r)   # the step's equation with the impulses, for K V1
-        Wr = sol.y - q_all   # W r with the compliance; without it on the normal rows:
-        if self.compliance is not None:
+        Wr = sol.y - q_all   # W r with the compliance; without it (the kept modes' velocities):
+        if self._soft_t is not None:
+            Wr -= self.compliance.dot(r)
+        elif self.compliance is not None:
             Wr[:p] -= self.compliance.dot(r[:p])
         if not self.at_velocity:
             return self._close_gaps(r, q, pv_free, free, float(np.abs(Wr[:p]).max()), rhs)
@@ -142,13 +192,19 @@ class FrictionSteps:
         pt0 = ops.relative_tangent(st.tangential_velocity, st.t)
         pt_free_rel = ops.relative_tangent(pt_free, t1)
         slip_law = (st.impulse > 0.0)[ops.tangent_of]
+        static_slip = 0.0
+        if self._soft_t is not None:
+            # A row the static part makes compliant has no impact (the compliance takes it, as its normal
+            # gap at the step's end does): Coulomb's law on its whole slip over the step, always.
+            slip_law |= self._soft_t
+            static_slip = self._static_slip(st, t1)
         guess = self.r_prev
         # Rows at the position level are all in the problem, but a row whose free gap stays open and that
         # carried nothing in the previous step is left out of the solve (a face in flight costs nothing);
         # one that the others' impulses would push into the obstacle is added and the problem solved again.
         tried = active & ((q <= 0.0) | (st.impulse > 0.0) | ~self.position_rows) if position else active
         for attempt in range(2 * p + 2):   # (each new solve adds a row to the slip law or to the solve)
-            q_t = -pt_free_rel - np.where(slip_law, (1.0 - self.theta) / self.theta * pt0, 0.0)
+            q_t = -pt_free_rel - np.where(slip_law, (1.0 - self.theta) / self.theta * pt0, 0.0) + static_slip
             q_all = np.concatenate([q, q_t])
             sol = self._solve_cone(self.friction, q_all, tried, guess, st.step + 1, t1)
             if position:   # (the gaps closed to round-off, not to the solver's tolerance)
@@ -183,7 +239,9 @@ class FrictionSteps:
         scale = 4.0 * np.finfo(float).eps * max(float(np.abs(q).max()), 1e-300)
         for _ in range(2):
             y_n = q + pv_free - actual[:p]
-            if self.compliance is not None:
+            if self._soft_t is not None:
+                y_n += self.compliance[:p].dot(r)
+            elif self.compliance is not None:
                 y_n += self.compliance.dot(r[:p])
             held = r[:p] > 0.0
             if not np.count_nonzero(held) or np.abs(y_n[held]).max() <= scale:
@@ -294,6 +352,8 @@ class FrictionSteps:
         mu_r_n = (ops.friction * impulse)[ops.tangent_of]
         size = np.sqrt(np.bincount(ops.tangent_of, weights=r_t * r_t, minlength=p))[ops.tangent_of]
         stuck = self._persists & (mu_r_n > 0.0) & (size < (1.0 - 1e-9) * mu_r_n)
+        if self._soft_t is not None:   # (a compliant row sticks on its static spring: its modes move)
+            stuck &= ~self._soft_t
         stuck &= np.abs(pt) > ROUND_OFF * max(jump, float(np.abs(pt).max()))
         if not np.count_nonzero(stuck):
             return pv, absolute, r_t, 0.0

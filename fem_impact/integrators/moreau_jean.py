@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..nonsmooth.lcp import solve_lcp
+from ..nonsmooth.lcp import compliant_forces
 from ..nonsmooth.problem import OneStepProblem, carnot_projection
 from .blocks import OpenStep, OpenSteps, diagonal
 from ..linalg.dense import axpy
@@ -118,6 +118,7 @@ class MoreauJean(FrictionSteps, ContactScheme):
         self.friction = self.r_prev = self.friction_impact = None
         self.friction_residual, self.friction_sweeps, self.friction_retries, self.friction_scaled = 0.0, 0, 0, 0
         self.friction_velocity_steps = 0   # steps whose position-level cone problem fell back to the velocity level
+        self._soft_t = None   # tangent rows a static part makes compliant (_build_friction)
         if ops.pt:
             self._build_friction()
         new = self.alg.vector
@@ -257,7 +258,7 @@ class MoreauJean(FrictionSteps, ContactScheme):
         force = np.zeros(ops.p)
         if ops.static:   # forces of the compliant rows that the initial state already loads
             c = ~ops.static.rigid_rows
-            force[c] = solve_lcp(ops.static.compliance[c][:, c], (ops.gap0(t0) - ops.static.offset(t0) - pu)[c])[0]
+            force[c] = compliant_forces(ops.static.compliance[c][:, c], (ops.gap0(t0) - ops.static.offset(t0) - pu)[c])
             pu = pu + ops.static.offset(t0) - ops.static.compliance @ force
         energy = EnergyBudget()
         energy.kinetic, energy.strain = self._quadratic_energies()
@@ -378,9 +379,15 @@ class MoreauJean(FrictionSteps, ContactScheme):
             alg.mult(ops.K, U, self.KU)
 
         energy = st.energy.copy()
+        static_terms = sliding = None
         if p:
             pu = self._pu_dyn = ops.project_many(U)[0]
-            if ops.static:
+            if self._soft_t is not None and tangential is not None:   # (a static part on the tangent rows too)
+                static_terms = self._static_terms(st, force, tangential, t1)
+                pu = pu + static_terms[0]
+                # (the compliant rows' whole slip over the step, divided by dt: the history's slip)
+                sliding = (1.0 - theta) * st.tangential_velocity + theta * pt_star + static_terms[5] / dt
+            elif ops.static:
                 pu = pu + ops.static.offset(t1) - ops.static.compliance.dot(force)
             self._book_work(energy, impulse, 0.5 * (st.normal_velocity + pv_star), total=step_contact_loss,
                             obstacle=obstacle_rate)
@@ -390,20 +397,26 @@ class MoreauJean(FrictionSteps, ContactScheme):
             if tangential is not None:
                 energy.external_work -= obstacle_friction_work + self._stick_obstacle_work
                 energy.friction_loss += friction_work + stick_loss
-            if ops.static:
+            if static_terms is not None:   # the friction's work on the static slip; the rest is the contacts'
+                energy.friction_loss += static_terms[3]
+                energy.contact_loss += static_terms[4]
+            elif ops.static:
                 energy.contact_loss += self._static_contact_loss(st, force, t1)
         energy.numerical_loss += numerical_loss
         self._step_energies(energy, t1, 1.0 - theta, theta, self.MV, KU=self.KU)
         if corrected and ops.C is not None:   # the next step starts from the corrected velocity
             alg.mult(ops.C, V, self.CV)
         gap = ops.gap0(t1) - pu
-        self._book_stored(energy, st, force, gap, t1, STATIC_WEIGHT)
+        self._book_stored(energy, st, force, gap, t1, STATIC_WEIGHT,
+                          None if static_terms is None else static_terms[1:3])
         self.state = StepState(step=st.step + 1, t=t1, U=U, V=V, A=A, gap=gap, force=force,
                                impulse=percussion, energy=energy, normal_displacement=pu, normal_velocity=pv)
         if tangential is not None:
             if corrected:   # a velocity correction moved the tangent rows' dofs too
                 pt = self.rows.project_many(V)[0][p:]
             self.state.tangential, self.state.tangential_velocity = tangential / dt, pt
+            if sliding is not None:   # (a rigid row's: its velocity at the step's end, as without a static part)
+                self.state.sliding = np.where(self._soft_t, sliding, pt)
         return self.state
 
     def _numerical_loss(self, st: StepState, impulse: np.ndarray, r_t: np.ndarray | None, pv: np.ndarray,

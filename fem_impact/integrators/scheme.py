@@ -10,7 +10,7 @@ import numpy as np
 from scipy import sparse
 
 from ..nonsmooth.laws import RowLaws
-from ..nonsmooth.lcp import TINY, Delassus, delassus_solver, solve_lcp
+from ..nonsmooth.lcp import TINY, Delassus, compliant_forces, delassus_solver
 from ..nonsmooth.problem import ImpactResult, impact_correction
 from ..linalg.backends import owned_values
 from ..linalg.condensed import CondensedFactor
@@ -264,14 +264,17 @@ class ContactScheme:
             energy.strain += value
 
     def _book_stored(self, energy: EnergyBudget, st: StepState, force: np.ndarray, gap: np.ndarray, t1: float,
-                     weight: float) -> None:
+                     weight: float, static_forces: tuple | None = None) -> None:
         """What the step stores off the structure's own dofs: the laws' (elastic stops' springs) and a
-        static part's energy, with the loads' work on the static part (``weight``: the scheme's for t1)."""
+        static part's energy, with the loads' work on the static part (``weight``: the scheme's for t1;
+        ``static_forces``: the static part's forces at t0 and t1 where they are not the normal ones, with
+        friction ``[F_N, F_T]``)."""
         self._book_stops(energy, (st.force, st.gap), (force, gap))
         static = self.ops.static
         if static:
-            energy.strain += static.energy(t1, force)
-            energy.external_work += static.work(st.t, t1, st.force, force, weight)
+            f0, f1 = static_forces if static_forces is not None else (st.force, force)
+            energy.strain += static.energy(t1, f1)
+            energy.external_work += static.work(st.t, t1, f0, f1, weight)
 
     def _load_energy(self) -> float:
         """This rank's part of the load's energy scale at the step: ``1/2 dt^2 R . M_L^-1 R``."""
@@ -380,7 +383,7 @@ class ContactScheme:
         force = np.zeros(p)
         if static:  # forces of the compliant rows that the initial state already loads
             c = ~static.rigid_rows
-            force[c] = solve_lcp(static.compliance[c][:, c], (ops.gap0(t0) - static.offset(t0) - pu)[c])[0]
+            force[c] = compliant_forces(static.compliance[c][:, c], (ops.gap0(t0) - static.offset(t0) - pu)[c])
             if force.any():
                 self.H.subtract_from(self.A, force)
                 pa = pa - self.D @ force

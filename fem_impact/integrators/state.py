@@ -26,5 +26,7 @@ class StepState:
     normal_velocity: np.ndarray      # P V (after the impact correction)
     tangential: np.ndarray | None = None            # friction forces r_T / dt per tangent row (with friction)
     tangential_velocity: np.ndarray | None = None   # P_T V per tangent row: the sliding velocity
+    # the rows' whole sliding velocity where a static part slides them too (its change over the step / dt)
+    sliding: np.ndarray | None = None
     reaction: np.ndarray | None = None              # per moving support pattern (fem/prescribed.py)
     bodies: np.ndarray | None = None                # rigid bodies: per body its centre, velocity and spin

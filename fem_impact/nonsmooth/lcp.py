@@ -379,6 +379,19 @@ def solve_lcp(
     return (A if isinstance(A, Delassus) else Delassus(A)).solve(q, guess)
 
 
+def compliant_forces(C: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The forces of rows held by a compliance alone, ``w = C x + q >= 0 _|_ x >= 0`` (a static part's rows
+    at the start of a run). ``C`` is positive semi-definite, singular where fewer modes are truncated than
+    there are rows: no force where no row is closed (``q >= 0``), and the smallest ones (``regularized``)
+    where the plain solve finds ``C`` not positive definite."""
+    if not np.any(q < 0.0):
+        return np.zeros(q.size)
+    try:
+        return solve_lcp(C, q)[0]
+    except ContactSolverError:
+        return Delassus.regularized(C).solve(q)[0]
+
+
 def _lcp_as_nnls(A: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The LCP with symmetric positive definite ``A`` is ``min 1/2 x'Ax + q'x, x >= 0``, i.e. the
     non-negative least-squares problem ``min |L'x + L^-1 q|`` with ``A = L L'`` (Lawson-Hanson)."""
