@@ -147,8 +147,6 @@ def rigid_system(case: Case, model: Model, cons: Constraints) -> System:
              f"a modal body beside a body modelled in full ({', '.join(plain)}) is not available yet: make "
              "those modal or rigid too"),
             (len(modal) > 1, ("bodies", modal[-1], "model"), "one modal body per scene, for now"),
-            (bool(cons.pt), ("contacts",), "friction with a modal body is not available yet (its static correction "
-                                           "with friction): use model: elastic for it"),
         ]
     for refused, key, message in refusals:
         if refused:
@@ -260,7 +258,9 @@ def modal_part(case: Case, model: Model, cons: Constraints, bodies, name: str):
     keep = np.ones(model.U0.getLocalSize())
     keep[on] = 0.0
     keep = sparse.diags(keep)
-    elastic_cons = dataclasses.replace(cons, P_local=sparse.csr_matrix(keep @ sparse.csr_matrix(cons.P_local)))
+    on_body = lambda rows: sparse.csr_matrix(keep @ sparse.csr_matrix(rows))   # noqa: E731 (the rows on its dofs)
+    elastic_cons = dataclasses.replace(cons, P_local=on_body(cons.P_local),
+                                       tangent_local=on_body(cons.tangent_local) if cons.pt else cons.tangent_local)
     solver = case.solver
     spec = ReductionSpec(case.body_modes[name], 0.01, True, solver.dt, solver.t_end, case.output.every,
                          case.damping.alpha, case.damping.beta)

@@ -97,12 +97,6 @@ def test_a_modal_body_it_cannot_take_is_refused_naming_the_key(bodies, key, says
     assert key in str(err.value) and says in str(err.value)
 
 
-def test_friction_with_a_modal_body_is_refused_for_now(tmp_path):
-    case = heavy_hammer({"model": "modal", "modes": 2}, 8e-6, **{"contacts.0.friction": 0.3})
-    with pytest.raises(CaseError, match="friction with a modal body is not available yet"):
-        fi.run(case, tmp_path / "out")
-
-
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="mpirun (openmpi-bin) is not installed")
 def test_a_modal_scene_agrees_on_two_ranks(tmp_path):
     """The modal rod distributed over 2 ranks (its modes' rows and static columns, its modal state
@@ -144,3 +138,36 @@ def test_a_free_modal_body_with_too_few_modes_is_told_its_rigid_modes_count():
         fi.run(fi.load_case(CASES / "hammer_rod.yaml").with_changes(data))
     assert "bodies.hammer.modes" in str(err.value) and "in 6 rigid-body modes" in str(err.value)
     assert "(modes >= 6)" in str(err.value)
+
+
+def test_a_rigid_block_slides_on_a_modal_slab_and_stops_where_coulomb_says(tmp_path):
+    """Friction through the modal body's static part (docs/theory.md s. 8.9 and 12.6): a rigid steel block
+    launched at 0.5 m/s on a steel slab held at its base (4 modes), mu = 0.3, under gravity, its 21 rows
+    compliant in both directions: every step's friction impulse mu times the normal one while it slides, the
+    stop at v0 / (mu g) within 0.2 %, then rest; the friction loss is 1/2 m v0^2 and never falls, the
+    balance closes."""
+    from test_mixed import slab_mesh
+
+    g, mu, v0 = 9.81, 0.3, 0.5
+    data = {"name": "slab", "mesh": {"file": str(slab_mesh(tmp_path))},
+            "material": {"E": 210e9, "rho": 7800.0, "nu": 0.3, "area": 0.01},
+            "bodies": {"block": {"model": "rigid"}, "slab": {"model": "modal", "modes": 4}},
+            "initial": {"velocity": [{"body": "block", "value": [v0, 0.0]}]},
+            "supports": [{"nodes": "base", "fix": "all"}],
+            "loads": [{"body": b, "acceleration": [0.0, -g]} for b in ("slab", "block")],
+            "contacts": [{"name": "face", "type": "pair", "nodes": ["top", "bottom"], "normal": [0.0, 1.0],
+                          "restitution": 0.0, "friction": mu}],
+            "solver": {"dt": 2e-4, "t_end": 0.25}, "output": {"vtk": False}}
+    h = fi.run(fi.Case.from_dict(data), tmp_path / "out").history
+    t, v = h["t"], h["block.vx"]
+    m = 0.2 * 0.05 * 0.01 * 7800.0
+    stop = t[np.flatnonzero(v <= 1e-3 * v0)[0]]
+    assert stop == pytest.approx(v0 / (mu * g), rel=2e-3)
+    assert np.abs(v[t > stop + 0.01]).max() <= 1e-3 * v0
+    sliding = np.flatnonzero((v[:-1] > 1e-2 * v0) & (v[1:] > 1e-2 * v0)) + 1
+    pushed = sliding[h["face.force"][sliding] > 0.0]   # (the block settles onto the slab in its first steps)
+    assert pushed.size > 0.9 * sliding.size
+    assert h["face.tangential_force"][pushed] == pytest.approx(mu * h["face.force"][pushed], rel=1e-9)
+    scale = 0.5 * m * v0 ** 2
+    assert h["friction_loss"][-1] == pytest.approx(scale, rel=1e-3)
+    check_budget(h, scale)

@@ -39,8 +39,10 @@ class ElasticShare:
     """The elastic bodies' share of a step's rows ([P; P_T] with friction): their velocities at the
     step's start and without the step's impulses, and their Delassus matrix ``P_e S^-1 P_e^T``. A modal
     body's static part makes rows compliant: ``position`` marks them (they take the gap condition at the
-    step's end), ``compliance`` is its C (p x p), ``force0`` the force at the step's start and ``moved`` its
-    offset's change over the step (docs/theory.md s. 12.6)."""
+    step's end), ``compliance`` is its C (p x p; with friction over [P; P_T], (p + pt)^2), ``force0`` the
+    rows' forces at the step's start and ``moved`` its offsets' change over the step (p, or p + pt),
+    ``sliding`` the tangent rows it makes compliant, whose law acts on their whole slip (docs/theory.md
+    s. 12.6)."""
 
     start: np.ndarray
     free: np.ndarray
@@ -49,6 +51,7 @@ class ElasticShare:
     compliance: np.ndarray | None = None
     force0: np.ndarray | None = None
     moved: np.ndarray | None = None
+    sliding: np.ndarray | None = None
 
 
 class ElasticPart(MoreauJean):
@@ -72,6 +75,8 @@ class ElasticPart(MoreauJean):
         self.W_all, self.G_all = self.rows.delassus(self.solve_S)
         self.friction = SHARED
         self.r_prev, self._persists, self._r_t, self.compliance = None, None, np.zeros(ops.pt), None
+        static = ops.static   # (a modal body's static part on the tangent rows too: their law on the whole slip)
+        self._soft_t = ~static.rigid_rows[ops.tangent_of] if static is not None and static.tangents else None
         self.friction_residual, self.friction_sweeps, self.friction_retries = 0.0, 0, 0
 
     def start_rates(self) -> np.ndarray:
@@ -194,8 +199,14 @@ class MixedMoreauJean:
         elastic = ElasticShare(e.start_rates(), free, e.W_all)
         static = e.ops.static
         if static is not None and np.any(e.position_rows):
-            elastic.position, elastic.compliance, elastic.force0 = e.position_rows, e.lcp.compliance, e.state.force
-            elastic.moved = static.offset(self._t1) - static.offset(self.state.t)
+            elastic.position = e.position_rows
+            if e._soft_t is None:
+                elastic.compliance, elastic.force0 = e.lcp.compliance, e.state.force
+                elastic.moved = static.offset(self._t1) - static.offset(self.state.t)
+            else:   # (friction: the static part over [P; P_T])
+                elastic.compliance, elastic.sliding = static.rows_compliance, e._soft_t
+                elastic.force0 = np.concatenate([e.state.force, e.state.tangential])
+                elastic.moved = static.rows_offset(self._t1) - static.rows_offset(self.state.t)
         self._found = self.rigid.settle(self.state, self._step, self._t1, elastic)
         return self._found[1] if self.ops.pt else self._found[1][:self.ops.p]
 
@@ -206,12 +217,13 @@ class MixedMoreauJean:
         U, V, A = fields.Y1 @ st.U, fields.Y1 @ st.V, fields.Y1 @ st.A
         if fields.static is not None:
             part = lambda t, force: fields.XR @ fields.static.coefficients(t) - fields.XP @ force   # noqa: E731
-            now = part(st.t, st.force)
+            force = fields._force(st)   # (with friction [F_N, F_T])
+            now = part(st.t, force)
             U += now
             if self.static_before is not None and self.static_before[0] < st.t:
                 t0, force0 = self.static_before
                 V += (now - part(t0, force0)) / (st.t - t0)
-            self.static_before = (st.t, st.force.copy())
+            self.static_before = (st.t, force.copy())
         return U, V, A
 
     def _state(self, step: int, t: float, impulse_all: np.ndarray, rigid_energy: EnergyBudget) -> StepState:

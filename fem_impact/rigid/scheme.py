@@ -362,8 +362,9 @@ class RigidMoreauJean:
             # the gap at the start (its static part's C lam0 in it) moved by the obstacles, by both parts'
             # mean free velocity and by the static part's offset (docs/theory.md s. 12.6).
             position = elastic.position
+            static0 = elastic.moved + elastic.compliance @ elastic.force0   # (p, or p + pt with friction)
             g_free = (st.gap + (ops.gap0(t1) - ops.gap0(st.t)) - 0.5 * h * (rates0[:p] + rates_free[:p])
-                      - elastic.moved - elastic.compliance @ elastic.force0)
+                      - static0[:p])
             q = np.where(position, g_free / (0.5 * h), q)
             active = active | position
         out = np.zeros(p + pt)
@@ -373,12 +374,18 @@ class RigidMoreauJean:
         if elastic is not None:
             W = W + elastic.W
         if compliant:
-            W[:p, :p] += elastic.compliance / (0.5 * h * h)
+            n = elastic.compliance.shape[0]
+            W[:n, :n] += elastic.compliance / (0.5 * h * h)
         if not pt:
             a = np.flatnonzero(active)
             out[a] = solve_lcp(W[np.ix_(a, a)], q[a])[0]
             return out
         q_t = -ops.relative_tangent(rates_free[p:], t1)
+        if compliant and elastic.sliding is not None:
+            # A compliant tangent row: Coulomb's law on its whole slip over the step (the kept modes' and the
+            # rigid part's mean velocity, and the static part's change, C_T lam1 of it in W), divided by h/2.
+            slip = ops.relative_tangent(rates0[p:], st.t) + ops.relative_tangent(rates_free[p:], t1)
+            q_t = np.where(elastic.sliding, -slip - static0[p:] / (0.5 * h), q_t)
         # (W changes as the bodies turn: the problem is built each step, warm-started from the last impulses)
         self.friction = FrictionProblem(W.copy(), ops.tangent_of, ops.friction, newton_first=elastic is not None)
         sol = self.friction.solve(np.concatenate([q, q_t]), active, guess=self._r_prev)

@@ -340,6 +340,32 @@ def _oblique(ctx):
     return _verdict(problems)
 
 
+@probe(CLS, "friction on the modal rod's pair, an oblique strike (hammer at [v0, 0.5, 0], mu 0.3): Coulomb's cone, "
+           "the hammer's momentum changed by the impulses, friction loss >= 0, the balance closed")
+def _oblique_friction(ctx):
+    data = _heavy(initial={"velocity": [{"body": "hammer", "value": ["v0", 0.5, 0.0]}]})
+    data["contacts"][0]["friction"] = 0.3
+    h, bad = solved(ctx, data)
+    if bad:
+        return bad
+    problems: list = []
+    normal, tangential = h["strike.force"], h["strike.tangential_force"]
+    if np.any(tangential > 0.3 * normal * (1 + 1e-9) + 1e-9 * normal.max()):
+        problems.append(f"|F_T| above mu F_N by {np.max(tangential - 0.3 * normal):.3g}")
+    if not tangential.max() > 0.0:
+        problems.append("no friction force in an oblique strike")
+    dt = DT
+    for axis, column in (("x", None), ("y", "strike.ty"), ("z", "strike.tz")):
+        gained = h[f"hammer.p{axis}"][-1] - h[f"hammer.p{axis}"][0]
+        # (the normal impulse pushes the hammer back along -x; NAME.ty is the friction force on the pair's first
+        # group's body, the hammer's)
+        want = -h["strike.impulse"].sum() if column is None else h[column][1:].sum() * dt
+        if abs(gained - want) > 1e-9 * M * 1.2:
+            problems.append(f"hammer.p{axis} changed by {gained:.9g}, the impulses {want:.9g}")
+    _budget(h, 0.5 * M * 1.25, problems)
+    return _verdict(problems)
+
+
 @probe(CLS, "output.every 7 against 1: the same rows at the common steps (the static part's velocity per step)")
 def _every(ctx):
     rows = []
@@ -745,7 +771,6 @@ for _name, _make, _needles in (
         ("two modal bodies beside a rigid hammer (3 bodies)",
          lambda ctx: _three(ctx, {"hammer": {"model": "rigid"}, "rod": {"model": "modal", "modes": 2},
                                   "rod2": {"model": "modal", "modes": 2}}), ("bodies.rod2.model",)),
-        ("friction on the modal rod's pair", _with(lambda d: d["contacts"][0].update(friction=0.3)), ("contacts",)),
         ("modes on the rigid hammer", _with(lambda d: d["bodies"]["hammer"].update(modes=2)), ("bodies.hammer.modes",)),
         ("modes on an elastic rod", _with(lambda d: d["bodies"].update(rod={"model": "elastic", "modes": 2})),
          ("bodies.rod.modes",)),
