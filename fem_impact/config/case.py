@@ -53,7 +53,7 @@ class Case:
     lines: dict[tuple, int] = field(default_factory=dict)
     overrides: dict[tuple, str] = field(default_factory=dict)
     reference: str | None = None   # name of a known exact solution (fem_impact.references)
-    bodies: dict[str, str] = field(default_factory=dict)   # per body named in the case: its model (elastic, rigid, modal)
+    bodies: dict[str, str] = field(default_factory=dict)   # per body named in the case: elastic, rigid or modal
     body_modes: dict[str, int] = field(default_factory=dict)   # per modal body: its kept modes
     source: dict = field(default_factory=dict, repr=False)   # the data as given (with the changes), unvalidated
     base_dir: Path = field(default_factory=Path.cwd, repr=False)   # where relative paths in `source` start
