@@ -189,14 +189,12 @@ def _refuse_pairs_within_a_body(case: Case, model: Model, cons: Constraints, bod
                                                             f"{body}: a pair within one rigid body never moves")
 
 
-def elastic_operators(model: Model, cons: Constraints, bodies) -> Operators:
-    """The elastic bodies of a mixed scene: the model with the rigid bodies' dofs held (unit mass, no
-    stiffness, no load there) and the contact rows on the elastic dofs alone."""
+def _rigid_dofs_held(model: Model, bodies):
+    """The rigid bodies' dofs (owned, local) and M, K, C with them held as supports hold theirs (unit mass, no
+    stiffness or damping there): the model of the elastic or modal bodies beside them."""
     import numpy as np
-    from scipy import sparse
 
     from .errors import ModelInputError
-    from .mechanics.system import Operators
 
     on = np.flatnonzero(bodies.body >= 0)
     if model.comm.allreduce(int(np.intersect1d(on, model.fixed).size)):
@@ -209,6 +207,18 @@ def elastic_operators(model: Model, cons: Constraints, bodies) -> Operators:
             matrix = matrix.copy()
             matrix.zeroRowsColumns(rows, diag=diagonal)
         held.append(matrix)
+    return on, held
+
+
+def elastic_operators(model: Model, cons: Constraints, bodies) -> Operators:
+    """The elastic bodies of a mixed scene: the model with the rigid bodies' dofs held (unit mass, no
+    stiffness, no load there) and the contact rows on the elastic dofs alone."""
+    import numpy as np
+    from scipy import sparse
+
+    from .mechanics.system import Operators
+
+    on, held = _rigid_dofs_held(model, bodies)
     keep = np.ones(model.U0.getLocalSize())
     keep[on] = 0.0
     keep = sparse.diags(keep)
@@ -233,17 +243,7 @@ def modal_part(case: Case, model: Model, cons: Constraints, bodies, name: str):
     from .fem.model import LoadVector
     from .fem.reduced import prepare_reduced
 
-    on = np.flatnonzero(bodies.body >= 0)
-    if model.comm.allreduce(int(np.intersect1d(on, model.fixed).size)):
-        raise ModelInputError(("supports",), "a support holds a rigid body's node (hold a rigid body by contacts, "
-                                             "or move an obstacle)")
-    rows = (on + model.first_node * model.bs).astype(np.int32)
-    held = []
-    for matrix, diagonal in ((model.M, 1.0), (model.K, 0.0), (model.C, 0.0)):
-        if matrix is not None:
-            matrix = matrix.copy()
-            matrix.zeroRowsColumns(rows, diag=diagonal)
-        held.append(matrix)
+    on, held = _rigid_dofs_held(model, bodies)
 
     def without_rigid(vector):
         out = vector.copy()

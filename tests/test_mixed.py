@@ -104,22 +104,30 @@ def slab_mesh(folder):
     return module.build(folder / "slab.msh")
 
 
+G, MU_SLAB, V0_SLAB = 9.81, 0.3, 0.5
+
+
+def slab_scene(folder, slab: dict | None = None) -> dict:
+    """A rigid steel block launched at V0_SLAB on a steel slab held at its base (``slab``: its model, default
+    elastic), mu = MU_SLAB, under gravity, the faces' 21 node pairs: the case as a dict."""
+    return {"name": "slab", "mesh": {"file": str(slab_mesh(folder))},
+            "material": {"E": 210e9, "rho": 7800.0, "nu": 0.3, "area": 0.01},
+            "bodies": {"block": {"model": "rigid"}, **({"slab": slab} if slab else {})},
+            "initial": {"velocity": [{"body": "block", "value": [V0_SLAB, 0.0]}]},
+            "supports": [{"nodes": "base", "fix": "all"}],
+            "loads": [{"body": b, "acceleration": [0.0, -G]} for b in ("slab", "block")],
+            "contacts": [{"name": "face", "type": "pair", "nodes": ["top", "bottom"], "normal": [0.0, 1.0],
+                          "restitution": 0.0, "friction": MU_SLAB}],
+            "solver": {"dt": 2e-4, "t_end": 0.25}, "output": {"vtk": False}}
+
+
 def test_a_rigid_block_slides_on_an_elastic_slab_and_stops_where_coulomb_says(tmp_path):
     """A rigid steel block launched at 0.5 m/s on a steel slab held at its base, mu = 0.3, under gravity,
     one row between the faces' mean motions (coupling: mean): while it slides every step's friction
     impulse is mu times the normal one, against the motion; it stops near v0 / (mu g) (the slab's
     vibration under the block makes the normal force ring about m g), and rests; the balance closes."""
-    g, mu, v0 = 9.81, 0.3, 0.5
-    data = {"name": "slab", "mesh": {"file": str(slab_mesh(tmp_path))},
-            "material": {"E": 210e9, "rho": 7800.0, "nu": 0.3, "area": 0.01},
-            "bodies": {"block": {"model": "rigid"}},
-            "initial": {"velocity": [{"body": "block", "value": [v0, 0.0]}]},
-            "supports": [{"nodes": "base", "fix": "all"}],
-            "loads": [{"body": b, "acceleration": [0.0, -g]} for b in ("slab", "block")],
-            "contacts": [{"name": "face", "type": "pair", "nodes": ["top", "bottom"], "normal": [0.0, 1.0],
-                          "restitution": 0.0, "friction": mu}],
-            "solver": {"dt": 2e-4, "t_end": 0.25}, "output": {"vtk": False}}
-    h = fi.run(fi.Case.from_dict(data), tmp_path / "out").history
+    g, mu, v0 = G, MU_SLAB, V0_SLAB
+    h = fi.run(fi.Case.from_dict(slab_scene(tmp_path)), tmp_path / "out").history
     t, v = h["t"], h["block.vx"]
     m = 0.2 * 0.05 * 0.01 * 7800.0
     stop = t[np.flatnonzero(v <= 1e-3 * v0)[0]]

@@ -146,19 +146,10 @@ def test_a_rigid_block_slides_on_a_modal_slab_and_stops_where_coulomb_says(tmp_p
     compliant in both directions: every step's friction impulse mu times the normal one while it slides, the
     stop at v0 / (mu g) within 0.2 %, then rest; the friction loss is 1/2 m v0^2 and never falls, the
     balance closes."""
-    from test_mixed import slab_mesh
+    from test_mixed import G, MU_SLAB, V0_SLAB, slab_scene
 
-    g, mu, v0 = 9.81, 0.3, 0.5
-    data = {"name": "slab", "mesh": {"file": str(slab_mesh(tmp_path))},
-            "material": {"E": 210e9, "rho": 7800.0, "nu": 0.3, "area": 0.01},
-            "bodies": {"block": {"model": "rigid"}, "slab": {"model": "modal", "modes": 4}},
-            "initial": {"velocity": [{"body": "block", "value": [v0, 0.0]}]},
-            "supports": [{"nodes": "base", "fix": "all"}],
-            "loads": [{"body": b, "acceleration": [0.0, -g]} for b in ("slab", "block")],
-            "contacts": [{"name": "face", "type": "pair", "nodes": ["top", "bottom"], "normal": [0.0, 1.0],
-                          "restitution": 0.0, "friction": mu}],
-            "solver": {"dt": 2e-4, "t_end": 0.25}, "output": {"vtk": False}}
-    h = fi.run(fi.Case.from_dict(data), tmp_path / "out").history
+    g, mu, v0 = G, MU_SLAB, V0_SLAB
+    h = fi.run(fi.Case.from_dict(slab_scene(tmp_path, {"model": "modal", "modes": 4})), tmp_path / "out").history
     t, v = h["t"], h["block.vx"]
     m = 0.2 * 0.05 * 0.01 * 7800.0
     stop = t[np.flatnonzero(v <= 1e-3 * v0)[0]]
