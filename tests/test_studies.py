@@ -156,13 +156,15 @@ def test_every_method_runs_on_the_impacting_bar():
 
 def test_friction_case_methods_refuse_with_the_reason_or_run_when_a_given_change_mends_them():
     """On a case with friction the methods whose contact step is an LCP refuse with the reason; the
-    modal methods refuse the static correction, and run when the study is given
-    ``solver.static_correction=false`` (the method's changes and the given ones in one change)."""
+    modal Moreau-Jean runs (friction through the static correction, docs/theory.md s. 8.9), also when the
+    study is given ``solver.static_correction=false`` (the method's changes and the given ones in one
+    change); the truncated modal method (Newmark's step, an LCP) refuses."""
     case = load_case(CASES / "sliding_block.yaml")
     assert registry.availability("moreau-jean", case) is None
     why = registry.availability("trapezoidal", case)
     assert why.startswith("does not run on this case (contacts[0].friction: ") and "moreau_jean" in why
-    assert "static correction" in registry.availability("modal-moreau-jean", case)
+    assert registry.availability("modal-moreau-jean", case) is None
+    assert registry.apply("modal-moreau-jean", case).solver.static_correction is True
     given = ["solver.static_correction=false", "solver.modes=40"]
     assert registry.availability("modal-moreau-jean", case, given) is None
     mended = registry.apply("modal-moreau-jean", case, given)
