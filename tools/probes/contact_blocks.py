@@ -722,13 +722,10 @@ probe(CLS, "stepped one at a time, as single steps to 1e-12: a rigid stop (Carno
            "one, no static correction")(_stepped_singly({}, data_of=_rigid_beside_stop))
 
 
-@probe(CLS, "refused: friction with the static correction, one line naming contacts[0].friction")
-def _friction_refused(ctx):
-    r, out = run_case(ctx, _strip({"contacts.0.friction": 0.3, "solver.blocks": True}))
-    verdict = ctx.refused(r, "contacts[0].friction", "static_correction")
-    if verdict.kind == "ok" and out.exists():
-        return wrong(f"refused, yet {out} was written")
-    return verdict
+# Friction through the static correction (docs/theory.md s. 8.9): its contact steps are single steps, the same
+probe(CLS, "stepped one at a time, as single steps to 1e-12: friction through the static correction (coupling: "
+           "mean)")(_stepped_singly({"contacts.0.friction": 0.3, "contacts.0.coupling": "mean",
+                                     "loads.0.force": [300.0, -1000.0], "solver.t_end": 500 * DT}))
 
 
 # -- the run stopped: loads that stop being finite, energies that overflow ------------------------------------
