@@ -65,8 +65,11 @@ def test_warm_removes_only_the_caches_of_earlier_kernel_sources(tmp_path, monkey
     for path in (current, old, other):
         path.mkdir(parents=True)
         (path / "kernel.nbi").write_text("x")
+    mine = root / "notes"   # (a folder the program did not write: never removed)
+    mine.mkdir()
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(current))
     assert warm.prune() == [] and old.exists() and other.exists()
     monkeypatch.delenv("NUMBA_CACHE_DIR")
     assert sorted(warm.prune()) == sorted([old, other])
     assert current.exists() and (current / "kernel.nbi").exists() and not old.exists() and not other.exists()
+    assert mine.exists()

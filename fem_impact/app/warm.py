@@ -11,6 +11,7 @@ of them this compiles again, and removes the caches of their earlier versions.
 from __future__ import annotations
 
 import os
+import re
 import time
 from pathlib import Path
 
@@ -70,7 +71,9 @@ def prune() -> list[Path]:
     if os.environ.get("NUMBA_CACHE_DIR") or current.parent != compiled.PACKAGE / "__pycache__" / "numba" or \
             not current.parent.is_dir():   # (a fresh clone: no cache at all yet)
         return []
-    stale = [path for path in current.parent.iterdir() if path.is_dir() and path != current]
+    # (only the folders compiled.py names, a 16-digit hex key: nothing else there is this program's to remove)
+    stale = [path for path in current.parent.iterdir()
+             if path.is_dir() and path != current and re.fullmatch(r"[0-9a-f]{16}", path.name)]
     for path in stale:
         shutil.rmtree(path, ignore_errors=True)
     return stale
