@@ -190,9 +190,11 @@ def _refuse_pairs_within_a_body(case: Case, model: Model, cons: Constraints, bod
 
 
 def _rigid_dofs_held(model: Model, bodies):
-    """The rigid bodies' dofs (owned, local) and M, K, C with them held as supports hold theirs (unit mass, no
-    stiffness or damping there): the model of the elastic or modal bodies beside them."""
+    """The rigid bodies' dofs (owned, local), M, K, C with them held as supports hold theirs (unit mass, no
+    stiffness or damping there), and the diagonal that keeps the other dofs: the model of the elastic or modal
+    bodies beside them."""
     import numpy as np
+    from scipy import sparse
 
     from .errors import ModelInputError
 
@@ -207,21 +209,19 @@ def _rigid_dofs_held(model: Model, bodies):
             matrix = matrix.copy()
             matrix.zeroRowsColumns(rows, diag=diagonal)
         held.append(matrix)
-    return on, held
+    keep = np.ones(model.U0.getLocalSize())
+    keep[on] = 0.0
+    return on, held, sparse.diags(keep)
 
 
 def elastic_operators(model: Model, cons: Constraints, bodies) -> Operators:
     """The elastic bodies of a mixed scene: the model with the rigid bodies' dofs held (unit mass, no
     stiffness, no load there) and the contact rows on the elastic dofs alone."""
-    import numpy as np
     from scipy import sparse
 
     from .mechanics.system import Operators
 
-    on, held = _rigid_dofs_held(model, bodies)
-    keep = np.ones(model.U0.getLocalSize())
-    keep[on] = 0.0
-    keep = sparse.diags(keep)
+    on, held, keep = _rigid_dofs_held(model, bodies)
     tangents = keep @ sparse.csr_matrix(cons.tangent_local) if cons.pt else None
     return Operators(*held, HeldLoad(model.load, on), keep @ sparse.csr_matrix(cons.P_local), cons.d0,
                      cons.restitution, stop_compliance=cons.compliance,
@@ -243,7 +243,7 @@ def modal_part(case: Case, model: Model, cons: Constraints, bodies, name: str):
     from .fem.model import LoadVector
     from .fem.reduced import prepare_reduced
 
-    on, held = _rigid_dofs_held(model, bodies)
+    on, held, keep = _rigid_dofs_held(model, bodies)
 
     def without_rigid(vector):
         out = vector.copy()
@@ -255,9 +255,6 @@ def modal_part(case: Case, model: Model, cons: Constraints, bodies, name: str):
         model, M=held[0], K=held[1], C=held[2], fixed=np.union1d(model.fixed, on).astype(np.int64), load=load,
         U0=without_rigid(model.U0), V0=without_rigid(model.V0),
         momentum_rows={body: rows_of for body, rows_of in model.momentum_rows.items() if body == name})
-    keep = np.ones(model.U0.getLocalSize())
-    keep[on] = 0.0
-    keep = sparse.diags(keep)
     on_body = lambda rows: sparse.csr_matrix(keep @ sparse.csr_matrix(rows))   # noqa: E731 (the rows on its dofs)
     elastic_cons = dataclasses.replace(cons, P_local=on_body(cons.P_local),
                                        tangent_local=on_body(cons.tangent_local) if cons.pt else cons.tangent_local)
