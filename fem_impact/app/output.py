@@ -15,7 +15,7 @@ import numpy as np
 from mpi4py import MPI
 
 from ..fem import dolfinx_api as dx
-from ..nonsmooth.relation import OPEN, STUCK, Constraints, nodal_states, row_states
+from ..nonsmooth.relation import OPEN, STUCK, Constraints, nodal_states, row_states, tangent_sums
 from ..integrators import StepState
 from ..fem.model import AXES, Model
 from ..fem.probes import Probes  # noqa: F401  (HistoryWriter reads them)
@@ -34,6 +34,7 @@ ENERGIES = (
     ("energy_error", "error", "the residual of the energy balance"),
 )
 ENERGY_COLUMNS = tuple(column for column, _, _ in ENERGIES)
+NOT_IN_BLOCKS = "a block of steps carries no friction or support reactions"
 
 
 def energy_columns(cons: Constraints) -> list[str]:
@@ -102,22 +103,45 @@ class FrictionColumns:
         return names + ["friction_loss"]
 
     def values(self, state: StepState) -> list[float]:
-        cons, p = self.cons, self.cons.p
-        f = state.tangential
         speed = state.tangential_velocity if state.sliding is None else state.sliding
-        per_row_speed = np.sqrt(np.bincount(cons.tangent_of, weights=speed ** 2, minlength=p))
-        on_body = -(f[:, None] * cons.tangent_dirs)   # the friction force on the body, per tangent row
-        states = row_states(cons, state, self.dt)
+        columns = self._columns(state.tangential[None], speed[None], row_states(self.cons, state, self.dt)[None],
+                                np.array([state.energy.friction_loss]))
+        return [column[0].item() for column in columns]
+
+    def values_block(self, block) -> list[np.ndarray]:
+        """``values`` at every step of a block of steps (integrators/blocks.py), column by column (L each)."""
+        if block.tangential is None or block.tangential_velocity is None:
+            raise ValueError(NOT_IN_BLOCKS)
+        speed = block.tangential_velocity if block.sliding is None else block.sliding
+        return self._columns(block.tangential, speed, row_states(self.cons, block, self.dt),
+                             np.broadcast_to(block.energy.friction_loss, block.t.shape))
+
+    def _columns(self, f: np.ndarray, speed: np.ndarray, states: np.ndarray, loss: np.ndarray) -> list[np.ndarray]:
+        """The columns over steps (first axis) from the friction forces and sliding speeds (L x pt), the rows'
+        states (L x p) and the friction loss (L): one step's the same bits as each step's of a block."""
+        cons = self.cons
+        per_row_speed = np.sqrt(tangent_sums(cons, speed * speed))
+        on_body = -(f[:, :, None] * cons.tangent_dirs)   # the friction force on the body, per tangent row
         loaded, sticking = states != OPEN, states == STUCK
         per_row_speed = np.where(loaded, per_row_speed, 0.0)   # sliding: of the rows in contact only
-        values = []
+        columns = []
         for c in self.contacts:
-            mine = (cons.tangent_of >= c.rows.start) & (cons.tangent_of < c.rows.stop)
-            total = on_body[mine].sum(axis=0)
-            values += [float(np.linalg.norm(total)), *total.tolist(), float(per_row_speed[c.rows].max()),
-                       int(np.count_nonzero(sticking[c.rows])),
-                       int(np.count_nonzero(loaded[c.rows] & ~sticking[c.rows]))]
-        return values + [state.energy.friction_loss]
+            mine = np.flatnonzero((cons.tangent_of >= c.rows.start) & (cons.tangent_of < c.rows.stop))
+            total = np.cumsum(on_body[:, mine], axis=1)[:, -1]   # (added in the rows' order, whatever L)
+            magnitude = total[:, 0] * total[:, 0]
+            for a in range(1, self.dim):
+                magnitude = magnitude + total[:, a] * total[:, a]
+            columns += [np.sqrt(magnitude), *total.T, per_row_speed[:, c.rows].max(axis=1),
+                        np.count_nonzero(sticking[:, c.rows], axis=1),
+                        np.count_nonzero(loaded[:, c.rows] & ~sticking[:, c.rows], axis=1)]
+        return columns + [loss]
+
+
+def carried(values: np.ndarray | None) -> np.ndarray:
+    """A block's field that only some scenes' steps carry; a ValueError where this block has none."""
+    if values is None:
+        raise ValueError(NOT_IN_BLOCKS)
+    return values
 
 
 class HistoryWriter:
@@ -187,7 +211,8 @@ class HistoryWriter:
                                       lambda state: [state.energy.scheme], lambda block: [block.energy.scheme]))
         if self.friction is not None:
             groups.append(ColumnGroup(self.friction.columns(), "per contact with friction (FrictionColumns), then "
-                                                               "friction_loss", self.friction.values, None))
+                                                               "friction_loss", self.friction.values,
+                                      self.friction.values_block))
         if self.reactions:
             groups.append(ColumnGroup(self.reactions, "per moving support: its force on the body (N)",
                                       lambda state: state.reaction.tolist(), None))
@@ -199,7 +224,7 @@ class HistoryWriter:
             groups.append(ColumnGroup(rigid_columns(self.rigid), "per rigid body: its centre BODY.x (.y, .z), its "
                                       "velocity BODY.vx (...), 2D its angle BODY.angle and its rate BODY.omega, 3D "
                                       "its spin BODY.wx, BODY.wy, BODY.wz (global axes)",
-                                      lambda state: state.bodies.tolist(), None))
+                                      lambda state: state.bodies.tolist(), lambda block: [carried(block.bodies)]))
         laws = self.cons.laws.extra_columns()   # (constant over a block of steps: no contact acts in it)
         groups.append(ColumnGroup(laws, "per contact law with a column of its own: the work absorbed on its "
                                         "rows, less what they store (docs/theory.md s. 2.5)",
@@ -221,7 +246,7 @@ class HistoryWriter:
     def write_block(self, block) -> None:
         """The rows of a block of steps (fem_impact/integrators/blocks.py), column by column."""
         if any(group.block is None for group in self.groups):
-            raise ValueError("a block of steps carries no friction or support reactions")
+            raise ValueError(NOT_IN_BLOCKS)
         columns = []
         for group in self.groups:
             columns += group.block(block)
@@ -542,7 +567,8 @@ class RunStatistics:
                 gap = gap[:, ~self.elastic]
             self.max_penetration = max(self.max_penetration, float(-gap.min(initial=0.0)))
         self.max_energy_error = max(self.max_energy_error, float(np.abs(e.error).max()))
-        self.energy_scale = max(self.energy_scale, float(e.initial.max()), float(np.abs(e.external_work).max()))
+        self.energy_scale = max(self.energy_scale, float(e.initial.max()), float(np.abs(e.external_work).max()),
+                                float(np.max(e.load_scale)))
         self.max_energy = max(self.max_energy, float(e.total.max()))
         if np.count_nonzero(block.impulse):
             for c in self.cons.contacts:   # (summed in the order step by step would)

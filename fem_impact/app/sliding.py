@@ -83,8 +83,22 @@ class SlidingWatch:
             self.seconds.append(time.perf_counter() - clock)
 
     def write_block(self, block) -> None:
-        """A block's last step (between contacts the rows slide little: checked where the block ends)."""
+        """A block of steps: a run that stops past the limit stops at the block's first step past it, as
+        ``write`` step by step would; rows found again are found at the block's last step (the integrator's
+        state: no block runs through a contact's search on the full model)."""
+        if not self.searching:
+            for j in self._over(block):   # (the first that ``write`` finds past the limit raises)
+                self.write(block.state(int(j)))
         self.write(block.state(len(block) - 1))
+
+    def _over(self, block) -> np.ndarray:
+        """The steps of a block in which a row of a surface contact slid past its limit."""
+        over = np.zeros(len(block), dtype=bool)
+        for c, relation, dofs, T in self.parts:
+            u, _ = self.fields.at_block(block, dofs)
+            slid = allsum(self.comm, (T @ u.T).T) - self.origin[c.name]
+            over |= (np.abs(slid) / relation.sliding_limit > 1.0).any(axis=1)
+        return np.flatnonzero(over)
 
     def _search(self, state, memory: np.ndarray | None = None) -> None:
         """Every surface contact's rows found again on the displaced geometry (or, ``memory``: where

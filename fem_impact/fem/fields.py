@@ -106,6 +106,8 @@ class StateFields:
 
     def at_block(self, block, dofs: np.ndarray):
         """``at`` for every step of a block (fem_impact/integrators/blocks.py): arrays (L, *dofs.shape)."""
+        if not self.replicated:   # (the nodal fields themselves)
+            return block.U[:, dofs], block.V[:, dofs]
         Y, XR, XP, last = self._block(dofs)
         shape = Y.shape[:-1]
         flat = lambda X: X.reshape(int(np.prod(shape)), X.shape[-1])   # noqa: E731
@@ -155,6 +157,10 @@ class StateFields:
 
             def read_nodal(state: StepState) -> np.ndarray:
                 return allsum(comm, owned @ state.V)
+
+            def read_nodal_block(block) -> np.ndarray:   # (L x k, one reduction)
+                return allsum(comm, block.V @ owned.T)
+            read_nodal.block = read_nodal_block
             return read_nodal
         rows_Y = allsum(comm, rows.T @ self.Y1)
         rows_R = allsum(comm, rows.T @ self.XR) if self.static is not None else None

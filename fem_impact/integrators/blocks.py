@@ -42,6 +42,8 @@ AUTO_FROM = 4000
 MIN_BLOCK = 32         # steps: the first block's length, and the shortest one tried
 MAX_BLOCK = 4096       # steps: the longest block (memory: a few arrays of MAX_BLOCK x n)
 _ENERGY = [f.name for f in fields(EnergyBudget) if f.name != "losses"]   # (the laws' columns: constant in a block)
+# StepBlock's fields that only some scenes' steps carry (friction, rigid bodies): StepState's of the same names
+_OPTIONAL = ("tangential", "tangential_velocity", "bodies", "sliding")
 
 
 @dataclass
@@ -156,6 +158,10 @@ class StepBlock:
     previous: StepState
     coefficients: np.ndarray | None = None
     carry: dict = field(default_factory=dict)
+    tangential: np.ndarray | None = None
+    tangential_velocity: np.ndarray | None = None
+    bodies: np.ndarray | None = None
+    sliding: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.t.size
@@ -165,9 +171,9 @@ class StepBlock:
         cut = {name: getattr(self, name)[:k] for name in ("step", "t", "U", "V", "A", "gap", "force", "impulse",
                                                           "normal_displacement", "normal_velocity")}
         energy = BlockEnergy(**{name: getattr(self.energy, name)[:k] for name in _ENERGY}, losses=self.energy.losses)
-        return StepBlock(**cut, energy=energy,
-                         previous=self.previous,
-                         coefficients=self.coefficients[:k] if self.coefficients is not None else None,
+        cut.update({name: None if getattr(self, name) is None else getattr(self, name)[:k]
+                    for name in ("coefficients", *_OPTIONAL)})
+        return StepBlock(**cut, energy=energy, previous=self.previous,
                          carry={name: value[:k] for name, value in self.carry.items()})
 
     def state(self, j: int) -> StepState:
@@ -177,7 +183,9 @@ class StepBlock:
         return StepState(step=int(self.step[j]), t=float(self.t[j]), U=self.U[j], V=self.V[j], A=self.A[j],
                          gap=self.gap[j], force=self.force[j], impulse=self.impulse[j], energy=energy,
                          normal_displacement=self.normal_displacement[j],
-                         normal_velocity=self.normal_velocity[j])
+                         normal_velocity=self.normal_velocity[j],
+                         **{name: None if getattr(self, name) is None else getattr(self, name)[j]
+                            for name in _OPTIONAL})
 
     def states(self):
         """The steps one by one, as ``StepState``s."""

@@ -84,15 +84,32 @@ def row_states(cons: Constraints, state, dt: float | None = None) -> np.ndarray:
     """Each row's state at a step (int8, p): ``OPEN`` (no normal force), ``STUCK`` (closed, its
     friction force strictly inside the cone, by ``STICK``), ``SLIDING`` (closed, on the cone, or
     without friction). The force is the step's whole normal impulse over ``dt`` (with a Carnot
-    correction's); without ``dt`` the force at the step's end."""
+    correction's); without ``dt`` the force at the step's end. ``state`` may be a block of steps
+    (integrators/blocks.py): then L x p, each step's row as a ``StepState`` of it gives."""
     normal = state.force if dt is None else state.impulse / dt
     loaded = normal > 0.0
     states = np.where(loaded, SLIDING, OPEN).astype(np.int8)
     if state.tangential is not None and cons.pt:
         f = state.tangential
-        per_row = np.sqrt(np.bincount(cons.tangent_of, weights=f * f, minlength=cons.p))
+        per_row = np.sqrt(tangent_sums(cons, f * f))
         states[loaded & (per_row < (1.0 - STICK) * cons.friction * normal)] = STUCK
     return states
+
+
+def tangent_sums(cons: Constraints, values: np.ndarray) -> np.ndarray:
+    """Per row, the sum of ``values`` (..., pt) over its tangent rows (..., p), added from 0 in the tangent
+    rows' order (as ``np.bincount`` adds them): the same bits for a step and for each step of a block."""
+    of = cons.tangent_of
+    sums = np.zeros(values.shape[:-1] + (cons.p,))
+    order = np.argsort(of, kind="stable")
+    ranked = of[order]
+    first = np.concatenate(([True], ranked[1:] != ranked[:-1]))
+    rank = np.empty(of.size, dtype=np.int64)   # each tangent row's place among its row's
+    rank[order] = np.arange(of.size) - np.maximum.accumulate(np.where(first, np.arange(of.size), 0))
+    for k in range(int(rank.max(initial=-1)) + 1):   # (one pass per tangent direction: 1 in 2D, 2 in 3D)
+        mine = np.flatnonzero(rank == k)
+        sums[..., of[mine]] += values[..., mine]
+    return sums
 
 
 def nodal_states(cons: Constraints, states: np.ndarray, bs: int) -> np.ndarray:
