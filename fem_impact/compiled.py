@@ -21,7 +21,8 @@ from numba import njit
 __all__ = ["njit", "KERNELS", "source_key"]
 
 PACKAGE = Path(__file__).resolve().parent
-KERNELS = ("nonsmooth/cone.py", "nonsmooth/small_kernel.py", "nonsmooth/lcp_kernel.py", "integrators/kernels.py")
+KERNELS = ("nonsmooth/cone.py", "nonsmooth/small_kernel.py", "nonsmooth/lcp_kernel.py", "integrators/kernels.py",
+           "rigid/kernel.py")
 
 
 def source_key(paths) -> str:

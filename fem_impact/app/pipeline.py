@@ -26,17 +26,27 @@ log = logging.getLogger(__name__)
 
 
 def block_stepper(case: Case, integrator, n_steps: int):
-    """The reduced model's stepper of the steps between contacts (``solver.blocks``,
-    integrators/blocks.py), or None: one step at a time."""
+    """The stepper of many steps at a time, or None (one step at a time): the reduced model's between
+    contacts (``solver.blocks``, integrators/blocks.py), a modal body's scene (``bodies.NAME.blocks``,
+    rigid/blocks.py)."""
     from ..integrators import is_reduced
-
-    if not is_reduced(case.solver) or case.solver.blocks is False:
-        return None
     from ..integrators.blocks import AUTO_FROM, BlockStepper
 
-    if case.solver.blocks == "auto" and n_steps < AUTO_FROM:
+    modal = [name for name, model in case.bodies.items() if model == "modal"]
+    setting = case.solver.blocks if is_reduced(case.solver) else case.body_blocks.get(modal[0], "auto") if modal \
+        else False
+    if setting is False or (setting == "auto" and n_steps < AUTO_FROM):
         return None
-    return BlockStepper.of(integrator)
+    if is_reduced(case.solver):
+        return BlockStepper.of(integrator)
+    from ..rigid.blocks import MixedBlocks
+
+    reason = MixedBlocks.refusal(integrator)
+    if reason is None:
+        return MixedBlocks.of(integrator)
+    if setting is True:
+        log.warning("bodies.%s.blocks: true, but this scene's steps are taken one at a time: %s", modal[0], reason)
+    return None
 
 
 def default_outdir(case: Case) -> Path:

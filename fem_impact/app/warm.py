@@ -35,6 +35,9 @@ def warm() -> None:
     from ..nonsmooth.friction import FrictionProblem
 
     kernels.warm_up()   # the compiled blocks (and the LCP kernel they call)
+    from ..rigid import kernel
+
+    kernel.warm_up()    # the mixed scenes' compiled steps (and the small cone solve they call)
 
     class Split(FrictionProblem):   # (W kept as two float32 parts from a few unknowns: that path's kernels)
         SINGLE_FROM = 4

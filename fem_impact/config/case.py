@@ -55,6 +55,7 @@ class Case:
     reference: str | None = None   # name of a known exact solution (fem_impact.references)
     bodies: dict[str, str] = field(default_factory=dict)   # per body named in the case: elastic, rigid or modal
     body_modes: dict[str, int] = field(default_factory=dict)   # per modal body: its kept modes
+    body_blocks: dict[str, bool | str] = field(default_factory=dict)   # per modal body that sets it: blocks
     source: dict = field(default_factory=dict, repr=False)   # the data as given (with the changes), unvalidated
     base_dir: Path = field(default_factory=Path.cwd, repr=False)   # where relative paths in `source` start
 
@@ -182,7 +183,8 @@ class Case:
                          for load in self.loads]
         data["contacts"] = [_contact_data(c) for c in self.contacts]
         if self.bodies:
-            data["bodies"] = {name: {"model": model, **({"modes": self.body_modes[name]} if model == "modal" else {})}
+            data["bodies"] = {name: {"model": model, **({"modes": self.body_modes[name]} if model == "modal" else {}),
+                                     **({"blocks": self.body_blocks[name]} if name in self.body_blocks else {})}
                               for name, model in self.bodies.items()}
         data["solver"] = self.solver.as_case()
         data["output"] = self.output.model_dump()

@@ -19,7 +19,7 @@ from pydantic import (AfterValidator, Field, PlainValidator, PrivateAttr, Valida
 
 from ..expressions import RESERVED
 from ..fem.specs import BodyValue, Damping, Initial, Load, Material, MeshSpec, Support
-from ..integrators.parameters import SolverParameters
+from ..integrators.parameters import SolverParameters, _flag_or_auto
 from ..nonsmooth.specs import Contact
 from .fields import (SPACE, TIME, CsvName, Integer, Name, Real, Section, _mapping, _number, bounds_of, choice,
                      default_of, expression, key, key_rows, list_of, mapping_of, problem, validate, vector)
@@ -503,13 +503,18 @@ class BodySection(Section):
         "reduced to its lowest modes plus the static correction of the others at its contact rows, beside "
         "rigid bodies"))
     modes: Integer = key("-", "modal: the body's kept eigenmodes (required there)", None, ge=1, le=2**31 - 1)
+    blocks: Annotated[bool | str, PlainValidator(_flag_or_auto)] = Field(
+        None, description="modal: take the scene's steps many at a time in one compiled loop (2D, every contact "
+                          "row on the modal body; the single steps' results to round-off); auto (the default): "
+                          "when the run has at least 4000 steps; false: one at a time")
 
     @model_validator(mode="after")
     def _modes_with_modal(self):
         if self.model == "modal" and self.modes is None:
             raise _Invalid(("modes",), "a modal body needs its count of kept modes: modes: N (an integer >= 1)")
-        if self.model != "modal" and self.modes is not None:
-            raise _Invalid(("modes",), f"applies to model: modal only (this body is {self.model}): remove it")
+        for name in ("modes", "blocks"):
+            if self.model != "modal" and getattr(self, name) is not None:
+                raise _Invalid((name,), f"applies to model: modal only (this body is {self.model}): remove it")
         return self
 
 
@@ -568,6 +573,7 @@ def validate_case(data: dict, folder: Path) -> dict:
         "supports": [s.spec() for s in case.supports], "loads": [load.spec() for load in case.loads],
         "contacts": case.contacts, "bodies": {name: body.model for name, body in case.bodies.items()},
         "body_modes": {name: body.modes for name, body in case.bodies.items() if body.model == "modal"},
+        "body_blocks": {name: body.blocks for name, body in case.bodies.items() if body.blocks is not None},
         "solver": case.solver, "output": case.output, "parameters": parameters,
         "reference": case.reference}
 

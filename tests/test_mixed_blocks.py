@@ -1,0 +1,119 @@
+"""A modal body's scene stepped many steps at a time (``bodies.NAME.blocks``, fem_impact/rigid/blocks.py,
+docs/theory.md s. 12.7): one compiled loop runs the mixed step of rigid bodies beside a modal body whose
+static part makes every contact row compliant.
+
+What it must show: the single steps' histories to round-off (not to the bit: the loop sums in its own order),
+the physics the single steps are tested for (a rigid block sliding on a modal slab stops where Coulomb's law
+says), a restart from a checkpoint inside the blocks, and every scene it cannot take stepped singly, told
+where the case asked for blocks.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+from test_mixed import MU_SLAB, V0_SLAB, G, slab_scene
+from test_rigid import assert_continues_exactly, check_budget
+
+import fem_impact as fi
+from conftest import CASES
+from fem_impact.errors import CaseError
+
+ENERGY = ("kinetic", "strain", "external_work", "damping_loss", "contact_loss", "friction_loss", "energy_error")
+
+
+def vibromotor(blocks, t_end: float = 1.5e-3, **more):
+    """cases/vibromotor_modal.yaml over 600 steps, its driver's blocks as given."""
+    changes = {"bodies.driver.blocks": blocks, "solver.t_end": t_end, "output.vtk": False, **more}
+    return fi.load_case(CASES / "vibromotor_modal.yaml").with_changes(changes)
+
+
+@pytest.fixture(scope="module")
+def vibromotor_runs():
+    return {blocks: fi.run(vibromotor(blocks)) for blocks in (True, False)}
+
+
+def test_blocks_give_the_single_steps_history(vibromotor_runs):
+    """Every column of the history (the rows, the probe, the slider, the friction, the energies) is the single
+    steps' to round-off: within 1e-8 of the column's own scale (the contact row's gap, 1e-17 m in a closed
+    contact, to 1e-8 of the probe's displacement), the energies within 1e-10 of the energy scale."""
+    blocks, single = (vibromotor_runs[k] for k in (True, False))
+    assert blocks.summary["steps_in_blocks"] == blocks.summary["steps"] == 600
+    assert single.summary["steps_in_blocks"] == 0
+    a, b = blocks.history, single.history
+    assert list(a) == list(b)
+    scale = max(np.abs(b["external_work"]).max(), np.abs(b["kinetic"] + b["strain"]).max())
+    displacement = np.abs(b["tip.uy"]).max()
+    for name in b:
+        reference = displacement if name.endswith(".gap") else scale if name in ENERGY else np.abs(b[name]).max()
+        tolerance = 1e-10 if name in ENERGY else 1e-8
+        assert np.abs(a[name] - b[name]).max() <= tolerance * max(reference, 1e-300), name
+
+
+def test_blocks_keep_the_balance_and_lose_energy(vibromotor_runs):
+    """The budget as the single steps book it: the balance closes, friction and damping only take energy, the
+    contact's loss is never negative (a step of it may be: the static part's compliance under a load that
+    varies stores and gives back), E <= E0 + W_ext."""
+    h = vibromotor_runs[True].history
+    scale = np.abs(h["external_work"]).max()
+    assert np.abs(h["energy_error"]).max() <= 1e-10 * scale
+    for loss in ("friction_loss", "damping_loss"):
+        assert np.diff(h[loss]).min() >= -1e-12 * scale, loss
+    assert h["contact_loss"].min() >= -1e-12 * scale
+    assert np.all(h["kinetic"] + h["strain"] <= h["external_work"] + 1e-10 * scale)
+
+
+def test_a_rigid_block_slides_on_a_modal_slab_in_blocks_and_stops_where_coulomb_says(tmp_path):
+    """The block of test_modal_body's slab scene (21 compliant rows with friction, 4 modes), all its steps in
+    blocks: it stops at v0 / (mu g) within 0.2 %, its friction force mu times the normal one while it slides,
+    the friction loss 1/2 m v0^2; the single steps' history to round-off."""
+    g, mu, v0 = G, MU_SLAB, V0_SLAB
+    slab = {"model": "modal", "modes": 4}
+    runs = {blocks: fi.run(fi.Case.from_dict(slab_scene(tmp_path, dict(slab, blocks=blocks))))
+            for blocks in (True, False)}
+    # (a step whose cone problem the loop's Newton method does not finish is the integrator's own: one here)
+    assert runs[True].summary["steps_in_blocks"] >= 0.99 * runs[True].summary["steps"]
+    h = runs[True].history
+    t, v = h["t"], h["block.vx"]
+    stop = t[np.flatnonzero(v <= 1e-3 * v0)[0]]
+    assert stop == pytest.approx(v0 / (mu * g), rel=2e-3)
+    sliding = np.flatnonzero((v[:-1] > 1e-2 * v0) & (v[1:] > 1e-2 * v0)) + 1
+    pushed = sliding[h["face.force"][sliding] > 0.0]
+    assert pushed.size > 0.9 * sliding.size
+    assert h["face.tangential_force"][pushed] == pytest.approx(mu * h["face.force"][pushed], rel=1e-9)
+    m = 0.2 * 0.05 * 0.01 * 7800.0
+    scale = 0.5 * m * v0 ** 2
+    assert h["friction_loss"][-1] == pytest.approx(scale, rel=1e-3)
+    check_budget(h, scale)
+    single = runs[False].history
+    for name in ("block.x", "block.vx", "block.angle", "face.force", "friction_loss"):
+        assert np.abs(h[name] - single[name]).max() <= 1e-8 * np.abs(single[name]).max(), name
+
+
+def test_a_run_in_blocks_continues_from_its_checkpoint_exactly(tmp_path):
+    """Checkpoints fall between blocks: the run restarted from the middle one writes the rest as the whole run."""
+    assert_continues_exactly(vibromotor(True, 0.75e-3, **{"output.checkpoint_every": 100}), 1.5e-3, tmp_path)
+
+
+def test_a_scene_the_loop_cannot_take_is_stepped_singly_and_said(caplog):
+    """The 3D hammer on its modal rod: 'blocks: true' takes single steps and says why; 'auto' says nothing."""
+    changes = {"bodies": {"hammer": {"model": "rigid"}, "rod": {"model": "modal", "modes": 2, "blocks": True}},
+               "solver.t_end": 2e-5, "solver.dt": 1e-5, "output.vtk": False}
+    with caplog.at_level(logging.WARNING):
+        result = fi.run(fi.load_case(CASES / "hammer_rod.yaml").with_changes(changes))
+    assert result.summary["steps_in_blocks"] == 0
+    assert "bodies.rod.blocks: true" in caplog.text and "3D" in caplog.text
+
+
+@pytest.mark.parametrize("body, says", [
+    ({"model": "rigid", "blocks": True}, "applies to model: modal only"),
+    ({"model": "modal", "modes": 4, "blocks": "often"}, "expected true, false or 'auto'"),
+], ids=["on a rigid body", "not a flag"])
+def test_blocks_where_they_do_not_apply_are_refused_naming_the_key(tmp_path, body, says):
+    with pytest.raises(CaseError, match=says) as err:
+        fi.Case.from_dict(slab_scene(tmp_path, body if body["model"] == "modal" else None) |
+                          {"bodies": {"block": body} if body["model"] == "rigid" else
+                           {"block": {"model": "rigid"}, "slab": body}})
+    assert "bodies." in str(err.value) and "blocks" in str(err.value)
