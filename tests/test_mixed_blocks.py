@@ -117,3 +117,50 @@ def test_blocks_where_they_do_not_apply_are_refused_naming_the_key(tmp_path, bod
                           {"bodies": {"block": body} if body["model"] == "rigid" else
                            {"block": {"model": "rigid"}, "slab": body}})
     assert "bodies." in str(err.value) and "blocks" in str(err.value)
+
+
+def test_the_rows_and_loads_on_the_bodies_are_linear_in_cos_and_sin_at_any_angle():
+    """The loop's H = H_t + cos H_c + sin H_s, the bodies' share of P U and the loads' moment (docs/theory.md
+    s. 12.7) against the single step's own (the rows projected from B(q) and the nodes' displacement) at
+    angles far from the meshed one: to round-off."""
+    from mpi4py import MPI
+
+    from fem_impact.build import build_system, make_integrator
+    from fem_impact.rigid.blocks import MixedBlocks, _dense
+    from fem_impact.rigid.bodies import rotation_2d
+
+    case = vibromotor(True)
+    system = build_system(case, MPI.COMM_SELF)
+    it = make_integrator(case, system.operators, system.rigid, system.elastic, system.reduced)
+    it.start(system.U0, system.V0, 0.0)
+    mb = MixedBlocks.of(it)
+    r = it.rigid
+    x = r.bodies.centre + np.array([[1e-3, -2e-4]])
+    R = np.zeros(r.U.size)
+    for a in (1.3, -2.9, 40.0):
+        rot = rotation_2d(a)[None]
+        H = _dense(r._rows.project(r.map.columns(rot)))
+        mine = mb.Ht.copy()
+        mine[:, 2] = np.cos(a) * mb.Hc[:, 0] + np.sin(a) * mb.Hs[:, 0]
+        assert np.abs(mine - H).max() <= 1e-12 * np.abs(H).max()
+        r.map.displacement(x, rot, r.U)
+        rows = r._rows.project_many(r.U)[0]
+        ours = mb.Ht[:, :2] @ (x - r.bodies.centre)[0] + np.sin(a) * mb.Hc[:, 0] - (np.cos(a) - 1.0) * mb.Hs[:, 0]
+        assert np.abs(ours - rows).max() <= 1e-12 * np.abs(rows).max()
+        it.ops.load.evaluate(0.3e-3, R)
+        force = r.map.columns(rot).T @ R
+        terms = np.array([1.0] + [f.at_time(0.3e-3) for f in mb.functions])
+        ours = terms @ mb.Qt
+        ours[2] += np.cos(a) * (terms @ mb.Qc)[0] + np.sin(a) * (terms @ mb.Qs)[0]
+        assert np.abs(ours - force).max() <= 1e-12 * np.abs(force).max()
+
+
+def test_a_load_on_the_rigid_body_that_varies_in_blocks_as_in_single_steps():
+    """The slider's load and preload varying in time (the loop's F_t, F_c, F_s times their time functions): the
+    single steps' history to round-off."""
+    loads = [{"nodes": "tip", "force": ["Fx*cos(2*pi*f*t)*(1 - exp(-f*t))", "Fy*sin(2*pi*f*t)*(1 - exp(-f*t))"]},
+             {"nodes": "face", "force": ["-FL*(1 + 0.5*sin(2*pi*f*t/3))", "-P*(1 + 0.3*cos(2*pi*f*t/7))"]}]
+    a, b = (fi.run(vibromotor(blocks, 0.5e-3, loads=loads)).history for blocks in (True, False))
+    for name in ("slider.x", "slider.vx", "slider.vy", "slider.omega", "drive.force", "drive.tangential_force",
+                 "external_work", "kinetic"):
+        assert np.abs(a[name] - b[name]).max() <= 1e-8 * np.abs(b[name]).max(), name
