@@ -130,6 +130,28 @@ def newmark_steps(fused, damped, coef, m, k, d, inv_S, R, U0, V0, A0, MV0, MA0, 
             U[j, i], V[j, i], A[j, i], MV[j, i] = ui, vi, ai, mvi
 
 
+@njit(cache=True, inline="always")
+def take_impulses(fused, damped, identity, coef, pushed, G, P, x, vf, rhs, uh, m, k, d, u, v, mv, ku, kv, cv,
+                  U, V, A):
+    """The end of a step with the impulses ``x`` (when ``pushed``): each dof's V1 = V* - (G x)_i, its step
+    equation's rhs less (P^T x)_i, then ``_finish``; the state (u, v, M v, K u, K v, C v) updated in place,
+    U1, V1 and A written into the rows U, V, A."""
+    for i in range(u.size):
+        vi = vf[i]
+        if pushed:
+            s, t = 0.0, 0.0
+            for a in range(x.size):
+                s += G[i, a] * x[a]
+                t += P[a, i] * x[a]
+            vi -= s
+            rhs[i] -= t
+        v0 = v[i]
+        ui, cvi, ai, mvi, kui, kvi = _finish(fused, damped, identity, coef, rhs[i], vi, v0, uh[i], m[i], k[i], d[i],
+                                             ku[i], kv[i])
+        u[i], v[i], mv[i], ku[i], kv[i], cv[i] = ui, vi, mvi, kui, kvi, cvi
+        U[i], V[i], A[i] = ui, vi, ai
+
+
 @njit(cache=True)
 def moreau_jean_contact_steps(first, check_every, fused, loaded, damped, coef, m, k, d, inv_S, R,
                               U0, V0, MV0, KU0, KV0, CV0, P, G, A_lcp, W, gap_free, pu0, pv0, active,
@@ -173,20 +195,9 @@ def moreau_jean_contact_steps(first, check_every, fused, loaded, damped, coef, m
                 for b in range(p):
                     s += W[a, b] * x[b]
             pv[a] = pvf[a] - s
-        for i in range(n):
-            vi = vf[i]
-            if pushed:
-                s, t = 0.0, 0.0
-                for a in range(p):
-                    s += G[i, a] * x[a]
-                    t += P[a, i] * x[a]
-                vi -= s
-                rhs[i] -= t
-            v0 = v[i]
-            ui, cvi, ai, mvi, kui, kvi = _finish(fused, damped, identity, coef, rhs[i], vi, v0, uh[i], m[i], k[i],
-                                                 d[i], ku[i], kv[i])
-            u[i], v[i], mv[i], ku[i], kv[i], cv[i] = ui, vi, mvi, kui, kvi, cvi
-            U[j, i], V[j, i], A[j, i], KU[j, i], KV[j, i] = ui, vi, ai, kui, kvi
+        take_impulses(fused, damped, identity, coef, pushed, G, P, x, vf, rhs, uh, m, k, d, u, v, mv, ku, kv, cv,
+                      U[j], V[j], A[j])
+        KU[j], KV[j] = ku, kv
         for a in range(p):
             s = 0.0
             for i in range(n):

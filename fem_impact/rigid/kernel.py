@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..compiled import njit
-from ..integrators.kernels import _axpy, _finish, _rhs
+from ..integrators.kernels import _axpy, _rhs, take_impulses
 from ..nonsmooth.small_kernel import DONE
 from ..nonsmooth.small_kernel import solve as small_solve
 
@@ -146,20 +146,10 @@ def mixed_steps(coef, fused, loaded, damped, m, k, d, inv_S, R, Pe, Ge, We, C, o
                 work_n += r[a] * s
             else:
                 work_t += r[a] * s
-        for i in range(n):   # the modes take their share: V1 = V* - G r, the step's equation with it
-            vi = vf[i]
-            if pushed:
-                s, t = 0.0, 0.0
-                for a in range(q):
-                    s += Ge[i, a] * r[a]
-                    t += Pe[a, i] * r[a]
-                vi -= s
-                rhs[i] -= t
-            vprev = v[i]
-            ui, cvi, ai, mvi, kui, kvi = _finish(fused, damped, identity, coef, rhs[i], vi, vprev, uh[i], m[i], k[i],
-                                                 d[i], ku[i], kv[i])
-            u[i], v[i], mv[i], ku[i], kv[i], cv[i] = ui, vi, mvi, kui, kvi, cvi
-            U[j, i], V[j, i], A[j, i], CV[j, i] = ui, vi, ai, cvi
+        # the modes take their share: V1 = V* - G r, the step's equation with it
+        take_impulses(fused, damped, identity, coef, pushed, Ge, Pe, r, vf, rhs, uh, m, k, d, u, v, mv, ku, kv, cv,
+                      U[j], V[j], A[j])
+        CV[j] = cv
         for a in range(q):
             s = 0.0
             for i in range(n):
