@@ -430,17 +430,3 @@ class MixedBlocks:
         it.static_before = (t, np.concatenate([force[:p], force[p:]]) if self.pt else force[:p].copy())
         self.steps += len(block)
         self.blocks += 1
-
-
-def _warm_arguments() -> tuple:
-    """Arguments of the kernel's types (one mode, one row, one body): to compile it before a run."""
-    one, row, sq = np.ones(1), np.zeros((2, 1)), np.eye(1)
-    layout = np.array([0, 0, 1], dtype=np.int64)
-    out = lambda *shape: np.zeros(shape)   # noqa: E731
-    from ..integrators.kernels import FUSED
-
-    return (np.ones(8), FUSED, True, True, one, one, one, one, row, sq.copy(), sq.copy(), sq.copy(), sq.copy(),
-            row.copy(), one.copy(), 1, np.zeros((1, 3)), sq.copy(), sq.copy(), np.ones(3), out(1, 3), out(1, 1),
-            out(1, 1), 1e-3, np.zeros(2), layout, 1e-10, one.copy(), one.copy(), one.copy(), one.copy(), one.copy(),
-            one.copy(), np.zeros(2), np.zeros(2), np.zeros(1), np.zeros(3), np.zeros(0), out(1, 1), out(1, 1),
-            out(1, 1), out(1, 1), out(1, 1), out(1, 1), out(1, 3), out(1, 2), out(1, 1), out(1, 3), out(1, 1))

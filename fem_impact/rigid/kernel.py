@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..compiled import njit
-from ..integrators.kernels import _axpy, _rhs, take_impulses
+from ..integrators.kernels import FUSED, _axpy, _rhs, take_impulses
 from ..nonsmooth.small_kernel import DONE
 from ..nonsmooth.small_kernel import solve as small_solve
 
@@ -181,8 +181,18 @@ def mixed_steps(coef, fused, loaded, damped, m, k, d, inv_S, R, Pe, Ge, We, C, o
     return U.shape[0], worst
 
 
+def _warm_arguments() -> tuple:
+    """Arguments of the kernel's types (one mode, one row, one body): to compile it before a run."""
+    one, row, sq = np.ones(1), np.zeros((2, 1)), np.eye(1)
+    layout = np.array([0, 0, 1], dtype=np.int64)
+    out = lambda *shape: np.zeros(shape)   # noqa: E731
+    return (np.ones(8), FUSED, True, True, one, one, one, one, row, sq.copy(), sq.copy(), sq.copy(), sq.copy(),
+            row.copy(), one.copy(), 1, np.zeros((1, 3)), sq.copy(), sq.copy(), np.ones(3), out(1, 3), out(1, 1),
+            out(1, 1), 1e-3, np.zeros(2), layout, 1e-10, one.copy(), one.copy(), one.copy(), one.copy(), one.copy(),
+            one.copy(), np.zeros(2), np.zeros(2), np.zeros(1), np.zeros(3), np.zeros(0), out(1, 1), out(1, 1),
+            out(1, 1), out(1, 1), out(1, 1), out(1, 1), out(1, 3), out(1, 2), out(1, 1), out(1, 3), out(1, 1))
+
+
 def warm_up() -> None:
     """Compile the loop (or load it from Numba's cache) on arrays of the types the stepper passes."""
-    from .blocks import _warm_arguments
-
     mixed_steps(*_warm_arguments())
