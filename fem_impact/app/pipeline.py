@@ -25,7 +25,7 @@ from .outdir.writes import writing
 log = logging.getLogger(__name__)
 
 
-def block_stepper(case: Case, integrator, n_steps: int):
+def block_stepper(case: Case, integrator, n_steps: int, rank: int = 0):
     """The stepper of many steps at a time, or None (one step at a time): the reduced model's between
     contacts (``solver.blocks``, integrators/blocks.py), a modal body's scene (``bodies.NAME.blocks``,
     rigid/blocks.py)."""
@@ -44,7 +44,7 @@ def block_stepper(case: Case, integrator, n_steps: int):
     reason = MixedBlocks.refusal(integrator)
     if reason is None:
         return MixedBlocks.of(integrator)
-    if setting is True:
+    if setting is True and rank == 0:   # (said once: by rank 0)
         log.warning("bodies.%s.blocks: true, but this scene's steps are taken one at a time: %s", modal[0], reason)
     return None
 
@@ -313,7 +313,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
         t0 = saved.t
         restarted = {"folder": str(Path(restart).resolve()), "t": saved.t, "step": saved.step,
                      "changed": changed}
-    blocks = block_stepper(case, integrator, n_steps)
+    blocks = block_stepper(case, integrator, n_steps, comm.rank)
     setup_time = time.perf_counter() - t_start
     log.info("setup %.3f s: %d dofs, %d constraint rows, %d steps", setup_time, model.dofs, cons.p, n_steps)
     for c, relation in zip(cons.contacts, cons.relations.relations):

@@ -306,9 +306,10 @@ class MixedBlocks:
         energy, elastic_energy, rigid_energy = self._energies(st, est, loads, coefficients, offsets, U, V, CV, X,
                                                               F0, F1, PE, pe0, NU, RIG)
         bodies = np.concatenate([xs, vs[:, :, :2], ANG[:, :, None], spins[:, :, None]], axis=2).reshape(L, -1)
-        pu = U_n @ self.P_rows[:, :p]
-        block = StepBlock(np.arange(st.step + 1, st.step + L + 1), t, U_n, V_n, A_n, self.d0[None] - pu, F1[:, :p],
-                          X[:, :p], energy, pu, rows_v[:, :p], st, None,
+        # (the rows' gaps the loop found: the next step's start, in a block or singly; P U of the nodal fields is
+        # the same to round-off of the nodes' coordinates, which a stiff row would turn into a force's jump)
+        block = StepBlock(np.arange(st.step + 1, st.step + L + 1), t, U_n, V_n, A_n, GAP, F1[:, :p],
+                          X[:, :p], energy, self.d0[None] - GAP, rows_v[:, :p], st, None,
                           carry={"Z": U, "Zdot": V, "Zddot": A, "R": loads[1:], "X": X, "PE": PE, "NU": NU, "XS": XS,
                                  "ANG": ANG, "disp": disp,
                                  **{f"elastic.{k}": v for k, v in elastic_energy.items()},

@@ -30,6 +30,8 @@ def model_keys(case) -> dict:
             _flatten(data[section], section, out)
     for key in APPLIED_SOLVER_KEYS + MODE_KEYS:
         out.pop(f"solver.{key}", None)
+    for name in case.body_blocks:   # (a modal body's blocks: how its scene is stepped, the same results)
+        out.pop(f"bodies.{name}.blocks", None)
     if case.mesh.file is not None:
         out["mesh.file"] = "sha256:" + _file_digest(case.mesh.file)
     expressions = [e for item in case.initial.displacement + case.initial.velocity for e in item.value]
