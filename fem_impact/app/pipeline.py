@@ -369,7 +369,7 @@ def _run(case: Case, out, comm: MPI.Comm, progress, force: bool, t_start: float,
             "setup_time_s": setup_time,
             "loop_time_s": loop_time,
             "steps": final.step,
-            # the reduced model's steps taken many at a time between contacts, and in how many blocks
+            # the steps taken many at a time (the reduced model's, a modal body's scene's), and in how many blocks
             "steps_in_blocks": blocks.steps if blocks is not None else 0,
             "blocks": blocks.blocks if blocks is not None else 0,
             "dt": solver.dt,

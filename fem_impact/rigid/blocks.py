@@ -259,16 +259,16 @@ class MixedBlocks:
         self.worst = max(self.worst, worst)
         cut = slice(0, taken)
         return self._block(st, est, t[cut], loads[:taken + 1], coefficients[:taken + 1], offsets[:taken + 1],
-                           Ft[cut], Fc[cut], Fs[cut], U[cut], V[cut], A[cut], CV[cut], X[cut], PE[cut], NU[cut],
-                           XS[cut], ANG[cut], RIG[cut], GAP[cut], force0, pe0)
+                           U[cut], V[cut], A[cut], CV[cut], X[cut], PE[cut], NU[cut], XS[cut], ANG[cut], RIG[cut],
+                           GAP[cut], force0, pe0)
 
     def _forces(self, est: StepState) -> np.ndarray:
         """The rows' forces of the elastic part's state (with friction [F_N, F_T])."""
         f = np.concatenate([est.force, est.tangential]) if self.pt else est.force
         return np.ascontiguousarray(f, dtype=float)
 
-    def _block(self, st, est, t, loads, coefficients, offsets, Ft, Fc, Fs, U, V, A, CV, X, PE, NU, XS, ANG, RIG,
-               GAP, force0, pe0) -> StepBlock:
+    def _block(self, st, est, t, loads, coefficients, offsets, U, V, A, CV, X, PE, NU, XS, ANG, RIG, GAP, force0,
+               pe0) -> StepBlock:
         it, p, pt, h = self.integrator, self.p, self.pt, self.integrator.dt
         r = it.rigid
         L, nb = t.size, len(r.bodies.names)
