@@ -99,17 +99,34 @@ def row_states(cons: Constraints, state, dt: float | None = None) -> np.ndarray:
 def tangent_sums(cons: Constraints, values: np.ndarray) -> np.ndarray:
     """Per row, the sum of ``values`` (..., pt) over its tangent rows (..., p), added from 0 in the tangent
     rows' order (as ``np.bincount`` adds them): the same bits for a step and for each step of a block."""
-    of = cons.tangent_of
+    if values.ndim == 1:   # (a step: bincount itself)
+        return np.bincount(cons.tangent_of, weights=values, minlength=cons.p)
     sums = np.zeros(values.shape[:-1] + (cons.p,))
+    for rows, mine in _tangent_passes(cons.tangent_of):   # (one pass per tangent direction: 1 in 2D, 2 in 3D)
+        sums[..., rows] += values[..., mine]
+    return sums
+
+
+_PASSES: dict[int, tuple] = {}   # id(tangent_of) -> (tangent_of, its passes): the arrays are never changed in place
+
+
+def _tangent_passes(of: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``tangent_sums``' passes over the tangent rows ``of`` (each row's k-th tangent row in pass k): (the rows,
+    their tangent rows) each, made once per array (a step's observers ask twice a step)."""
+    entry = _PASSES.get(id(of))
+    if entry is not None and entry[0] is of:
+        return entry[1]
     order = np.argsort(of, kind="stable")
     ranked = of[order]
     first = np.concatenate(([True], ranked[1:] != ranked[:-1]))
     rank = np.empty(of.size, dtype=np.int64)   # each tangent row's place among its row's
     rank[order] = np.arange(of.size) - np.maximum.accumulate(np.where(first, np.arange(of.size), 0))
-    for k in range(int(rank.max(initial=-1)) + 1):   # (one pass per tangent direction: 1 in 2D, 2 in 3D)
-        mine = np.flatnonzero(rank == k)
-        sums[..., of[mine]] += values[..., mine]
-    return sums
+    passes = [(of[mine], mine) for mine in (np.flatnonzero(rank == k)
+                                            for k in range(int(rank.max(initial=-1)) + 1))]
+    if len(_PASSES) >= 8:
+        _PASSES.pop(next(iter(_PASSES)))
+    _PASSES[id(of)] = (of, passes)
+    return passes
 
 
 def nodal_states(cons: Constraints, states: np.ndarray, bs: int) -> np.ndarray:
