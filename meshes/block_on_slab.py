@@ -17,7 +17,8 @@ from pathlib import Path
 
 import gmsh
 
-from fem_impact.fem.gmsh_utils import ScriptParser, add_named_groups, length_option, output_option, run_script, write_msh
+from fem_impact.fem.gmsh_utils import (ScriptParser, add_named_groups, length_option, output_option, run_script,
+                                      structured_quads, write_msh)
 
 GAP = 1e-6
 
@@ -35,12 +36,7 @@ def build(path: Path, h: float = 0.01) -> Path:
         slab = [tag for _, tag in occ.fragment(thirds, [])[0]]
         block = occ.addRectangle(0.2, 0.05 + GAP, 0.0, 0.2, 0.05)
         occ.synchronize()
-        for surface in (*slab, block):   # (structured quadrilaterals)
-            for _, curve in gmsh.model.getBoundary([(2, surface)], oriented=False):
-                x0, y0, _, x1, y1, _ = gmsh.model.getBoundingBox(1, curve)
-                gmsh.model.mesh.setTransfiniteCurve(curve, max(1, round(max(x1 - x0, y1 - y0) / h)) + 1)
-            gmsh.model.mesh.setTransfiniteSurface(surface)
-            gmsh.model.mesh.setRecombine(2, surface)
+        structured_quads((*slab, block), h)
 
         def edge(y, x0, x1):
             return [t for _, t in gmsh.model.getEntitiesInBoundingBox(x0 - 1e-7, y - 1e-7, -1, x1 + 1e-7, y + 1e-7, 1, 1)]

@@ -21,6 +21,17 @@ def add_named_groups(dim: int, groups: dict[str, list[int]]) -> None:
         gmsh.model.setPhysicalName(dim, gmsh.model.addPhysicalGroup(dim, list(tags)), name)
 
 
+def structured_quads(surfaces, size: float) -> None:
+    """Structured quadrilaterals on the (synchronized) OCC surfaces: each boundary curve divided into elements of
+    about ``size``, each surface transfinite and recombined."""
+    for surface in surfaces:
+        for _, curve in gmsh.model.getBoundary([(2, surface)], oriented=False):
+            x0, y0, _, x1, y1, _ = gmsh.model.getBoundingBox(1, curve)
+            gmsh.model.mesh.setTransfiniteCurve(curve, max(1, round(max(x1 - x0, y1 - y0) / size)) + 1)
+        gmsh.model.mesh.setTransfiniteSurface(surface)
+        gmsh.model.mesh.setRecombine(2, surface)
+
+
 def write_msh(path) -> Path:
     """Write the current model as MSH 4.1 text (what ``fem_impact.fem.mesh`` reads)."""
     path = Path(path)

@@ -102,7 +102,7 @@ class NodalSeries:
         """``series @ rows`` (rows: n x k, dense or sparse): L x k."""
         out = sum(coef @ np.asarray(rows.T @ basis).T for coef, basis in self.terms)
         on_rows = rows[self.on]
-        return out + self.rigid.times(on_rows.toarray() if sparse.issparse(on_rows) else np.asarray(on_rows))
+        return out + self.rigid.times(_dense(on_rows))
 
     def __array__(self, dtype=None):
         out = sum(coef @ basis.T for coef, basis in self.terms)

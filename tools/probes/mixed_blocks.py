@@ -117,7 +117,7 @@ def _slab(ctx, modes: int = 4, changes: dict | None = None) -> dict:
 _TWO = '''
 import sys
 import gmsh
-from fem_impact.fem.gmsh_utils import add_named_groups, write_msh
+from fem_impact.fem.gmsh_utils import add_named_groups, structured_quads, write_msh
 
 GAP, h = 1e-6, 0.01
 gmsh.initialize(["", "-v", "0"])
@@ -130,12 +130,7 @@ one = occ.addRectangle(0.05, 0.05 + GAP, 0.0, 0.2, 0.05)
 two = occ.addRectangle(0.35, 0.05 + GAP, 0.0, 0.2, 0.05)
 spinner = occ.addRectangle(0.26, 0.3, 0.0, 0.08, 0.04)
 occ.synchronize()
-for surface in (*slab, one, two, spinner):
-    for _, curve in gmsh.model.getBoundary([(2, surface)], oriented=False):
-        x0, y0, _, x1, y1, _ = gmsh.model.getBoundingBox(1, curve)
-        gmsh.model.mesh.setTransfiniteCurve(curve, max(1, round(max(x1 - x0, y1 - y0) / h)) + 1)
-    gmsh.model.mesh.setTransfiniteSurface(surface)
-    gmsh.model.mesh.setRecombine(2, surface)
+structured_quads((*slab, one, two, spinner), h)
 
 
 def edge(y, x0, x1):
