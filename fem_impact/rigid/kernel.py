@@ -70,13 +70,12 @@ def mixed_steps(coef, fused, loaded, damped, m, k, d, inv_S, R, Pe, Ge, We, C, o
     fe, rates0, ratesf, qv, r = np.empty(q), np.empty(q), np.empty(q), np.empty(q), np.empty(q)
     H, Wm, Wrow = np.empty((q, 3 * nb)), np.empty((q, q)), np.empty((q, q))
     cos, sin = np.empty(nb), np.empty(nb)
-    free, nu1, mid, F, hr = np.empty(3 * nb), np.empty(3 * nb), np.empty(3 * nb), np.empty(3 * nb), np.empty(3 * nb)
+    free, nu1, mid, F = np.empty(3 * nb), np.empty(3 * nb), np.empty(3 * nb), np.empty(3 * nb)
     active = np.ones(p, dtype=np.bool_)
     order, start = layout[:q], layout[q:q + p]
     half = 0.5 * h
     worst = 0.0
     for j in range(U.shape[0]):
-        identity = False   # (K V and K U by products: the modes' K is diagonal)
         for i in range(n):   # the modes' free velocity (MoreauJean.step)
             rhs[i] = _rhs(fused, loaded, damped, coef, R[j, i], R[j + 1, i], mv[i], cv[i], ku[i], kv[i])
             uh[i] = _axpy(fused, c0, v[i], u[i])   # U0 + dt (1 - theta) V0
@@ -131,7 +130,6 @@ def mixed_steps(coef, fused, loaded, damped, m, k, d, inv_S, R, Pe, Ge, We, C, o
             s = 0.0
             for a in range(q):
                 s += H[a, c] * r[a]
-            hr[c] = s
             nu1[c] = free[c] - inv_mass[c] * s
             mid[c] = 0.5 * (nu[c] + nu1[c])
         work_load = 0.0
@@ -147,7 +145,8 @@ def mixed_steps(coef, fused, loaded, damped, m, k, d, inv_S, R, Pe, Ge, We, C, o
             else:
                 work_t += r[a] * s
         # the modes take their share: V1 = V* - G r, the step's equation with it
-        take_impulses(fused, damped, identity, coef, pushed, Ge, Pe, r, vf, rhs, uh, m, k, d, u, v, mv, ku, kv, cv,
+        # (K V and K U by products, not the step equation's identity: the modes' K is diagonal)
+        take_impulses(fused, damped, False, coef, pushed, Ge, Pe, r, vf, rhs, uh, m, k, d, u, v, mv, ku, kv, cv,
                       U[j], V[j], A[j])
         CV[j] = cv
         for a in range(q):
