@@ -26,6 +26,14 @@ with rho_i = 1 / W_NN,i, over max(|r|_inf, max_i rho_i |q_i|_inf)), recomputed h
 solution; conv = the solver's own verdict. Goal: fem-impact's residual equal or better (or both
 under 1e-10) in less time than every Siconos solver. Sizes 2 4 8 take about a quarter of an hour,
 mostly Siconos' NSN_FB and ADMM at 1681 rows (dense LU and triangular solves on 5000 unknowns).
+
+Compiled loops (the small problems): a solve of a few microseconds measured from Python is the binding's
+as much as the solver's (Python's call, Numba's dispatch, SWIG's conversions, not the same on both sides).
+So each small problem is also solved in a compiled loop on both sides, from zero, the time of a call the best
+over 20 batches of many calls: fem-impact's compiled small solve (small_kernel.solve, the kernel
+FrictionProblem.solve calls on these, on the run's own rows and layout) from a Numba loop, Siconos' fc2d_driver
+from a C loop (``TIMER`` below, built with the system's C compiler against libsiconos-numerics: ``apt-get install
+-y libsiconos-numerics-dev``; without it these columns are left out, with a note).
 """
 
 from __future__ import annotations
@@ -75,6 +83,129 @@ def best_of(solve):
     return result, best
 
 
+# Siconos' solve in a C loop: argv = problem file (int32 dim, n; float64 W row-major, q, mu), solver id,
+# tolerance, iteration cap, calls per batch, batches; prints the best time of a call, info, iterations, then r.
+TIMER = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <FrictionContactProblem.h>
+#include <NumericsMatrix.h>
+#include <SolverOptions.h>
+#include <NonSmoothDrivers.h>
+
+static double now(void) { struct timespec t; clock_gettime(CLOCK_MONOTONIC, &t); return t.tv_sec + 1e-9 * t.tv_nsec; }
+
+int main(int argc, char **argv) {
+  if (argc != 7) return 2;
+  FILE *f = fopen(argv[1], "rb"); int head[2];
+  if (!f || fread(head, sizeof(int), 2, f) != 2) return 3;
+  int dim = head[0], n = head[1], nc = n / dim, info = 0;
+  double *rows = malloc(sizeof(double) * n * n), *W = malloc(sizeof(double) * n * n);
+  double *q = malloc(sizeof(double) * n), *mu = malloc(sizeof(double) * nc);
+  if (fread(rows, sizeof(double), n * n, f) != (size_t)n * n || fread(q, sizeof(double), n, f) != (size_t)n
+      || fread(mu, sizeof(double), nc, f) != (size_t)nc) return 3;
+  fclose(f);
+  for (int i = 0; i < n; i++) for (int j = 0; j < n; j++) W[i + n * j] = rows[n * i + j];   /* column-major */
+  FrictionContactProblem *problem = frictionContactProblem_new_with_data(dim, nc,
+      NM_create_from_data(NM_DENSE, n, n, W), q, mu);
+  SolverOptions *options = solver_options_create(atoi(argv[2]));
+  options->dparam[SICONOS_DPARAM_TOL] = atof(argv[3]);
+  options->iparam[SICONOS_IPARAM_MAX_ITER] = atoi(argv[4]);
+  int calls = atoi(argv[5]), batches = atoi(argv[6]);
+  double *r = calloc(n, sizeof(double)), *u = calloc(n, sizeof(double)), best = 1e300;
+  for (int b = 0; b < batches; b++) {
+    double t0 = now();
+    for (int c = 0; c < calls; c++) {   /* from zero, as fem-impact's */
+      memset(r, 0, sizeof(double) * n); memset(u, 0, sizeof(double) * n);
+      info = (dim == 2 ? fc2d_driver : fc3d_driver)(problem, r, u, options);
+    }
+    double t = (now() - t0) / calls;
+    if (t < best) best = t;
+  }
+  printf("%.6e %d %d\n", best, info, options->iparam[SICONOS_IPARAM_ITER_DONE]);
+  for (int i = 0; i < n; i++) printf("%.17e\n", r[i]);
+  return 0;
+}
+"""
+BATCHES, BATCH = 20, 2e-3   # the compiled loops: batches, and about this many seconds a batch
+
+
+def compiled_time(problem, q, active) -> float:
+    """fem-impact's compiled small solve of ``problem`` (a FrictionProblem) from zero, its time of a call in a
+    Numba loop (the best over BATCHES batches of about BATCH seconds); NaN where the problem is not small."""
+    from fem_impact.nonsmooth import small_kernel
+
+    if problem._small_numbers is None:
+        return np.nan
+    loop = _compiled_loop()
+    q, active = np.ascontiguousarray(q, dtype=float), np.asarray(active, dtype=np.bool_)
+    args = (problem.upper, q, np.zeros(0), active, problem._small_numbers, problem._small_layout,
+            problem.TOLERANCE, problem.SMALL)
+    if small_kernel.solve(*args)[-1] != small_kernel.DONE:   # (not solved whole by the kernel: no such time)
+        return np.nan
+    t0 = time.perf_counter()
+    loop(10, *args)
+    calls = max(10, int(BATCH / max((time.perf_counter() - t0) / 10, 1e-9)))
+    best = np.inf
+    for _ in range(BATCHES):
+        t0 = time.perf_counter()
+        loop(calls, *args)
+        best = min(best, (time.perf_counter() - t0) / calls)
+    return best
+
+
+_LOOP = []
+
+
+def _compiled_loop():
+    """A Numba loop of ``calls`` solves (compiled on first use)."""
+    if not _LOOP:
+        from fem_impact.compiled import njit
+        from fem_impact.nonsmooth import small_kernel
+
+        @njit
+        def loop(calls, W, q, guess, active, numbers, layout, tolerance, small):
+            total = 0.0
+            for _ in range(calls):
+                total += small_kernel.solve(W, q, guess, active, numbers, layout, tolerance, small)[-1]
+            return total
+        _LOOP.append(loop)
+    return _LOOP[0]
+
+
+def build_timer(tmp: Path) -> Path | None:
+    """TIMER compiled against Siconos' numerics library, or None (no compiler or no headers: said why)."""
+    source, binary = tmp / "timer.c", tmp / "timer"
+    source.write_text(TIMER)
+    try:
+        built = subprocess.run(["cc", "-O2", "-I/usr/include/siconos", "-I/usr/include/siconos/numerics", "-o",
+                                str(binary), str(source), "-lsiconos_numerics"], capture_output=True, text=True)
+    except OSError:
+        print("note: no C compiler (cc): the compiled loops' columns are left out")
+        return None
+    if built.returncode:
+        print("note: Siconos' C headers or library not found (as root: apt-get install -y libsiconos-numerics-dev): "
+              "the compiled loops' columns are left out")
+        return None
+    return binary
+
+
+def peer_compiled(timer: Path, W, q, mu, dim: int, solver_id: int, cap: int, tmp: Path) -> tuple:
+    """(Siconos' time of a call in a C loop, its r, info, iterations) on one problem."""
+    path = tmp / "problem.bin"
+    with open(path, "wb") as f:
+        np.array([dim, q.size], dtype=np.int32).tofile(f)
+        for a in (W, q, mu):
+            np.ascontiguousarray(a, dtype=float).tofile(f)
+    argv = [str(timer), str(path), str(solver_id), str(TOLERANCE), str(cap)]
+    once = subprocess.run(argv + ["1", "1"], capture_output=True, text=True, check=True).stdout.split()
+    calls = max(10, int(BATCH / max(float(once[0]), 1e-9)))
+    out = subprocess.run(argv + [str(calls), str(BATCHES)], capture_output=True, text=True, check=True).stdout.split()
+    return float(out[0]), np.array(out[3:], dtype=float), int(out[1]), int(out[2])
+
+
 PEER = r'''
 import json, sys, time
 import numpy as np
@@ -100,6 +231,7 @@ for j in range(int(d["count"])):
         out[f"t_{name}{j}"] = best
         out[f"r_{name}{j}"], out[f"info_{name}{j}"] = r, info
         out[f"it_{name}{j}"] = options.iparam[sn.SICONOS_IPARAM_ITER_DONE]
+        out[f"id_{name}"] = getattr(sn, prefix + name)   # (the solver's number, for the C loop)
 np.savez(sys.argv[4], **out)
 '''
 
@@ -145,6 +277,7 @@ def export(run, dim: int, steps: list[int], out: Path) -> None:
             blocks[key] = len(blocks)
             data[f"W{blocks[key]}"] = W[np.ix_(order, order)]
         zero, t_zero = best_of(lambda: solve(self, q, active, None))
+        data.setdefault("t_core", []).append(compiled_time(self, q, active) if dim == 2 else np.nan)
         data.setdefault("step", []).append(step[0])
         data.update({f"q{j}": q[order], f"mu{j}": mus[rows], f"r_warm{j}": sol.r[order], f"r_zero{j}": zero.r[order]})
         for name, value in (("w_of", blocks[key]), ("t_warm", wall), ("t_zero", t_zero),
@@ -227,14 +360,19 @@ def compare(cells, args, tmp: Path) -> list[dict]:
             mine = fem_residual(W, q, mu, d[f"r_{start}{j}"], dim)
             if abs(mine - d[f"res_{start}"][j]) > 1e-2 * mine + 1e-14:   # this formula against friction.py's own
                 print(f"note: residual formula {mine:.3e} against fem-impact's reported {d[f'res_{start}'][j]:.3e}")
+            core = float(d["t_core"][j]) if start == "zero" else np.nan   # (its compiled loop: from zero)
             rows.append(dict(cells=cells, rows=mu.size, step=int(d["step"][j]), solver=f"fem-impact {start}",
                              t=d[f"t_{start}"][j], err=siconos_error(W, q, mu, d[f"r_{start}{j}"], dim), res=mine,
-                             it=int(d[f"sw_{start}"][j]), conv=bool(d[f"conv_{start}"][j])))
+                             it=int(d[f"sw_{start}"][j]), conv=bool(d[f"conv_{start}"][j]), tc=core, res_c=mine))
         for name in solvers:
+            tc, res_c = np.nan, np.nan
+            if dim == 2 and args.timer is not None:   # (its C loop: the same solver, r again to judge it by)
+                tc, r_c, _, _ = peer_compiled(args.timer, W, q, mu, dim, int(s[f"id_{name}"]), solvers[name], tmp)
+                res_c = fem_residual(W, q, mu, r_c, dim)
             rows.append(dict(cells=cells, rows=mu.size, step=int(d["step"][j]), solver=f"Siconos {name}",
                              t=float(s[f"t_{name}{j}"]), err=siconos_error(W, q, mu, s[f"r_{name}{j}"], dim),
                              res=fem_residual(W, q, mu, s[f"r_{name}{j}"], dim), it=int(s[f"it_{name}{j}"]),
-                             conv=int(s[f"info_{name}{j}"]) == 0))
+                             conv=int(s[f"info_{name}{j}"]) == 0, tc=tc, res_c=res_c))
     return rows
 
 
@@ -270,19 +408,24 @@ def main() -> None:
     if missing:
         print("peer_friction: Siconos is not installed (as root: apt-get install -y python3-siconos)", file=sys.stderr)
         sys.exit(2)
-    header = (f"{'rows':>6}{'step':>5}  {'solver':<18}{'time ms':>10}{'Siconos error':>15}{'fem-impact res':>16}"
-              f"{'iters':>7}  conv")
+    header = (f"{'rows':>6}{'step':>5}  {'solver':<18}{'time ms':>10}{'loop us':>9}{'Siconos error':>15}"
+              f"{'fem-impact res':>16}{'iters':>7}  conv")
     print(f"mu = {args.mu} on the plates (the small scenes: their own), tolerance {TOLERANCE:g}; fem-impact warm: "
           "started from the previous step's impulses (as in the run), all others from zero; Siconos error: "
           "fc3d_compute_error's formula on each solution (siconos_error), in 2D as in 3D")
-    print(header + "\n" + "-" * len(header))
+    print("time ms: the solve called from Python (best_of); loop us: a call's time in a compiled loop, the small "
+          "problems only (fem-impact's from zero in a Numba loop, Siconos' fc2d_driver in a C loop)")
     table = []
     with tempfile.TemporaryDirectory() as tmp:
+        args.timer = build_timer(Path(tmp)) if args.small else None
+        print(header + "\n" + "-" * len(header))
         for cells in [*args.small, *args.sizes]:
             for row in compare(cells, args, Path(tmp)):
                 table.append(row)
-                print(f"{row['rows']:>6}{row['step']:>5}  {row['solver']:<18}{1e3 * row['t']:>10.4f}{row['err']:>15.2e}"
-                      f"{row['res']:>16.2e}{row['it']:>7}  {'yes' if row['conv'] else 'NO'}", flush=True)
+                loop = "-" if np.isnan(row["tc"]) else f"{1e6 * row['tc']:.3f}"
+                print(f"{row['rows']:>6}{row['step']:>5}  {row['solver']:<18}{1e3 * row['t']:>10.4f}{loop:>9}"
+                      f"{row['err']:>15.2e}{row['res']:>16.2e}{row['it']:>7}  {'yes' if row['conv'] else 'NO'}",
+                      flush=True)
     # The goal, per problem: fem-impact's residual equal or better (both under the tolerance: equal) in less time.
     problems = sorted({(r["cells"], r["step"]) for r in table}, key=str)   # (scene names and plate sizes)
     # A second count leaves out the peers' solves that did not solve the problem: their error by Siconos' own
@@ -303,6 +446,23 @@ def main() -> None:
           f"than every Siconos solve that solved the problem (its error under {SOLVED:g} x the tolerance) on "
           f"{wins['zero', 'solved']} from zero, {wins['warm', 'solved']} warm-started; its time from zero is "
           f"{min(ratios):.2f} to {max(ratios):.2f} x the fastest Siconos solver's")
+    # The same goal in the compiled loops (no binding in either time): the problems with every time measured so.
+    looped = [key for key in problems if all(not np.isnan(r["tc"]) for r in table if (r["cells"], r["step"]) == key
+                                             and r["solver"] != "fem-impact warm")]
+    if looped:
+        won = {"every": 0, "solved": 0}
+        loop_ratios = []
+        for key in looped:
+            group = {r["solver"]: r for r in table if (r["cells"], r["step"]) == key}
+            mine, peers = group["fem-impact zero"], [r for n, r in group.items() if n.startswith("Siconos")]
+            for kind in won:
+                won[kind] += all(mine["tc"] < r["tc"] and mine["res_c"] <= max(r["res_c"], TOLERANCE) for r in peers
+                                 if kind == "every" or r["err"] <= SOLVED * TOLERANCE)
+            loop_ratios.append(mine["tc"] / min(r["tc"] for r in peers))
+        print(f"summary, compiled loops: fem-impact from zero reached an equal or better residual in less time than "
+              f"every Siconos solver on {won['every']} of {len(looped)} small problems, than every Siconos solve that "
+              f"solved the problem on {won['solved']}; its time {min(loop_ratios):.2f} to {max(loop_ratios):.2f} x the "
+              "fastest Siconos solver's")
 
 
 if __name__ == "__main__":

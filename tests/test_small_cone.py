@@ -129,3 +129,53 @@ def test_the_2d_row_residual_in_scalars_is_the_cone_projections():
         p_n, p_t = project_on_cone(z_n, z_t, mu)
         expected = np.hypot(r[0] - p_n, r[1] - p_t[0])
         assert row_residual(r, y, mu, rho) == pytest.approx(expected, rel=1e-12, abs=1e-14)
+
+
+def _planar(rng, p):
+    """A 2D problem of p rows, each a normal and one tangent, in the kernel's row order (N, T per row)."""
+    A = rng.normal(size=(2 * p, 2 * p))
+    W = A @ A.T / (2 * p) + np.eye(2 * p)
+    q = rng.normal(size=2 * p)
+    q[0::2] -= 0.5
+    return W, q, rng.choice([0.0, 0.1, 0.3, 0.8], size=p)
+
+
+def test_the_active_set_method_solves_planar_problems_by_itself():
+    """In 2D the kernel's active-set method (statuses read from the natural map, each status's linear system
+    solved on its own unknowns) ends on its own where W is well conditioned: Coulomb's law holds on every row,
+    and the solution is the general solver's."""
+    rng = np.random.default_rng(21)
+    ended = 0
+    for _ in range(300):
+        p = int(rng.integers(1, 11))
+        W, q, mu = _planar(rng, p)
+        starts, sizes = np.arange(0, 2 * p, 2), np.full(p, 2)
+        rho = 1.0 / np.diag(W)[0::2]
+        r = np.zeros(2 * p)
+        work, ints = np.empty(4 * p + 4 * p * p), np.empty(3 * p, dtype=np.int64)
+        done = small_kernel._active_set(W, q, r, starts, sizes, rho, mu, FrictionProblem.TOLERANCE, work, ints)
+        if not done:   # (statuses cycling: the damped Newton method's, tested above)
+            continue
+        ended += 1
+        caller = np.r_[0:2 * p:2, 1:2 * p:2]   # (normal rows first, then the tangents)
+        W_c, q_c = W[np.ix_(caller, caller)], q[caller]
+        sol = FrictionProblem(W_c, np.arange(p), mu).solve(q_c, np.ones(p, bool))
+        general = FrictionProblem(W_c, np.arange(p), mu, newton_first=False).solve(q_c, np.ones(p, bool))
+        np.testing.assert_allclose(r[caller], general.r, rtol=0, atol=1e-8 * max(1.0, np.abs(general.r).max()))
+        np.testing.assert_allclose(sol.r, r[caller], rtol=0, atol=1e-12 * max(1.0, np.abs(r).max()))
+        assert_coulomb(W_c, np.arange(p), mu, q_c, np.ones(p, bool), sol)
+    assert ended >= 270   # (on these it cycles rarely: the fallback is not the rule)
+
+
+def test_the_active_set_method_reads_each_status():
+    """One row, W = diag(2, 1), mu = 0.5: pressed and dragged below mu |r_N| it sticks (y = 0), above it slips
+    with r_T = -+mu r_N and y_N = 0, pulled away it stays open; the exact impulses of each case."""
+    W, mu = np.diag([2.0, 1.0]), np.array([0.5])
+    for q, expected in (([-2.0, 0.3], [1.0, -0.3]),       # stick: r = -W^-1 q
+                        ([-2.0, 0.9], [1.0, -0.5]),       # slip: r_N = 1, r_T = -mu r_N
+                        ([-2.0, -0.9], [1.0, 0.5]),
+                        ([0.5, 0.9], [0.0, 0.0])):        # open
+        r = np.zeros(2)
+        done = small_kernel._active_set(W, np.array(q), r, np.array([0]), np.array([2]), np.array([0.5]), mu,
+                                        FrictionProblem.TOLERANCE, np.empty(8), np.empty(3, dtype=np.int64))
+        assert done and r == pytest.approx(expected, abs=1e-15)

@@ -10,6 +10,15 @@ the largest of 1, 1/2, ... that lowers |F|, only full steps once |F| is far belo
 friction.py's ``_newton``), then ``y = W r + q`` on every row and the certified residual
 (``cone.residual``). What it cannot finish (a Jacobian with an exact zero pivot, a residual
 above the tolerance, more unknowns than it takes) it hands back, and the general path goes on.
+
+In 2D (every row a normal and at most one tangent) the cone is a pair of half-planes, the problem piecewise
+linear: Newton's method with full steps is then an active-set method (``_active_set``). Each row's status
+(open, sticking, slipping either way) is read from the natural map at the iterate, as Newton's Jacobian reads
+it; the linear system of those statuses is solved on its own unknowns only (a slipping row's tangential
+impulse is ``+-mu`` times its normal one: one unknown; an open row's none), and the statuses are read again.
+Where they no longer change and the residual is below the tolerance, that is the solution, often after one
+or two small eliminations where Newton's damped steps on every unknown took several. Where the statuses cycle
+or a system is singular, the damped Newton method above starts over from the caller's guess.
 """
 
 from __future__ import annotations
@@ -21,6 +30,9 @@ from .cone import alart_curnier_into, residual
 
 DONE, SINGULAR, SHORT, TOO_MANY = 0, 1, 2, 3   # the outcome: solved; J singular; above the tolerance; not small
 ITERATIONS = 60   # Newton's steps at most (friction.py's _newton)
+# The active-set method's: a row's status, and its steps at most (beyond them the statuses cycle: damped Newton)
+OPEN, STICK, SLIP_UP, SLIP_DOWN = 0, 1, 2, 3   # (SLIP_UP: r_T = +mu r_N, the row sliding towards -T)
+ACTIVE_STEPS = 12
 
 
 @njit(cache=True, error_model="numpy")
@@ -120,6 +132,84 @@ def _newton(W, q, r, starts, sizes, rho, mu, tolerance, work):
 
 
 @njit(cache=True, error_model="numpy")
+def _statuses(r, y, starts, sizes, rho, mu, status):
+    """Each row's status at (r, y) by the natural map's regions (Alart and Curnier's, as ``_evaluate`` reads
+    them); returns how many changed."""
+    changed = 0
+    for b in range(starts.size):
+        k = starts[b]
+        z_n = r[k] - rho[b] * y[k]
+        if z_n <= 0.0:
+            new = OPEN
+        elif sizes[b] == 1:
+            new = STICK
+        else:
+            z_t = r[k + 1] - rho[b] * y[k + 1]
+            new = STICK if abs(z_t) <= mu[b] * z_n else (SLIP_UP if z_t > 0.0 else SLIP_DOWN)
+        changed += new != status[b]
+        status[b] = new
+    return changed
+
+
+@njit(cache=True, error_model="numpy")
+def _active_set(W, q, r, starts, sizes, rho, mu, tolerance, work, ints):
+    """The 2D problem (every row of at most two unknowns) by the active-set method (module docstring), from
+    ``r``, overwritten: True where it ends with a residual within the tolerance. ``work``: 2 m + m^2 floats,
+    ``ints``: 3 x rows (no allocation)."""
+    n, count = r.size, starts.size
+    y, x = work[:n], work[n:2 * n]
+    status, column, rows = ints[:count], ints[count:2 * count], ints[2 * count:3 * count]
+    for b in range(count):
+        rows[b], status[b] = b, -1
+    for i in range(n):
+        s = q[i]
+        for j in range(n):
+            s += W[i, j] * r[j]
+        y[i] = s
+    _statuses(r, y, starts, sizes, rho, mu, status)
+    for _ in range(ACTIVE_STEPS):
+        k = 0   # the unknowns of these statuses: a closed row's normal, a sticking 2D row's tangent
+        for b in range(count):
+            column[b] = k
+            if status[b] != OPEN:
+                k += 2 if status[b] == STICK and sizes[b] == 2 else 1
+        A = work[2 * n:2 * n + k * k].reshape((k, k))
+        for b in range(count):   # the equations: y_N = 0 on a closed row, y_T = 0 on a sticking one
+            if status[b] == OPEN:
+                continue
+            for t in range(2 if status[b] == STICK and sizes[b] == 2 else 1):
+                e, row = column[b] + t, starts[b] + t
+                x[e] = -q[row]
+                for c in range(count):
+                    if status[c] == OPEN:
+                        continue
+                    a, kc = column[c], starts[c]
+                    A[e, a] = W[row, kc]
+                    if status[c] == STICK and sizes[c] == 2:
+                        A[e, a + 1] = W[row, kc + 1]
+                    elif status[c] == SLIP_UP:
+                        A[e, a] += mu[c] * W[row, kc + 1]
+                    elif status[c] == SLIP_DOWN:
+                        A[e, a] -= mu[c] * W[row, kc + 1]
+        if not _lu_solve(A, x[:k]):
+            return False
+        for b in range(count):
+            kb, a = starts[b], column[b]
+            r[kb] = 0.0 if status[b] == OPEN else x[a]
+            if sizes[b] == 2:
+                r[kb + 1] = (0.0 if status[b] == OPEN else x[a + 1] if status[b] == STICK else
+                             mu[b] * x[a] if status[b] == SLIP_UP else -mu[b] * x[a])
+        for i in range(n):
+            s = q[i]
+            for j in range(n):
+                s += W[i, j] * r[j]
+            y[i] = s
+        if _statuses(r, y, starts, sizes, rho, mu, status) == 0:
+            return residual(r, y, q, rows, starts, sizes, mu, rho)[0] <= tolerance
+    return False
+
+
+@njit(cache=True, error_model="numpy")
 def solve(W, q, guess, active, numbers, layout, tolerance, small):
     """The small path of ``FrictionProblem.solve`` whole. ``W``: every unknown in row order (n x n, float64);
     ``q``, ``guess`` (empty: none): the caller's order, normal rows first, then the tangent rows; ``active``:
@@ -143,9 +233,9 @@ def solve(W, q, guess, active, numbers, layout, tolerance, small):
     if m > small:
         out[2 * n + 2] = TOO_MANY
         return out
-    ints = np.empty(3 * count + m, dtype=np.int64)
+    ints = np.empty(6 * count + m, dtype=np.int64)
     rows, starts, block_sizes, idx = ints[:count], ints[count:2 * count], ints[2 * count:3 * count], ints[3 * count:]
-    work = np.empty(2 * count + 3 * m * m + 3 * n + 7 * m + 6)
+    work = np.empty(2 * count + 3 * m * m + 3 * n + 8 * m + 6)
     rho_b, mu_b, W_b = work[:count], work[count:2 * count], work[2 * count:2 * count + m * m].reshape((m, m))
     at = 2 * count + m * m
     q_row, r_row, y_row, r_b = work[at:at + n], work[at + n:at + 2 * n], work[at + 2 * n:at + 3 * n], \
@@ -169,7 +259,19 @@ def solve(W, q, guess, active, numbers, layout, tolerance, small):
     newton_work = newton_work[m:]
     for a in range(m):
         q_b[a] = q_row[idx[a]]
-    r_b, found = _newton(W_b, q_b, r_b, starts, block_sizes, rho_b, mu_b, tolerance, newton_work)
+    planar = True
+    for b in range(count):
+        planar = planar and block_sizes[b] <= 2
+    found = False
+    if planar:   # (2D: the active-set method first, on a copy of the guess: Newton's start where it fails)
+        r_a = newton_work[:m]
+        r_a[:] = r_b
+        if _active_set(W_b, q_b, r_a, starts, block_sizes, rho_b, mu_b, tolerance, newton_work[m:],
+                       ints[3 * count + m:]):
+            r_b[:] = r_a
+            found = True
+    if not found:
+        r_b, found = _newton(W_b, q_b, r_b, starts, block_sizes, rho_b, mu_b, tolerance, newton_work[m:])
     if not found:
         out[2 * n + 2] = SINGULAR
         return out
