@@ -164,6 +164,26 @@ def test_the_cone_projection_and_the_row_solver_agree_with_the_law():
     assert np.linalg.norm(r_t) == pytest.approx(0.5 * r_n)
 
 
+def test_the_sweeps_row_solve_into_reused_buffers_is_the_row_solvers():
+    """The sweeps solve each row into buffers reused from row to row (cone.solve_row_into): whatever an earlier
+    row left in them, the answer is solve_row's, to the bit, on open, sticking and slipping rows in 2D and 3D."""
+    from fem_impact.nonsmooth import cone
+
+    rng = np.random.default_rng(8)
+    r, scratch = {2: np.empty(2), 3: np.empty(3)}, {2: np.empty(4), 3: np.empty(6)}
+    kinds = set()
+    for _ in range(300):
+        dim = int(rng.integers(2, 4))
+        A = rng.normal(size=(dim, dim))
+        W = A @ A.T + dim * np.eye(dim)
+        q, mu, start = rng.normal(size=dim), float(rng.uniform(0.0, 1.5)), rng.normal(size=dim)
+        cone.solve_row_into(W, q, mu, start, r[dim], scratch[dim])
+        expected = solve_row(W, q, mu, start)
+        assert np.array_equal(r[dim], expected)
+        kinds.add("open" if not expected[0] else "stick" if np.linalg.norm(W @ expected + q) < 1e-12 else "slip")
+    assert kinds == {"open", "stick", "slip"}
+
+
 def test_the_float32_sweeps_end_on_the_same_certified_solution(monkeypatch):
     """Many rows: the sweeps run on a float32 copy of W, y = W r + q is made exact between rounds and
     the residual is judged on it. The solution is the float64 sweeps' to the tolerance."""

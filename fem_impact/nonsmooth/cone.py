@@ -82,28 +82,30 @@ def _row_residual_at(r, y, s, k, mu, rho, z_t, p_t):
 
 
 @njit(cache=True)
-def _slip(W, q, mu, tau, out):
-    """The slip law along the unit direction ``tau`` of the tangential velocity: the normal
-    impulse closing the row, ``r_T = -mu r_N tau``. Writes the row into ``out``; returns the
-    tangential velocity's component along tau (negative or NaN: not a candidate)."""
+def _slip(W, q, mu, tau0, tau1, out):
+    """The slip law along the unit direction ``tau = (tau0, tau1)`` of the tangential velocity (2D:
+    tau0 alone): the normal impulse closing the row, ``r_T = -mu r_N tau``. Writes the row into
+    ``out``; returns the tangential velocity's component along tau (negative or NaN: not a candidate).
+    (The direction in scalars: the sweeps call this for every slipping row, without allocation.)"""
     k = q.size - 1
-    denominator = W[0, 0]
-    for a in range(k):
-        denominator -= mu * W[0, 1 + a] * tau[a]
+    denominator = W[0, 0] - mu * W[0, 1] * tau0
+    if k == 2:
+        denominator -= mu * W[0, 2] * tau1
     if denominator <= 0.0:
         return np.nan
     r_n = -q[0] / denominator
     if r_n < 0.0:
         return np.nan
     out[0] = r_n
-    for a in range(k):
-        out[1 + a] = -mu * r_n * tau[a]
+    out[1] = -mu * r_n * tau0
+    if k == 2:
+        out[2] = -mu * r_n * tau1
     along = 0.0
     for a in range(k):
         y_t = q[1 + a]
         for b in range(k + 1):
             y_t += W[1 + a, b] * out[b]
-        along += y_t * tau[a]
+        along += y_t * (tau0 if a == 0 else tau1)
     return along
 
 
@@ -141,28 +143,34 @@ def _solve_small(W, q):
     """``W^-1 q`` for a 2 x 2 or 3 x 3 W (explicitly: no LAPACK call and no copy in the sweeps); NaN
     where W is singular (no stick candidate: the row's other candidates decide)."""
     x = np.empty(q.size)
+    _solve_small_into(W, q, x)
+    return x
+
+
+@njit(cache=True)
+def _solve_small_into(W, q, x):
+    """``_solve_small`` written into ``x``."""
     if q.size == 2:
         det = W[0, 0] * W[1, 1] - W[0, 1] * W[1, 0]
         if det == 0.0:
             x[:] = np.nan
-            return x
+            return
         x[0] = (W[1, 1] * q[0] - W[0, 1] * q[1]) / det
         x[1] = (W[0, 0] * q[1] - W[1, 0] * q[0]) / det
-        return x
+        return
     c00 = W[1, 1] * W[2, 2] - W[1, 2] * W[2, 1]
     c01 = W[1, 2] * W[2, 0] - W[1, 0] * W[2, 2]
     c02 = W[1, 0] * W[2, 1] - W[1, 1] * W[2, 0]
     det = W[0, 0] * c00 + W[0, 1] * c01 + W[0, 2] * c02
     if det == 0.0:
         x[:] = np.nan
-        return x
+        return
     x[0] = (c00 * q[0] + (W[0, 2] * W[2, 1] - W[0, 1] * W[2, 2]) * q[1]
             + (W[0, 1] * W[1, 2] - W[0, 2] * W[1, 1]) * q[2]) / det
     x[1] = (c01 * q[0] + (W[0, 0] * W[2, 2] - W[0, 2] * W[2, 0]) * q[1]
             + (W[0, 2] * W[1, 0] - W[0, 0] * W[1, 2]) * q[2]) / det
     x[2] = (c02 * q[0] + (W[0, 1] * W[2, 0] - W[0, 0] * W[2, 1]) * q[1]
             + (W[0, 0] * W[1, 1] - W[0, 1] * W[1, 0]) * q[2]) / det
-    return x
 
 
 @njit(cache=True)
@@ -177,7 +185,6 @@ def _slip_newton(W, q, mu, phi, out):
     A3 = mu * (q_n * W[1, 2] - b0 * q2)
     A4 = mu * (b1 * q1 - q_n * W[1, 2])
     A5 = mu * (b0 * q1 - b1 * q2 + q_n * (W[2, 2] - W[1, 1]))
-    tau = np.empty(2)
     for _ in range(30):
         C, S = np.cos(phi), np.sin(phi)
         F = A1 * C + A2 * S + A3 * C * C + A4 * S * S + A5 * S * C
@@ -190,15 +197,15 @@ def _slip_newton(W, q, mu, phi, out):
             break
     else:
         return False
-    tau[0], tau[1] = np.cos(phi), np.sin(phi)
-    along = _slip(W, q, mu, tau, out)
+    tau0, tau1 = np.cos(phi), np.sin(phi)
+    along = _slip(W, q, mu, tau0, tau1, out)
     if not along >= 0.0:
         return False
     # A slip solution when y_T is parallel to tau (y_N = 0 and r on the cone by construction): its
     # natural-map residual is then rho |y_T x tau|, asked at round-off of the row's data.
     y1 = q[1] + W[1, 0] * out[0] + W[1, 1] * out[1] + W[1, 2] * out[2]
     y2 = q[2] + W[2, 0] * out[0] + W[2, 1] * out[1] + W[2, 2] * out[2]
-    return abs(y1 * tau[1] - y2 * tau[0]) / a <= 1e-13 * max(abs(out[0]), abs(q[0]) / a)
+    return abs(y1 * tau1 - y2 * tau0) / a <= 1e-13 * max(abs(out[0]), abs(q[0]) / a)
 
 
 @njit(cache=True)
@@ -236,17 +243,34 @@ def solve_row(W, q, mu, start=None):
     roots of a quartic in tan(phi / 2), phi the direction's angle): the candidate with the
     smallest residual.
     """
+    r = np.empty(q.size)
+    solve_row_into(W, q, mu, start, r, np.empty(2 * q.size))
+    return r
+
+
+@njit(cache=True)
+def solve_row_into(W, q, mu, start, r, scratch):
+    """``solve_row`` written into ``r``, with ``scratch`` (twice the row's size): without allocation where the
+    row is open, sticks, slips in 2D, or slips in 3D along the direction Newton's method finds from ``start``
+    (the sweeps' every row); the quartic's roots only where that fails."""
     n = q.size
-    r = np.zeros(n)
+    r[:] = 0.0
     if q[0] >= 0.0:
-        return r
+        return
     if n == 1 or mu == 0.0:
         r[0] = -q[0] / W[0, 0]
-        return r
-    stick = -_solve_small(W, q)
-    norm_t = np.sqrt(np.sum(stick[1:] ** 2))
+        return
+    stick, y = scratch[:n], scratch[n:2 * n]
+    _solve_small_into(W, q, stick)
+    norm_t = 0.0
+    for a in range(n):
+        stick[a] = -stick[a]
+        if a:
+            norm_t += stick[a] * stick[a]
+    norm_t = np.sqrt(norm_t)
     if stick[0] >= 0.0 and norm_t <= mu * stick[0] * (1.0 + 1e-14):
-        return stick
+        r[:] = stick
+        return
     rho = 1.0 / W[0, 0]
     if n == 3:   # Newton's method on the direction's angle from the row's current one (a sweep's usual case)
         if start is not None and start[1] ** 2 + start[2] ** 2 > 0.0:
@@ -254,25 +278,42 @@ def solve_row(W, q, mu, start=None):
         else:
             phi = np.arctan2(-stick[2], -stick[1])
         if _slip_newton(W, q, mu, phi, r):
-            return r
-    best_res = np.inf
-    candidate, tau = np.empty(n), np.empty(n - 1)
-    if n == 2:
-        taus = np.array([[1.0], [-1.0]])
+            return
+        r[:] = 0.0
+    start_n, candidate = stick[0], stick   # (the stick candidate is spent: its buffer takes the slip ones)
+    best = np.inf
+    if n == 2:   # (the two directions, tau = +-1)
+        for i in range(2):
+            best = _slip_candidate(W, q, mu, 1.0 - 2.0 * i, 0.0, rho, candidate, y, r, best)
     else:
         taus = _directions(W, q, mu)
-    for i in range(taus.shape[0]):
-        tau[:] = taus[i]
-        along = _slip(W, q, mu, tau, candidate)
-        if not along >= 0.0:
-            continue
-        res = row_residual(candidate, W.dot(candidate) + q, mu, rho)
-        if res < best_res:
-            best_res = res
-            r[:] = candidate
-    if best_res == np.inf:
-        return _projected_row(W, q, mu, stick[0])
-    return r
+        for i in range(taus.shape[0]):
+            best = _slip_candidate(W, q, mu, taus[i, 0], taus[i, 1], rho, candidate, y, r, best)
+    if best == np.inf:
+        r[:] = _projected_row(W, q, mu, start_n)
+
+
+@njit(cache=True)
+def _slip_candidate(W, q, mu, tau0, tau1, rho, candidate, y, r, best):
+    """The slip law along tau into ``candidate``; copied into ``r`` where it is one with a residual below
+    ``best``: returns the best residual so far."""
+    along = _slip(W, q, mu, tau0, tau1, candidate)
+    if not along >= 0.0:
+        return best
+    n = q.size
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += W[i, j] * candidate[j]
+        y[i] = s + q[i]
+    z_t = p_t = candidate[:0]   # (a 2D row's residual takes scalars; a 3D row's, the quartic's rare path, scratch)
+    if n == 3:
+        z_t, p_t = np.empty(2), np.empty(2)
+    res = _row_residual_at(candidate, y, 0, n, mu, rho, z_t, p_t)
+    if res < best:
+        r[:] = candidate
+        return res
+    return best
 
 
 @njit(cache=True)
@@ -360,6 +401,8 @@ def gauss_seidel(W, q, r, y, rows, start, sizes, mu, rho, tolerance, sweeps, lay
     W_row = [np.empty((k, k)) for k in range(ROW + 1)]
     q_row = [np.empty(k) for k in range(ROW + 1)]
     r_row = [np.empty(k) for k in range(ROW + 1)]
+    new_row = [np.empty(k) for k in range(ROW + 1)]
+    scratch_row = [np.empty(2 * k) for k in range(ROW + 1)]
     res, worst = np.inf, -1
     done = 0
     for sweep in range(1, sweeps + 1):
@@ -381,7 +424,8 @@ def gauss_seidel(W, q, r, y, rows, start, sizes, mu, rho, tolerance, sweeps, lay
                             value -= W_b[o + a, o + b] * r_b[o + b]
                         q_i[a] = value
                         r_i[a] = r_b[o + a]
-                    new = solve_row(W_i, q_i, mu[i], r_i)
+                    new = new_row[k]
+                    solve_row_into(W_i, q_i, mu[i], r_i, new, scratch_row[k])
                     for a in range(k):
                         change = new[a] - r_b[o + a]
                         if change != 0.0:
