@@ -142,8 +142,8 @@ def _planar(rng, p):
 
 def test_the_active_set_method_solves_planar_problems_by_itself():
     """In 2D the kernel's active-set method (statuses read from the natural map, each status's linear system
-    solved on its own unknowns) ends on its own where W is well conditioned: Coulomb's law holds on every row,
-    and the solution is the general solver's."""
+    solved on its own unknowns) settles on its own where W is well conditioned, and where it settles Coulomb's
+    law holds on every row and the solution is the general solver's."""
     rng = np.random.default_rng(21)
     ended = 0
     for _ in range(300):
@@ -152,8 +152,8 @@ def test_the_active_set_method_solves_planar_problems_by_itself():
         starts, sizes = np.arange(0, 2 * p, 2), np.full(p, 2)
         rho = 1.0 / np.diag(W)[0::2]
         r = np.zeros(2 * p)
-        work, ints = np.empty(4 * p + 4 * p * p), np.empty(3 * p, dtype=np.int64)
-        done = small_kernel._active_set(W, q, r, starts, sizes, rho, mu, FrictionProblem.TOLERANCE, work, ints)
+        work, ints = np.empty(4 * p + 4 * p * p), np.empty(2 * p, dtype=np.int64)
+        done = small_kernel._active_set(W, q, r, starts, sizes, rho, mu, work, ints)
         if not done:   # (statuses cycling: the damped Newton method's, tested above)
             continue
         ended += 1
@@ -177,5 +177,5 @@ def test_the_active_set_method_reads_each_status():
                         ([0.5, 0.9], [0.0, 0.0])):        # open
         r = np.zeros(2)
         done = small_kernel._active_set(W, np.array(q), r, np.array([0]), np.array([2]), np.array([0.5]), mu,
-                                        FrictionProblem.TOLERANCE, np.empty(8), np.empty(3, dtype=np.int64))
+                                        np.empty(8), np.empty(2, dtype=np.int64))
         assert done and r == pytest.approx(expected, abs=1e-15)

@@ -152,15 +152,15 @@ def _statuses(r, y, starts, sizes, rho, mu, status):
 
 
 @njit(cache=True, error_model="numpy")
-def _active_set(W, q, r, starts, sizes, rho, mu, tolerance, work, ints):
+def _active_set(W, q, r, starts, sizes, rho, mu, work, ints):
     """The 2D problem (every row of at most two unknowns) by the active-set method (module docstring), from
-    ``r``, overwritten: True where it ends with a residual within the tolerance. ``work``: 2 m + m^2 floats,
-    ``ints``: 3 x rows (no allocation)."""
+    ``r``, overwritten: True where the statuses settle (the caller's residual then certifies ``r``).
+    ``work``: 2 m + m^2 floats, ``ints``: 2 x rows (no allocation)."""
     n, count = r.size, starts.size
     y, x = work[:n], work[n:2 * n]
-    status, column, rows = ints[:count], ints[count:2 * count], ints[2 * count:3 * count]
+    status, column = ints[:count], ints[count:2 * count]
     for b in range(count):
-        rows[b], status[b] = b, -1
+        status[b] = -1
     for i in range(n):
         s = q[i]
         for j in range(n):
@@ -205,7 +205,7 @@ def _active_set(W, q, r, starts, sizes, rho, mu, tolerance, work, ints):
                 s += W[i, j] * r[j]
             y[i] = s
         if _statuses(r, y, starts, sizes, rho, mu, status) == 0:
-            return residual(r, y, q, rows, starts, sizes, mu, rho)[0] <= tolerance
+            return True
     return False
 
 
@@ -233,7 +233,7 @@ def solve(W, q, guess, active, numbers, layout, tolerance, small):
     if m > small:
         out[2 * n + 2] = TOO_MANY
         return out
-    ints = np.empty(6 * count + m, dtype=np.int64)
+    ints = np.empty(5 * count + m, dtype=np.int64)
     rows, starts, block_sizes, idx = ints[:count], ints[count:2 * count], ints[2 * count:3 * count], ints[3 * count:]
     work = np.empty(2 * count + 3 * m * m + 3 * n + 8 * m + 6)
     rho_b, mu_b, W_b = work[:count], work[count:2 * count], work[2 * count:2 * count + m * m].reshape((m, m))
@@ -262,22 +262,32 @@ def solve(W, q, guess, active, numbers, layout, tolerance, small):
     planar = True
     for b in range(count):
         planar = planar and block_sizes[b] <= 2
-    found = False
     if planar:   # (2D: the active-set method first, on a copy of the guess: Newton's start where it fails)
         r_a = newton_work[:m]
         r_a[:] = r_b
-        if _active_set(W_b, q_b, r_a, starts, block_sizes, rho_b, mu_b, tolerance, newton_work[m:],
-                       ints[3 * count + m:]):
-            r_b[:] = r_a
-            found = True
+        if _active_set(W_b, q_b, r_a, starts, block_sizes, rho_b, mu_b, newton_work[m:], ints[3 * count + m:]):
+            if _finish(W, q_row, r_a, idx, order, rows, start, sizes, mu, rho, r_row, y_row, out) <= tolerance:
+                out[2 * n + 2] = DONE
+                return out
+    r_b, found = _newton(W_b, q_b, r_b, starts, block_sizes, rho_b, mu_b, tolerance, newton_work[m:])
     if not found:
-        r_b, found = _newton(W_b, q_b, r_b, starts, block_sizes, rho_b, mu_b, tolerance, newton_work[m:])
-    if not found:
+        out[:] = 0.0
         out[2 * n + 2] = SINGULAR
         return out
+    res = _finish(W, q_row, r_b, idx, order, rows, start, sizes, mu, rho, r_row, y_row, out)
+    out[2 * n + 2] = DONE if res <= tolerance else SHORT
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _finish(W, q_row, r_b, idx, order, rows, start, sizes, mu, rho, r_row, y_row, out):
+    """The closed rows' ``r_b`` spread to every row, ``y = W r + q`` on every row (an open row shows where it
+    would go), both in the caller's order into ``out`` with the residual and the worst row; returns the
+    residual."""
+    n = q_row.size
     r_row[:] = 0.0
-    y_row[:] = q_row   # y = W r + q on every row (an open row shows where it would go)
-    for a in range(m):
+    y_row[:] = q_row
+    for a in range(r_b.size):
         c = idx[a]
         r_row[c] = r_b[a]
         if r_b[a] != 0.0:
@@ -286,5 +296,5 @@ def solve(W, q, guess, active, numbers, layout, tolerance, small):
     res, worst = residual(r_row, y_row, q_row, rows, start, sizes, mu, rho)
     for j in range(n):
         out[order[j]], out[n + order[j]] = r_row[j], y_row[j]
-    out[2 * n], out[2 * n + 1], out[2 * n + 2] = res, worst, (DONE if res <= tolerance else SHORT)
-    return out
+    out[2 * n], out[2 * n + 1] = res, worst
+    return res
