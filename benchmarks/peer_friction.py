@@ -200,9 +200,15 @@ def peer_compiled(timer: Path, W, q, mu, dim: int, solver_id: int, cap: int, tmp
         for a in (W, q, mu):
             np.ascontiguousarray(a, dtype=float).tofile(f)
     argv = [str(timer), str(path), str(solver_id), str(TOLERANCE), str(cap)]
-    once = subprocess.run(argv + ["1", "1"], capture_output=True, text=True, check=True).stdout.split()
-    calls = max(10, int(BATCH / max(float(once[0]), 1e-9)))
-    out = subprocess.run(argv + [str(calls), str(BATCHES)], capture_output=True, text=True, check=True).stdout.split()
+
+    def timed(calls: int, batches: int) -> list[str]:
+        proc = subprocess.run(argv + [str(calls), str(batches)], capture_output=True, text=True)
+        if proc.returncode:
+            sys.exit(f"peer_friction: Siconos' C loop failed (status {proc.returncode}) on solver {solver_id}:\n"
+                     f"{proc.stderr[-3000:]}")
+        return proc.stdout.split()
+    calls = max(10, int(BATCH / max(float(timed(1, 1)[0]), 1e-9)))
+    out = timed(calls, BATCHES)
     return float(out[0]), np.array(out[3:], dtype=float), int(out[1]), int(out[2])
 
 
