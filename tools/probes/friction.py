@@ -408,6 +408,49 @@ probe("friction", "sliding_block, mu 0.3: slides v0^2 / (2 mu g) and stops (the 
     lambda ctx: _checked(_run(ctx, BLOCK), _slides("bar.px", 2.0, 0.3)))
 
 
+# -- the small 2D problem's statuses switching (the compiled active-set method, then damped Newton) ----------
+def _dragged(ratio, mu=0.3, reverse=None):
+    """sliding_block from rest, dragged along x by ``ratio`` mu g (with ``reverse``: times cos(pi t / (2
+    reverse)), turning round at that time). Set down at rest without its weight's strain, the block rings on
+    its floor, and its rows stick and slip in turn (a deformable block: some stick while others slide), so no
+    closed-form travel: judged by Coulomb's law on the floor's totals at every output, ``|F_x| <= mu S_N / dt``,
+    the guarantees, and the drag's direction (above mu g the block goes with it; reversed, it comes back)."""
+    def body(ctx):
+        drag = f"{ratio * mu * G!r}" + ("" if reverse is None else f" * cos(pi * t / {2.0 * reverse!r})")
+        case = yaml.safe_load(BLOCK.read_text())
+        case["initial"]["velocity"] = [0.0, 0.0]
+        case["loads"].append({"body": "all", "acceleration": [drag, 0.0]})
+        case["contacts"][0]["friction"] = mu
+        case["solver"]["t_end"] = 0.3 if reverse is None else 3.0 * reverse   # (the drag's most negative at 2)
+        result = _run(ctx, _write(ctx, case))
+
+        def judge(h, s):
+            # (the friction columns are the step's whole tangential impulse over dt: the cone is that of the
+            # whole normal impulse, S_N / dt, which at the position level differs from the force column)
+            normal = h["floor.impulse"] / case["solver"]["dt"]
+            excess = np.abs(h["floor.tx"]) - mu * normal
+            if excess.max() > 1e-9 * max(mu * np.abs(normal).max(), 1e-300):
+                return wrong(f"|F_x| exceeds mu S_N / dt on the floor by {excess.max():.3g} N")
+            v, t = h["bar.px"] / s["body_mass"]["bar"], h["t"]
+            if reverse is None and ratio > 1.0 and not v[-1] > 0.0:
+                return wrong(f"dragged at {ratio} mu g it ends at {v[-1]:.3g} m/s")
+            if reverse is not None and not (v[t <= reverse].max() > 0.0 > v[t > reverse].min()):
+                return wrong(f"the drag turned round at {reverse} s, the block did not follow: v at most "
+                             f"{v[t <= reverse].max():.3g}, then at least {v[t > reverse].min():.3g} m/s")
+            return None
+        return _checked(result, judge)
+    return body
+
+
+for _ratio in (0.5, 0.999, 1.001, 2.0):
+    probe("friction", f"sliding_block from rest dragged at {_ratio:g} mu g: Coulomb's law on the floor's totals")(
+        _dragged(_ratio))
+probe("friction", "sliding_block dragged at 2 mu g turning round at 0.15 s: the block comes back")(
+    _dragged(2.0, reverse=0.15))
+probe("friction", "sliding_block dragged at 1.5 mu g with mu 5: Coulomb's law on the floor's totals")(
+    _dragged(1.5, mu=5.0))
+
+
 # -- every method -------------------------------------------------------------------------------
 REFUSED = [
     (("solver.method=newmark",), ("contacts[0].friction", "solver.method newmark", "use solver.method: moreau_jean")),
