@@ -241,8 +241,9 @@ class FrictionProblem:
         ``y = W r + q`` on every row (a row that is not active may show where it would go)."""
         newton_done = False
         if self._small_numbers is not None:
-            # A small problem solved whole in one compiled call (small_kernel.py: Newton's method from the
-            # warm start); what it does not finish goes on below, from Newton's best where it has one.
+            # A small problem solved whole in one compiled call (small_kernel.py: in 2D the active-set method,
+            # then Newton's method, from the warm start); what it does not finish goes on below, from Newton's
+            # best where it has one.
             q, active = np.ascontiguousarray(q, dtype=float), np.asarray(active, dtype=np.bool_)
             guess = None if guess is None else np.ascontiguousarray(guess, dtype=float)
             n = q.size
