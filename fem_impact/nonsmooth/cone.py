@@ -139,17 +139,9 @@ def _directions(W, q, mu):
 
 
 @njit(cache=True)
-def _solve_small(W, q):
-    """``W^-1 q`` for a 2 x 2 or 3 x 3 W (explicitly: no LAPACK call and no copy in the sweeps); NaN
-    where W is singular (no stick candidate: the row's other candidates decide)."""
-    x = np.empty(q.size)
-    _solve_small_into(W, q, x)
-    return x
-
-
-@njit(cache=True)
 def _solve_small_into(W, q, x):
-    """``_solve_small`` written into ``x``."""
+    """``W^-1 q`` into ``x`` for a 2 x 2 or 3 x 3 W (explicitly: no LAPACK call and no allocation in the
+    sweeps); NaN where W is singular (no stick candidate: the row's other candidates decide)."""
     if q.size == 2:
         det = W[0, 0] * W[1, 1] - W[0, 1] * W[1, 0]
         if det == 0.0:

@@ -16,8 +16,8 @@ linear: Newton's method with full steps is then an active-set method (``_active_
 (open, sticking, slipping either way) is read from the natural map at the iterate, as Newton's Jacobian reads
 it; the linear system of those statuses is solved on its own unknowns only (a slipping row's tangential
 impulse is ``+-mu`` times its normal one: one unknown; an open row's none), and the statuses are read again.
-Where they no longer change and the residual is below the tolerance, that is the solution, often after one
-or two small eliminations where Newton's damped steps on every unknown took several. Where the statuses cycle
+Where they no longer change and the residual is below the tolerance, that is the solution, often after a
+few small eliminations where Newton's damped steps on every unknown took more. Where the statuses cycle
 or a system is singular, the damped Newton method above starts over from the caller's guess.
 """
 
@@ -67,14 +67,22 @@ def _lu_solve(A, b):
 
 
 @njit(cache=True, error_model="numpy")
-def _evaluate(W, q, r, starts, sizes, rho, mu, y, F, J, scratch):
-    """Alart and Curnier's F and J at r into the buffers (y = W r + q by loops: a small W); returns |F|^2."""
+def _velocities(W, q, r, y):
+    """``y = W r + q`` by loops (a small W: Numba's @ calls out), each entry summed from q[i] on."""
     n = r.size
     for i in range(n):
         s = q[i]
         for j in range(n):
             s += W[i, j] * r[j]
         y[i] = s
+
+
+@njit(cache=True, error_model="numpy")
+def _evaluate(W, q, r, starts, sizes, rho, mu, y, F, J, scratch):
+    """Alart and Curnier's F and J at r into the buffers (y = W r + q by loops: a small W); returns |F|^2."""
+    n = r.size
+    _velocities(W, q, r, y)
+    for i in range(n):
         for j in range(n):
             J[i, j] = 0.0
     alart_curnier_into(W, y, r, starts, sizes, rho, mu, F, J, True, scratch)
@@ -152,6 +160,12 @@ def _statuses(r, y, starts, sizes, rho, mu, status):
 
 
 @njit(cache=True, error_model="numpy")
+def _unknowns(status, size):
+    """A row's unknowns (and equations) under its status: none open, two sticking in 2D, else its normal."""
+    return 0 if status == OPEN else 2 if status == STICK and size == 2 else 1
+
+
+@njit(cache=True, error_model="numpy")
 def _active_set(W, q, r, starts, sizes, rho, mu, work, ints):
     """The 2D problem (every row of at most two unknowns) by the active-set method (module docstring), from
     ``r``, overwritten: True where the statuses settle (the caller's residual then certifies ``r``).
@@ -161,23 +175,16 @@ def _active_set(W, q, r, starts, sizes, rho, mu, work, ints):
     status, column = ints[:count], ints[count:2 * count]
     for b in range(count):
         status[b] = -1
-    for i in range(n):
-        s = q[i]
-        for j in range(n):
-            s += W[i, j] * r[j]
-        y[i] = s
+    _velocities(W, q, r, y)
     _statuses(r, y, starts, sizes, rho, mu, status)
     for _ in range(ACTIVE_STEPS):
         k = 0   # the unknowns of these statuses: a closed row's normal, a sticking 2D row's tangent
         for b in range(count):
             column[b] = k
-            if status[b] != OPEN:
-                k += 2 if status[b] == STICK and sizes[b] == 2 else 1
+            k += _unknowns(status[b], sizes[b])
         A = work[2 * n:2 * n + k * k].reshape((k, k))
         for b in range(count):   # the equations: y_N = 0 on a closed row, y_T = 0 on a sticking one
-            if status[b] == OPEN:
-                continue
-            for t in range(2 if status[b] == STICK and sizes[b] == 2 else 1):
+            for t in range(_unknowns(status[b], sizes[b])):
                 e, row = column[b] + t, starts[b] + t
                 x[e] = -q[row]
                 for c in range(count):
@@ -199,11 +206,7 @@ def _active_set(W, q, r, starts, sizes, rho, mu, work, ints):
             if sizes[b] == 2:
                 r[kb + 1] = (0.0 if status[b] == OPEN else x[a + 1] if status[b] == STICK else
                              mu[b] * x[a] if status[b] == SLIP_UP else -mu[b] * x[a])
-        for i in range(n):
-            s = q[i]
-            for j in range(n):
-                s += W[i, j] * r[j]
-            y[i] = s
+        _velocities(W, q, r, y)
         if _statuses(r, y, starts, sizes, rho, mu, status) == 0:
             return True
     return False
