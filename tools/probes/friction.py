@@ -421,7 +421,7 @@ def _dragged(ratio, mu=0.3, reverse=None):
         case["initial"]["velocity"] = [0.0, 0.0]
         case["loads"].append({"body": "all", "acceleration": [drag, 0.0]})
         case["contacts"][0]["friction"] = mu
-        case["solver"]["t_end"] = 0.3 if reverse is None else 3.0 * reverse   # (the drag's most negative at 2)
+        case["solver"]["t_end"] = 0.3 if reverse is None else 3.0 * reverse   # (the drag most negative at 2 reverse)
         result = _run(ctx, _write(ctx, case))
 
         def judge(h, s):
