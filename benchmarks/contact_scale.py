@@ -16,7 +16,7 @@ Targets (issues 10 and 21): at 1681 and at 6561 rows a step costs at most 2x, th
 3x the one-row plate's; 6561 rows runs within 24 GiB.
 
     python benchmarks/contact_scale.py [--sizes 2 4 8 16] [--steps 12] [--courant 0.5] [--quick]
-    python benchmarks/contact_scale.py --friction 0.3 --sizes 8 [--courant 50]
+    python benchmarks/contact_scale.py --friction 0.3 --sizes 8 [--courant 50] [--method velocity]
 """
 
 from __future__ import annotations
@@ -143,13 +143,15 @@ def friction_table(args) -> None:
     """Per size, every face node a row: the contact step with friction against the frictionless one."""
     header = (f"{'rows':>6}{'unknowns':>9}{'no friction ms':>15}{'friction ms':>12}{'ratio':>7}{'1st ms':>9}"
               f"{'sweeps':>7}{'newton':>7}{'residual':>10}{'peak MiB':>9}")
-    print(f"method: moreau_jean, mu = {args.friction}, the plate sliding at (0.5, 0.3) as it lands, "
+    if args.method == "newmark":
+        sys.exit("contact_scale: --friction takes moreau_jean (either level: --method moreau_jean or velocity)")
+    print(f"method: {args.method}, mu = {args.friction}, the plate sliding at (0.5, 0.3) as it lands, "
           f"Courant {args.courant:g}")
     print(header)
     print("-" * len(header))
     for cells in ([2] if args.quick else args.sizes):
-        plain = run_child(cells, "each", args.steps, "moreau_jean", courant=args.courant)
-        rough = run_child(cells, "each", args.steps, "moreau_jean", args.friction, args.courant)
+        plain = run_child(cells, "each", args.steps, args.method, courant=args.courant)
+        rough = run_child(cells, "each", args.steps, args.method, args.friction, args.courant)
         print(f"{rough['rows']:>6}{rough['dofs']:>9}{plain['step_ms']:>15.1f}{rough['step_ms']:>12.1f}"
               f"{rough['step_ms'] / plain['step_ms']:>7.2f}{rough['first_contact_ms']:>9.1f}{rough['sweeps']:>7}"
               f"{rough['newton']:>7}{rough['residual']:>10.1e}{rough['peak_MiB']:>9.0f}", flush=True)

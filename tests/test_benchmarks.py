@@ -18,6 +18,22 @@ def test_contact_scale_runs_at_its_smallest_size():
     assert [r[:2] for r in rows] == [["1", "mean"], ["121", "each"]]
 
 
+def test_contact_scale_with_friction_at_the_velocity_level_runs_at_its_smallest_size():
+    """--friction with --method velocity: the frictional and the frictionless step at that level, the cone
+    problems within the tolerance; newmark has no frictional step and is refused in one line."""
+    script = str(ROOT / "benchmarks" / "contact_scale.py")
+    proc = subprocess.run([sys.executable, script, "--friction", "0.3", "--quick", "--method", "velocity"],
+                          capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("method: velocity, mu = 0.3")
+    rows = [line.split() for line in proc.stdout.splitlines() if line.strip()[:1].isdigit()]
+    assert [r[:2] for r in rows] == [["121", "1089"]] and float(rows[0][8]) <= 1e-10
+    refused = subprocess.run([sys.executable, script, "--friction", "0.3", "--quick", "--method", "newmark"],
+                             capture_output=True, text=True, cwd=ROOT)
+    assert refused.returncode != 0 and "--friction takes moreau_jean" in refused.stderr
+    assert "Traceback" not in refused.stderr
+
+
 @pytest.mark.slow   # (16 runs; tests/test_mpi.py checks every method's serial and 2-rank histories in the default tier)
 def test_scaling_runs_at_a_small_size_with_equal_histories():
     """benchmarks/scaling.py at 20 cells (252 unknowns), 12 steps, every method: serial and 2 ranks run and
