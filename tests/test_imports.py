@@ -135,6 +135,7 @@ def _import_alone(module: str) -> tuple[str, subprocess.CompletedProcess]:
     return module, subprocess.run([sys.executable, *code], capture_output=True, text=True, env=env, timeout=300)
 
 
+@pytest.mark.slow   # (38 s of both cores, the default tier's longest test: test_no_import_cycle finds cycles there)
 def test_every_module_imports_on_its_own():
     """Each module in a fresh interpreter (a cycle or a missing import shows only there), as many at a
     time as there are cores (2 to 4): about 10 s for 43 modules on 2 cores."""
