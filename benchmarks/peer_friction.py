@@ -265,13 +265,13 @@ def export(run, dim: int, steps: list[int], out: Path) -> None:
         self._peer_args = (np.array(W, dtype=float), np.asarray(tangent_of), np.asarray(mu, dtype=float))
         init(self, W, tangent_of, mu, *args, **kwargs)   # (a copy of W first: it may take W over, overwrite=True)
 
-    def recording_solve(self, q, active, guess=None):
-        sol = solve(self, q, active, guess)
+    def recording_solve(self, q, active, guess=None, **given):   # (given: what the run hands the solve besides)
+        sol = solve(self, q, active, guess, **given)
         if step[0] not in steps or step[0] in data.get("step", []):
             return sol
         # The run's solve again, from its warm start, timed by best_of's rule as every other solve here (a
         # single call of microseconds measures the caches it finds, not the solver).
-        wall = best_of(lambda: solve(self, q, active, guess))[1]
+        wall = best_of(lambda: solve(self, q, active, guess, **given))[1]
         j = len(data.get("step", []))
         W, tangent_of, mus = self._peer_args
         p, rows = mus.size, np.flatnonzero(active)

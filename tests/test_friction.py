@@ -184,6 +184,38 @@ def test_the_sweeps_row_solve_into_reused_buffers_is_the_row_solvers():
     assert kinds == {"open", "stick", "slip"}
 
 
+@pytest.mark.parametrize("single", [False, True], ids=["float64 W", "float32 parts"])
+def test_a_start_whose_product_the_caller_gives_is_solved_to_the_same_bits(monkeypatch, single):
+    """Carnot's frictional problem hands the solve W guess, which its q needed anyway (guess_product): the
+    start's y is then taken from it, not from a second product, and the solution is the same to the bit. A
+    guess with impulses off the active rows is not the start: its product is left unused."""
+    if single:
+        monkeypatch.setattr(FrictionProblem, "SINGLE_FROM", 0)
+    rng = np.random.default_rng(11)
+    rows = 40   # 3D: 120 unknowns, past the small path
+    A = rng.normal(size=(3 * rows, 3 * rows)) / np.sqrt(3 * rows)
+    W = A @ A.T + np.eye(3 * rows)
+    tangent_of, mu = np.repeat(np.arange(rows), 2), np.full(rows, 0.3)
+    q = np.concatenate([-rng.uniform(0.5, 1.0, rows), rng.normal(size=2 * rows)])
+    active = rng.random(rows) < 0.8
+    held = np.concatenate([active, active[tangent_of]])
+    products = []
+    counted = FrictionProblem.product
+    monkeypatch.setattr(FrictionProblem, "product", lambda self, x: products.append(1) or counted(self, x))
+    starts = (np.where(held, rng.uniform(0.0, 0.2, 3 * rows), 0.0), rng.uniform(0.0, 0.2, 3 * rows))
+    for guess, saved in zip(starts, (1, 0), strict=True):
+        products.clear()
+        plain = FrictionProblem(W, tangent_of, mu).solve(q, active, guess)
+        count = len(products)
+        problem = FrictionProblem(W, tangent_of, mu)
+        product = problem.multiply(guess)
+        products.clear()
+        given = problem.solve(q, active, guess, guess_product=product)
+        assert len(products) == count - saved
+        assert plain.converged and given.converged and given.sweeps == plain.sweeps
+        assert np.array_equal(given.r, plain.r) and np.array_equal(given.y, plain.y)
+
+
 def test_the_float32_sweeps_end_on_the_same_certified_solution(monkeypatch):
     """Many rows: the sweeps run on a float32 copy of W, y = W r + q is made exact between rounds and
     the residual is judged on it. The solution is the float64 sweeps' to the tolerance."""

@@ -293,8 +293,10 @@ class FrictionSteps:
         bounce[:p] = ops.restitution * np.maximum(rel0, 0.0)
         hv = np.concatenate([rel, ops.relative_tangent(pt, t1)])   # H V* relative to the obstacles
         problem = self.friction_impact
-        q = -(hv + problem.multiply(r)) - bounce
-        sol = self._solve_cone(problem, q, rows, r, step, t1, "frictional impact problem of Carnot's correction")
+        Dr = problem.multiply(r)
+        q = -(hv + Dr) - bounce
+        sol = self._solve_cone(problem, q, rows, r, step, t1, "frictional impact problem of Carnot's correction",
+                               guess_product=Dr)
         sol = problem.close_normal(sol, q, rows)   # (Newton's law on the held rows to round-off)
         c = np.where(held, sol.r - r, 0.0)
         dv = hv + sol.y + bounce   # H V* - H V+ = D c
@@ -320,10 +322,11 @@ class FrictionSteps:
         return after[:p], after[p:], c, impact, friction
 
     def _solve_cone(self, problem: FrictionProblem, q: np.ndarray, active: np.ndarray, guess, step: int, t1: float,
-                    what: str = "frictional contact problem"):
+                    what: str = "frictional contact problem", guess_product: np.ndarray | None = None):
         """One cone problem solved to the tolerance, its figures kept for the summary; a solve that
-        misses the tolerance stops the run (ContactSolverError, status 3)."""
-        sol = problem.solve(q, active, guess=guess)
+        misses the tolerance stops the run (ContactSolverError, status 3). ``guess_product``: W guess, where
+        the caller computed it (FrictionProblem.solve)."""
+        sol = problem.solve(q, active, guess=guess, guess_product=guess_product)
         self.friction_residual = max(self.friction_residual, sol.residual)
         self.friction_sweeps = max(self.friction_sweeps, sol.sweeps)
         self.friction_retries += sol.newton

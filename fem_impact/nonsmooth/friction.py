@@ -236,9 +236,12 @@ class FrictionProblem:
             block += self.lower[np.ix_(idx, idx)]
         return block
 
-    def solve(self, q: np.ndarray, active: np.ndarray, guess: np.ndarray | None = None) -> FrictionSolution:
+    def solve(self, q: np.ndarray, active: np.ndarray, guess: np.ndarray | None = None,
+              guess_product: np.ndarray | None = None) -> FrictionSolution:
         """Solve on the ``active`` normal rows (and their tangent rows); the others carry nothing.
-        ``y = W r + q`` on every row (a row that is not active may show where it would go)."""
+        ``y = W r + q`` on every row (a row that is not active may show where it would go).
+        ``guess_product``: ``W guess`` (``multiply(guess)``) where the caller has it, used where the start is the
+        guess itself (nothing of it off the active rows): the start's y then costs no product."""
         newton_done = False
         if self._small_numbers is not None:
             # A small problem solved whole in one compiled call (small_kernel.py: in 2D the active-set method,
@@ -269,12 +272,15 @@ class FrictionProblem:
         layout = self._layout[1]
         idx = layout[1]   # the active rows' unknowns, row after row
         r = np.zeros(n)
-        if guess is not None:
-            r[idx] = np.asarray(guess, dtype=float)[self.order][idx]
+        start = None if guess is None else np.asarray(guess, dtype=float)[self.order]
+        if start is not None:
+            r[idx] = start[idx]
         if not np.count_nonzero(r):
             y = q.copy()
         elif self._last is not None and np.array_equal(r, self._last[0]):
             y = self._last[1] + q   # (the last solution again: its W r is known)
+        elif guess_product is not None and np.array_equal(r, start):
+            y = np.asarray(guess_product, dtype=float)[self.order] + q   # (multiply's own product: the same bits)
         else:
             y = self.product(r) + q
         split = self.lower.size > 0
