@@ -216,6 +216,25 @@ def test_a_start_whose_product_the_caller_gives_is_solved_to_the_same_bits(monke
         assert np.array_equal(given.r, plain.r) and np.array_equal(given.y, plain.y)
 
 
+def test_a_start_that_newton_replaced_does_not_take_the_callers_product(monkeypatch):
+    """A small problem's compiled Newton may hand the sweeps its own best start (short of the tolerance): the
+    caller's product of its guess is then not that start's, and must be left unused (here a wrong one: the same
+    bits as without it)."""
+    monkeypatch.setattr(FrictionProblem, "TOLERANCE", 0.0)   # (Newton's best is short of it: the sweeps go on)
+    monkeypatch.setattr(FrictionProblem, "MAX_SWEEPS", 3)
+    rng = np.random.default_rng(12)
+    rows = 4   # 2D: 8 unknowns, the small path
+    A = rng.normal(size=(2 * rows, 2 * rows))
+    W = A @ A.T + 2 * rows * np.eye(2 * rows)
+    tangent_of, mu, active = np.arange(rows), np.full(rows, 0.3), np.ones(rows, bool)
+    q = np.concatenate([-rng.uniform(0.5, 1.0, rows), rng.normal(size=rows)])
+    guess = rng.uniform(0.0, 0.2, 2 * rows)
+    plain = FrictionProblem(W, tangent_of, mu).solve(q, active, guess)
+    given = FrictionProblem(W, tangent_of, mu).solve(q, active, guess, guess_product=np.zeros(2 * rows))
+    assert plain.sweeps == given.sweeps == 3 and not given.converged
+    assert np.array_equal(given.r, plain.r) and np.array_equal(given.y, plain.y)
+
+
 def test_the_float32_sweeps_end_on_the_same_certified_solution(monkeypatch):
     """Many rows: the sweeps run on a float32 copy of W, y = W r + q is made exact between rounds and
     the residual is judged on it. The solution is the float64 sweeps' to the tolerance."""

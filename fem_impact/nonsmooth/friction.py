@@ -260,7 +260,7 @@ class FrictionProblem:
             if outcome == 0.0:   # (small_kernel.DONE)
                 return FrictionSolution(out[:n], out[n:2 * n], float(out[2 * n]), 0, True, int(out[2 * n + 1]))
             if outcome == 2.0:   # (SHORT)
-                guess, newton_done = out[:n], True
+                guess, newton_done, guess_product = out[:n], True, None   # (a new start: its product unknown)
         cone = _kernels()
         n = q.size
         rows = np.flatnonzero(active).astype(np.int64)
