@@ -138,7 +138,7 @@ def _import_alone(module: str) -> tuple[str, subprocess.CompletedProcess]:
 @pytest.mark.slow   # (38 s of both cores, the default tier's longest test: test_no_import_cycle finds cycles there)
 def test_every_module_imports_on_its_own():
     """Each module in a fresh interpreter (a cycle or a missing import shows only there), as many at a
-    time as there are cores (2 to 4): about 10 s for 43 modules on 2 cores."""
+    time as there are cores (2 to 4)."""
     t0 = time.perf_counter()
     with ThreadPoolExecutor(max_workers=max(2, min(4, os.cpu_count() or 2))) as pool:
         results = list(pool.map(_import_alone, sorted(package_modules())))
